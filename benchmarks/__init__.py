@@ -1,0 +1,1 @@
+"""Benchmarks of ops-jax: throughput, learning, and the paper's sweep."""

@@ -1,0 +1,117 @@
+"""Steady-state environment throughput: env-steps/s of a jitted 200-step ``lax.scan`` of
+``OPSEnv.step_batch`` (hard mode, uniform random actions, auto-reset included), per physics model,
+stage count and batch size, against the reference's recorded single-instance step time.
+
+    python -m benchmarks.throughput [--stages 3 5 7] [--batch 1 64 1024 8192] [--repeats 5]
+                                    [--out results/throughput.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+from tqdm import tqdm
+
+import ops_jax
+from benchmarks.common import load_reference_timing, write_json_atomic
+
+SCAN_STEPS = 200
+
+
+def build(stages: int, model: str, batch: int):
+    """A jitted function running SCAN_STEPS batched steps from a given state."""
+    env, params = ops_jax.make(stages, "hard", model=model)
+
+    @jax.jit
+    def run(key, obs, state):
+        def body(carry, t):
+            obs, state = carry
+            k = jax.random.fold_in(key, t)
+            k_act, k_env = jax.random.split(k)
+            action = jax.random.uniform(k_act, (batch, stages), minval=-1.0, maxval=1.0)
+            keys = jax.random.split(k_env, batch)
+            obs, state, reward, *_ = env.step_batch(keys, state, action, params)
+            return (obs, state), reward.mean()
+
+        (obs, state), r = jax.lax.scan(body, (obs, state), jnp.arange(SCAN_STEPS))
+        return obs, state, r
+
+    obs, state = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(0), batch), params)
+    return run, obs, state
+
+
+def measure(stages: int, model: str, batch: int, repeats: int) -> dict:
+    run, obs, state = build(stages, model, batch)
+    key = jax.random.key(1)
+    t0 = time.perf_counter()
+    lowered = run.lower(key, obs, state)
+    compiled = lowered.compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(key, obs, state))  # warm-up
+    times = []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(jax.random.key(2 + i), obs, state))
+        times.append(time.perf_counter() - t0)
+    median = statistics.median(times)
+    return dict(
+        model=model,
+        stages=stages,
+        batch=batch,
+        compile_s=compile_s,
+        median_scan_s=median,
+        steps_per_s=batch * SCAN_STEPS / median,
+        us_per_step_per_instance=1e6 * median / (batch * SCAN_STEPS),
+    )
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
+    ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
+    ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
+    args = ap.parse_args(argv)
+
+    ref = load_reference_timing()
+    rows = []
+    combos = [(m, n, b) for m in args.models for n in args.stages for b in args.batch]
+    for model, n, b in tqdm(combos, desc="throughput", unit="cfg"):
+        row = measure(n, model, b, args.repeats)
+        ref_step = ref.get(str(n), {}).get("step_median_s")
+        row["reference_steps_per_s"] = 1 / ref_step if ref_step else None
+        row["speedup_vs_reference"] = row["steps_per_s"] * ref_step if ref_step else None
+        rows.append(row)
+
+    header = f"{'model':7} {'N':>2} {'batch':>6} {'env-steps/s':>13} {'us/step':>9} {'compile s':>9} {'x reference':>12}"
+    print(header)
+    print("-" * len(header))
+    for r in rows:
+        sp = f"{r['speedup_vs_reference']:.0f}" if r["speedup_vs_reference"] else "-"
+        print(f"{r['model']:7} {r['stages']:>2} {r['batch']:>6} {r['steps_per_s']:>13,.0f} "
+              f"{r['us_per_step_per_instance']:>9.3f} {r['compile_s']:>9.2f} {sp:>12}")
+    meta = dict(
+        jax=jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
+        cpu_count=os.cpu_count(),
+        platform=platform.platform(),
+        scan_steps=SCAN_STEPS,
+        repeats=args.repeats,
+    )
+    write_json_atomic(args.out, dict(meta=meta, rows=rows))
+    print(f"wrote {args.out}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,34 @@
+"""ops-jax: a JAX-vectorised simulator of optical pulse stacking (OPS) for control and RL.
+
+``import ops_jax`` pulls in jax and numpy only; the Brax adapter, the agents and rendering
+import their own dependencies when used.
+"""
+
+from ops_jax import noise, physics
+from ops_jax.env import (
+    MODES,
+    REWARDS,
+    EnvConfig,
+    EnvParams,
+    EnvState,
+    OPSEnv,
+    Rollout,
+    make,
+    rollout,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "MODES",
+    "REWARDS",
+    "EnvConfig",
+    "EnvParams",
+    "EnvState",
+    "OPSEnv",
+    "Rollout",
+    "make",
+    "noise",
+    "physics",
+    "rollout",
+]

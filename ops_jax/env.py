@@ -1,0 +1,369 @@
+"""The OPS control environment, gymnax-style: static ``EnvConfig``, dynamic ``EnvParams`` pytree,
+``EnvState`` pytree, ``reset(key, params)`` / ``step(key, state, action, params)`` with auto-reset.
+
+Lengths are offsets from the optimal delay-line lengths in wavelengths (wl).
+
+Observation (dimension 2^N + N, times ``frame_stack``; + N with ``include_noise``), each entry
+mapped affinely to about [-1, 1]:
+- ``2 P / P_max - 1`` (the stacked energy),
+- ``2 I_m / I_peak - 1`` for the 2^N - 1 oscilloscope samples (I_peak: peak of the ideal pulse),
+- ``x_i / window`` for the N offsets (window = 3 wl, the termination bound),
+- with ``include_noise``: ``mu_t / 5e-4 wl``, the current free-running mean per stage (the
+  paper's POMDP noise state e),
+then Gaussian observation noise of std ``obs_noise`` on every entry (the reference adds 1e-4).
+Frames are stacked oldest first; at reset every frame is the first observation.
+
+Non-finite actions (inside jit): every non-finite entry is replaced by 0 before clipping to
+[-1, 1], so NaN never reaches the state; ``info["action_nonfinite"]`` flags the step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ops_jax import noise, physics
+
+MODES = ("easy", "medium", "hard", "custom")
+REWARDS = ("paper", "reference")
+
+# Reference values of the difficulty modes (physics.md section 5).
+MODE_PARAMS = {
+    "easy": dict(init_spread=0.08, step_sigma=5e-4, drift_cap=0.0),
+    "medium": dict(init_spread=0.13, step_sigma=5e-4, drift_cap=0.0),
+    "hard": dict(init_spread=0.15, step_sigma=5e-4, drift_cap=1.0),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Static configuration: changing it recompiles.
+
+    stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
+    reward: "paper" (Eq. 3) | "reference" (the code's). max_steps: truncation length.
+    feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
+    stacked. include_noise: append the noise state to the observation.
+    """
+
+    stages: int = 5
+    model: str = "field"
+    detector: str = "total"
+    reward: str = "paper"
+    max_steps: int = 200
+    feedback_k: int = 1
+    frame_stack: int = 1
+    include_noise: bool = False
+
+
+@partial(jax.tree_util.register_dataclass)
+@dataclasses.dataclass(frozen=True)
+class EnvParams:
+    """Dynamic parameters (a pytree: one batch may hold different values per instance). wl units.
+
+    init_spread: s0 of the reset offsets. step_sigma: std of each free-running draw.
+    drift_cap, drift_ramp: the reference's per-episode drift (r ~ U(-s, s), s = min(cap, ramp *
+    resets); init_loc = r s0, mu = r sigma); cap 0 disables it. drift_amplitude (wl per step),
+    drift_segment (steps): within-episode piecewise-linear mean mu_t with knots every segment
+    drawn in +-amplitude; amplitude 0 disables it. action_scale: wl per unit action.
+    obs_noise: std of the observation noise. window: termination bound |x_i| > window.
+    """
+
+    init_spread: Any = 0.13
+    step_sigma: Any = 5e-4
+    drift_cap: Any = 0.0
+    drift_ramp: Any = 0.1
+    drift_amplitude: Any = 0.0
+    drift_segment: Any = 50
+    action_scale: Any = 0.01
+    obs_noise: Any = 1e-4
+    window: Any = 3.0
+
+
+@partial(jax.tree_util.register_dataclass)
+@dataclasses.dataclass(frozen=True)
+class EnvState:
+    """deltas: offsets (N,) wl. mu_episode: per-episode free-running mean (N,) wl. knots: the
+    current drift segment's start and end knots (2, N). t: step in episode. episode: resets so
+    far. p_init: P at the first reset (reference reward). frames: stacked observations."""
+
+    deltas: jax.Array
+    mu_episode: jax.Array
+    knots: jax.Array
+    t: jax.Array
+    episode: jax.Array
+    p_init: jax.Array
+    frames: jax.Array
+
+
+_PARAM_RANGES = {
+    "init_spread": (0.0, math.inf),
+    "step_sigma": (0.0, math.inf),
+    "drift_cap": (0.0, math.inf),
+    "drift_ramp": (0.0, math.inf),
+    "drift_amplitude": (0.0, math.inf),
+    "drift_segment": (1, math.inf),
+    "action_scale": (0.0, math.inf),
+    "obs_noise": (0.0, math.inf),
+    "window": (1e-9, math.inf),
+}
+
+
+def _validate_params(params: EnvParams) -> None:
+    for name, (lo, hi) in _PARAM_RANGES.items():
+        value = np.asarray(getattr(params, name))
+        if not np.all(np.isfinite(value)) or np.any(value < lo) or np.any(value > hi):
+            raise ValueError(f"{name} must be finite and >= {lo}, got {value}")
+
+
+def _validate_config(cfg: EnvConfig) -> None:
+    physics.check_stages(cfg.stages)
+    physics._check_choice("model", cfg.model, physics.MODELS)
+    physics._check_choice("detector", cfg.detector, physics.DETECTORS)
+    physics._check_choice("reward", cfg.reward, REWARDS)
+    for name in ("max_steps", "feedback_k", "frame_stack"):
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+class OPSEnv:
+    """N-stage optical pulse stacking. One instance per call; ``jax.vmap`` or ``step_batch`` for many."""
+
+    def __init__(self, config: EnvConfig):
+        _validate_config(config)
+        self.config = config
+        n = config.stages
+        self.p_max = physics.p_max(n, config.detector)
+        self.p_orig = physics.p_orig(n)
+        self.peak = physics.peak_intensity(n)
+
+    # -- sizes ---------------------------------------------------------------------------
+    @property
+    def num_actions(self) -> int:
+        return self.config.stages
+
+    @property
+    def frame_size(self) -> int:
+        n = self.config.stages
+        return 2**n + n + (n if self.config.include_noise else 0)
+
+    @property
+    def observation_size(self) -> int:
+        return self.frame_size * self.config.frame_stack
+
+    def default_params(self) -> EnvParams:
+        return EnvParams()
+
+    # -- internals -----------------------------------------------------------------------
+    def _measure(self, deltas):
+        c = self.config
+        return physics.measure(deltas, stages=c.stages, model=c.model, detector=c.detector)
+
+    def _mu(self, state, params):
+        drift = noise.piecewise_linear(state.knots[0], state.knots[1], state.t, params.drift_segment)
+        return state.mu_episode + drift
+
+    def _frame(self, key, m, deltas, mu, params):
+        parts = [
+            (2 * m.power / self.p_max - 1)[None],
+            2 * m.samples / self.peak - 1,
+            deltas / params.window,
+        ]
+        if self.config.include_noise:
+            parts.append(mu / noise.REFERENCE_SIGMA_WL)
+        frame = jnp.concatenate(parts).astype(jnp.float32)
+        return frame + params.obs_noise * jax.random.normal(key, frame.shape)
+
+    def _reward(self, power, p_init):
+        if self.config.reward == "paper":
+            return -((power - self.p_max) ** 2) / (self.p_orig - self.p_max) ** 2
+        return 1 - (power - self.p_max) ** 2 / (self.p_max * p_init) / self.config.stages
+
+    def _reset_state(self, key, params, episode, p_init):
+        """New episode state (offsets, drift) without measuring; p_init < 0 means 'take P now'."""
+        n = self.config.stages
+        k_drift, k_init, k_knot0, k_knot1 = jax.random.split(key, 4)
+        r = noise.episode_drift(k_drift, episode, params.drift_cap, params.drift_ramp)
+        deltas = noise.initial_offsets(k_init, r * params.init_spread, params.init_spread, n)
+        knots = jnp.stack(
+            [
+                noise.drift_knot(k_knot0, params.drift_amplitude, n),
+                noise.drift_knot(k_knot1, params.drift_amplitude, n),
+            ]
+        )
+        mu_episode = jnp.full((n,), r * params.step_sigma)
+        frames = jnp.zeros((self.config.frame_stack, self.frame_size), jnp.float32)
+        return EnvState(deltas, mu_episode, knots, jnp.int32(0), jnp.asarray(episode, jnp.int32),
+                        jnp.asarray(p_init, jnp.float32), frames)
+
+    def _observe_reset(self, key, state, params):
+        m = self._measure(state.deltas)
+        frame = self._frame(key, m, state.deltas, self._mu(state, params), params)
+        frames = jnp.broadcast_to(frame, state.frames.shape)
+        p_init = jnp.where(state.p_init < 0, m.power, state.p_init).astype(jnp.float32)
+        return frames.reshape(-1), dataclasses.replace(state, frames=frames, p_init=p_init)
+
+    def reset(self, key, params: EnvParams):
+        """Start the first episode: returns (obs, state)."""
+        k_state, k_obs = jax.random.split(key)
+        state = self._reset_state(k_state, params, 0, -1.0)
+        return self._observe_reset(k_obs, state, params)
+
+    def _check_action(self, action):
+        n = self.config.stages
+        if jnp.shape(action)[-1:] != (n,):
+            raise ValueError(f"action must have shape ({n},) for stages={n}, got {jnp.shape(action)}")
+
+    def step_env(self, key, state: EnvState, action, params: EnvParams):
+        """One control period without auto-reset: free run, action, measurement."""
+        c = self.config
+        k_noise, k_obs, k_knot = jax.random.split(key, 3)
+        action = jnp.asarray(action, jnp.float32)
+        finite = jnp.isfinite(action)
+        action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
+        mu = self._mu(state, params)
+        deltas = state.deltas + noise.free_run(k_noise, mu, params.step_sigma, c.feedback_k)
+        deltas = deltas + action * params.action_scale
+        t = state.t + 1
+        # Advance the piecewise-linear drift to the next segment when one ends.
+        new_knot = noise.drift_knot(k_knot, params.drift_amplitude, c.stages)
+        seg_end = (t % params.drift_segment) == 0
+        knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
+        m = self._measure(deltas)
+        frame = self._frame(k_obs, m, deltas, mu, params)
+        frames = jnp.concatenate([state.frames[1:], frame[None]])
+        state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames)
+        terminated = jnp.any(jnp.abs(deltas) > params.window)
+        truncated = (t >= c.max_steps) & ~terminated
+        info = {
+            "power": m.power,
+            "normalized_power": m.power / self.p_max,
+            "deltas_wl": deltas,
+            "action_nonfinite": ~jnp.all(finite),
+        }
+        reward = self._reward(m.power, state.p_init).astype(jnp.float32)
+        return frames.reshape(-1), state, reward, terminated, truncated, info
+
+    def _auto_reset_one(self, key, state, params):
+        """The next episode's (obs, state) after ``state`` (episode count and p_init carried)."""
+        new = self._reset_state(key, params, state.episode + 1, state.p_init)
+        return self._observe_reset(jax.random.fold_in(key, 1), new, params)
+
+    @staticmethod
+    def _params_axes(params):
+        return jax.tree.map(lambda x: 0 if jnp.ndim(x) > 0 else None, params)
+
+    def step(self, key, state: EnvState, action, params: EnvParams):
+        """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
+        info); when the episode ends, obs and state are the next episode's first and
+        ``info["final_observation"]`` is the last observation of the finished one."""
+        self._check_action(action)
+        k_step, k_reset = jax.random.split(key)
+        obs, state, reward, terminated, truncated, info = self.step_env(k_step, state, action, params)
+        done = terminated | truncated
+        info["final_observation"] = obs
+        new_obs, new_state = jax.lax.cond(
+            done,
+            lambda: self._auto_reset_one(k_reset, state, params),
+            lambda: (obs, state),
+        )
+        return new_obs, new_state, reward, terminated, truncated, info
+
+    def reset_batch(self, keys, params: EnvParams):
+        """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""
+        return jax.vmap(self.reset, in_axes=(0, self._params_axes(params)))(keys, params)
+
+    def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
+        """Step a batch (B instances, one key each). Same result per instance as ``step``; the
+        reset branch is computed only on steps where some instance finishes."""
+        self._check_action(actions)
+        axes = self._params_axes(params)
+        split = jax.vmap(jax.random.split)(keys)
+        k_step, k_reset = split[:, 0], split[:, 1]
+        obs, states, reward, terminated, truncated, info = jax.vmap(
+            self.step_env, in_axes=(0, 0, 0, axes))(k_step, states, actions, params)
+        done = terminated | truncated
+        info["final_observation"] = obs
+
+        def reset_some():
+            new_obs, new_states = jax.vmap(self._auto_reset_one, in_axes=(0, 0, axes))(
+                k_reset, states, params)
+            sel = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)
+            return sel(new_obs, obs), jax.tree.map(sel, new_states, states)
+
+        obs, states = jax.lax.cond(jnp.any(done), reset_some, lambda: (obs, states))
+        return obs, states, reward, terminated, truncated, info
+
+
+def make(stages: int = 5, mode: str = "hard", **overrides):
+    """Build ``(env, params)``. ``mode`` in easy / medium / hard (reference values) or custom
+    (medium values unless overridden). ``overrides`` may set any ``EnvConfig`` or ``EnvParams``
+    field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``."""
+    physics._check_choice("mode", mode, MODES)
+    cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
+    par_fields = {f.name for f in dataclasses.fields(EnvParams)}
+    unknown = set(overrides) - cfg_fields - par_fields
+    if unknown:
+        raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {sorted(cfg_fields | par_fields)}")
+    config = EnvConfig(stages=stages, **{k: v for k, v in overrides.items() if k in cfg_fields})
+    base = dict(MODE_PARAMS.get(mode, {}))
+    base.update({k: v for k, v in overrides.items() if k in par_fields})
+    params = EnvParams(**base)
+    _validate_params(params)
+    return OPSEnv(config), params
+
+
+class Rollout(NamedTuple):
+    """Trajectories (num_steps, num_envs, ...) and per-episode summaries of completed episodes."""
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    normalized_power: jax.Array
+    metrics: dict
+
+
+def rollout(env: OPSEnv, params: EnvParams, policy_fn: Callable, key, num_envs: int, num_steps: int):
+    """Run ``policy_fn(key, obs (num_envs, D)) -> actions (num_envs, N)`` for ``num_steps`` in one
+    jitted ``lax.scan``. Instance i uses keys folded from ``key`` by i, so its trajectory does not
+    depend on ``num_envs``. Returns a ``Rollout``; ``metrics`` holds the mean return, final P/Pmax
+    and count of the episodes that ended within the rollout."""
+    return _rollout(env, policy_fn, num_envs, num_steps, params, key)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _rollout(env, policy_fn, num_envs, num_steps, params, key):
+    ids = jnp.arange(num_envs)
+    k_reset, k_run = jax.random.split(key)
+    obs, state = env.reset_batch(jax.vmap(jax.random.fold_in, (None, 0))(k_reset, ids), params)
+
+    def body(carry, t):
+        obs, state, ret = carry
+        k_t = jax.random.fold_in(k_run, t)
+        k_pol, k_env = jax.random.split(k_t)
+        action = policy_fn(k_pol, obs)
+        keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
+        obs2, state2, reward, term, trunc, info = env.step_batch(keys, state, action, params)
+        ret = ret + reward
+        done = term | trunc
+        out = (obs, action, reward, term, trunc, info["normalized_power"], ret, done)
+        return (obs2, state2, jnp.where(done, 0.0, ret)), out
+
+    _, (o, a, r, te, tr, npow, ret, done) = jax.lax.scan(
+        body, (obs, state, jnp.zeros(num_envs)), jnp.arange(num_steps))
+    count = done.sum()
+    safe = jnp.maximum(count, 1)
+    metrics = {
+        "num_episodes": count,
+        "episode_return": jnp.where(done, ret, 0.0).sum() / safe,
+        "final_normalized_power": jnp.where(done, npow, 0.0).sum() / safe,
+    }
+    return Rollout(o, a, r, te, tr, npow, metrics)
