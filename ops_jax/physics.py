@@ -109,64 +109,105 @@ def _base_pulse(stages: int) -> np.ndarray:
     return np.sqrt(PULSE_ENERGY_J / energy) * shape + 0j
 
 
-def _delay_np(A, w, tau):
-    return A * np.exp(-1j * w * tau)
-
-
 @functools.lru_cache(maxsize=None)
 def _field_constants(stages: int):
-    """Delay-independent float64 arrays of the field model, frequency axis in fftshift order."""
+    """Delay-independent float64 arrays of the field model, frequency axis in fftshift order and
+    reshaped (2^N blocks q, 40 offsets r): frequency index k = 40 q + r."""
     g = grid(stages)
     A0 = _to_spectrum(_base_pulse(stages))
     Ep = np.zeros(g.n, complex)
     Es = np.zeros(g.n, complex)
     for k, lab in enumerate(labels(stages)):
-        Ak = (-1.0 if lab.startswith("-") else 1.0) * _delay_np(A0, g.w, k * PERIOD_PS / 2)
+        Ak = (-1.0 if lab.startswith("-") else 1.0) * A0 * np.exp(-1j * g.w * k * PERIOD_PS / 2)
         if lab.endswith("p"):
             Ep += Ak
         else:
             Es += Ak
-    delta_opt = -2 * optimal_lengths_mm(stages) / C_MM_PER_PS  # ps
-    D_opt = np.exp(-1j * g.w[None, :] * delta_opt[:, None])  # (N, n)
-    # fftshift order: position j holds frequency index (j + n/2) mod n.
+    # fftshift order: position j holds frequency index (j + n/2) mod n, i.e. block q is rolled.
     order = (np.arange(g.n) + g.n // 2) % g.n
     blocks = 2**stages
-    # Frequency index k = 40 * q + r; in fftshift order the block index q is rolled by 2^(N-1).
-    q = (np.arange(blocks) + blocks // 2) % blocks
+    Q = ((np.arange(blocks) + blocks // 2) % blocks) * POINTS_PER_PERIOD - g.n / 2  # k - n/2 - r
+    r = np.arange(POINTS_PER_PERIOD, dtype=float)
+    dw = 2 * np.pi / (g.n * g.dt)
+    # -w_k delta_i* = (-w0 delta* - dw delta* Q) + (-dw delta* r), reduced mod 2 pi in float64.
+    delta_opt = (-2 * optimal_lengths_mm(stages) / C_MM_PER_PS)[:, None]
+    shape = (blocks, POINTS_PER_PERIOD)
     return dict(
-        Ep=Ep[order],
-        Es=Es[order],
-        D_opt=D_opt[:, order],
-        q=q * POINTS_PER_PERIOD - g.n / 2,  # offset part of (k - n/2) carried by the block
-        r=np.arange(POINTS_PER_PERIOD, dtype=float),
-        dw=2 * np.pi / (g.n * g.dt),
+        Ep=Ep[order].reshape(shape),
+        Es=Es[order].reshape(shape),
+        phase_q=np.mod(-W0 * delta_opt - dw * delta_opt * Q, 2 * np.pi),  # (N, 2^N)
+        phase_r=np.mod(-dw * delta_opt * r, 2 * np.pi),  # (N, 40)
+        Q=Q,
+        r=r,
+        theta=2 * dw * WAVELENGTH_MM / C_MM_PER_PS,  # rad per frequency index per wl of offset
         dt=g.dt,
     )
 
 
-def _offset_phase_field(x, c, xp):
-    """exp(i (4 pi x + 2 dw (k - n/2) x wl/c)) in fftshift order for offsets x (..., N) in wl."""
-    theta = 2 * c["dw"] * WAVELENGTH_MM / C_MM_PER_PS * x[..., None]  # rad per index
-    phase_r = 4 * np.pi * x[..., None] + theta * xp.asarray(c["r"], x.dtype)
-    phase_q = theta * xp.asarray(c["q"], x.dtype)
-    outer = xp.exp(1j * phase_q)[..., :, None] * xp.exp(1j * phase_r)[..., None, :]
-    return outer.reshape(*x.shape, -1)
+_R2 = 1 / np.sqrt(2)
 
 
-def _stack(p, s, delays):
-    """Apply the N stacking stages to the summed (p, s) Jones pair; delays (..., N, m)."""
-    for i in range(delays.shape[-2]):
-        S = delays[..., i, :] * s
-        p, s = (p + S) / np.sqrt(2), (S - p) / np.sqrt(2)
-    return p, s
+def _cmul(a, b):
+    """Product of complex numbers held as (re, im) pairs (XLA's CPU complex ops are slow)."""
+    return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+
+def _expi(phase, xp):
+    return xp.cos(phase), xp.sin(phase)
+
+
+def _stage(p, S):
+    """The 45-degree wave plate: p' = (p + S)/sqrt2, s' = (S - p)/sqrt2 on (re, im) pairs."""
+    return ((p[0] + S[0]) * _R2, (p[1] + S[1]) * _R2), ((S[0] - p[0]) * _R2, (S[1] - p[1]) * _R2)
+
+
+def _field_spectra(x, stages, xp):
+    """Output (p, s) spectra, (re, im) pairs of shape (..., 2^N, 40), for offsets x (..., N) wl.
+    The stage-i delay factor exp(-i w_k delta_i) is the outer product of a per-block and a
+    per-offset phase vector (the phase is linear in k)."""
+    c = _field_constants(stages)
+    dtype = x.dtype
+    as_x = lambda a: xp.asarray(a, dtype)
+    theta = c["theta"] * x[..., None]  # (..., N, 1)
+    aq = _expi(as_x(c["phase_q"]) + theta * as_x(c["Q"]) + 4 * np.pi * x[..., None], xp)
+    ar = _expi(as_x(c["phase_r"]) + theta * as_x(c["r"]), xp)
+    p = tuple(xp.broadcast_to(as_x(v), (*x.shape[:-1], *c["Ep"].shape)) for v in (c["Ep"].real, c["Ep"].imag))
+    s = tuple(xp.broadcast_to(as_x(v), p[0].shape) for v in (c["Es"].real, c["Es"].imag))
+
+    def stage(carry, d):
+        p, s = carry
+        aq_re, aq_im, ar_re, ar_im = d
+        S = _cmul(_cmul(s, (ar_re[..., None, :], ar_im[..., None, :])), (aq_re[..., :, None], aq_im[..., :, None]))
+        return _stage(p, S), None
+
+    # Stage axis first; scanned so that XLA fuses within a stage only (fused across stages, each
+    # output recomputes every earlier stage once per use: 2^N-fold work).
+    per_stage = tuple(xp.moveaxis(a, -2, 0) for a in (*aq, *ar))
+    return _over_stages(stage, (p, s), per_stage, xp)
+
+
+def _over_stages(fn, carry, xs, xp):
+    """``lax.scan(fn, carry, xs)[0]`` for JAX, a Python loop for NumPy."""
+    if xp is jnp:
+        return jax.lax.scan(fn, carry, xs)[0]
+    for i in range(len(xs[0])):
+        carry = fn(carry, tuple(a[i] for a in xs))[0]
+    return carry
 
 
 def _intensity(p, s, detector, xp):
-    """I(t) in time order from fftshift-ordered output spectra (a(t) = ifftshift(fft(.)))."""
-    # The ideal stacked pulse leaves the last stage s-polarised: the polariser passes s.
-    I = xp.abs(xp.fft.fft(s)) ** 2
+    """I(t) in time order from fftshift-ordered output spectra, (re, im) pairs (..., 2^N, 40):
+    a(t) = ifftshift(fft(.)). The ideal stacked pulse leaves the last stage s-polarised, so the
+    polariser passes s."""
+
+    def abs2_field(a):
+        z = (a[0] + 1j * a[1]) if xp is np else jax.lax.complex(a[0], a[1])
+        f = xp.fft.fft(z.reshape(*z.shape[:-2], -1))
+        return f.real**2 + f.imag**2
+
+    I = abs2_field(s)
     if detector == "total":
-        I = I + xp.abs(xp.fft.fft(p)) ** 2
+        I = I + abs2_field(p)
     return xp.roll(I, I.shape[-1] // 2, axis=-1)
 
 
@@ -176,13 +217,10 @@ def _power(I, dt):
 
 
 def _field_measure(x, stages, detector, xp=jnp):
-    cplx = np.result_type(x.dtype, np.complex64)
-    c = _field_constants(stages)
-    D = xp.asarray(c["D_opt"], cplx) * _offset_phase_field(x, c, xp).astype(cplx)
-    p, s = _stack(xp.asarray(c["Ep"], cplx), xp.asarray(c["Es"], cplx), D)
+    p, s = _field_spectra(x, stages, xp)
     I = _intensity(p, s, detector, xp)
     samples = I[..., POINTS_PER_PERIOD :: POINTS_PER_PERIOD][..., : 2**stages - 1]
-    return Measurement(_power(I, c["dt"]), samples, I)
+    return Measurement(_power(I, _field_constants(stages)["dt"]), samples, I)
 
 
 @functools.lru_cache(maxsize=None)
@@ -211,39 +249,43 @@ def _phasor_constants(stages: int):
 
 
 def _phasor_measure(x, stages, detector):
-    real = x.dtype
-    cplx = jnp.complex128 if real == jnp.float64 else jnp.complex64
     c = _phasor_constants(stages)
-    slots = 2 ** (stages - 1)
-    D = jnp.asarray(c["D_opt"], cplx) * jnp.exp(1j * (4 * np.pi) * x).astype(cplx)  # (..., N)
+    half = 2 ** (stages - 1)
+    dtype = x.dtype
+    d = _expi(jnp.asarray(np.angle(c["D_opt"]), dtype) + 4 * np.pi * x, jnp)  # (..., N)
     batch = x.shape[:-1]
-    p = jnp.broadcast_to(jnp.asarray(c["Ep"], cplx), (*batch, slots))
-    s = jnp.asarray(c["Es"], cplx) * D[..., :1]
-    # Stage 1 (already aligned onto the 20 ps grid): p' = (p + S)/sqrt2, s' = (S - p)/sqrt2 on
-    # 2^(N-1) slots; the output window holds 2^N slots, the upper half empty so far.
-    zeros = jnp.zeros_like(p)
-    p, s = (p + s) / np.sqrt(2), (s - p) / np.sqrt(2)
-    p = jnp.concatenate([p, zeros], axis=-1)
-    s = jnp.concatenate([s, zeros], axis=-1)
-    for i in range(1, stages):
-        # Stage i+1 delays s by 2^(i-1) slots (circularly, as the FFT delay of the field model).
-        S = jnp.roll(s, -(2 ** (i - 1)), axis=-1) * D[..., i : i + 1]
-        p, s = (p + S) / np.sqrt(2), (S - p) / np.sqrt(2)
-    I_slot = jnp.abs(s) ** 2  # unit: one pulse's peak intensity
-    coh = s * jnp.conj(jnp.roll(s, -1, axis=-1))  # interference of slot j with slot j+1
-    if detector == "total":
-        I_slot = I_slot + jnp.abs(p) ** 2
-        coh = coh + p * jnp.conj(jnp.roll(p, -1, axis=-1))
-    # I(t) = sum_j I_j u_j^2 + 2 Re(coh_j) u_j u_j+1 (nearest neighbours; the next are 40 ps away).
-    I_next = jnp.roll(I_slot, -1, axis=-1)
-    re = coh.real
+    p = tuple(jnp.broadcast_to(jnp.asarray(v, dtype), (*batch, half)) for v in (c["Ep"].real, c["Ep"].imag))
+    s = (jnp.asarray(c["Es"].real, dtype), jnp.asarray(c["Es"].imag, dtype))
+    # Stage 1 (already aligned onto the 20 ps grid) on 2^(N-1) slots; the output window holds
+    # 2^N slots, the upper half empty so far.
+    p, s = _stage(p, _cmul(s, (d[0][..., :1], d[1][..., :1])))
+    pad = lambda a: jnp.concatenate([a, jnp.zeros_like(a)], axis=-1)
+    p, s = (pad(p[0]), pad(p[1])), (pad(s[0]), pad(s[1]))
+    slots = 2**stages
+
+    def stage(carry, d):
+        # Stage i+1 delays s by 2^(i-1) slots, circularly as the FFT delay of the field model.
+        p, s = carry
+        shift, d_re, d_im = d
+        rolled = tuple(jax.lax.dynamic_slice_in_dim(jnp.concatenate([a, a], -1), shift, slots, -1) for a in s)
+        return _stage(p, _cmul(rolled, (d_re[..., None], d_im[..., None]))), None
+
+    # Scanned, not unrolled: see _field_spectra.
+    shifts = jnp.asarray(2 ** np.arange(stages - 1), jnp.int32)
+    p, s = _over_stages(stage, (p, s), (shifts, *(jnp.moveaxis(a[..., 1:], -1, 0) for a in d)), jnp)
+    fields = (s, p) if detector == "total" else (s,)
+    nxt = lambda a: jnp.roll(a, -1, axis=-1)
+    I_slot = sum(f[0] ** 2 + f[1] ** 2 for f in fields)  # unit: one pulse's peak intensity
+    coh = sum(f[0] * nxt(f[0]) + f[1] * nxt(f[1]) for f in fields)  # Re of slot j x slot j+1
+    # I(t) = sum_j I_j u_j^2 + 2 coh_j u_j u_j+1 (nearest neighbours; the next are 40 ps away).
+    I_next = nxt(I_slot)
     power = jnp.sum(
-        c["K0"] * I_slot**2 + 2 * c["K2"] * (I_slot * I_next + 2 * re**2) + 4 * c["K3"] * re * (I_slot + I_next),
+        c["K0"] * I_slot**2 + 2 * c["K2"] * (I_slot * I_next + 2 * coh**2) + 4 * c["K3"] * coh * (I_slot + I_next),
         axis=-1,
     )
     # With a(t) = fft(A), a delay tau moves a pulse to t = -tau: slot j sits at t = -20 j ps, so
     # oscilloscope sample m (t = -W/2 + 20 m ps) reads slot (2^(N-1) - m) mod 2^N.
-    idx = (slots - np.arange(1, 2**stages)) % (2**stages)
+    idx = (half - np.arange(1, 2**stages)) % (2**stages)
     samples = c["peak"] * I_slot[..., idx]
     return Measurement(power, samples, None)
 
@@ -281,7 +323,8 @@ def p_max(stages: int, detector: str = "total") -> float:
 def p_orig(stages: int) -> float:
     """P of the unstacked input train (the reference's ``orig_f2_power``), float64."""
     c = _field_constants(check_stages(stages))
-    return float(_power(_intensity(c["Ep"], c["Es"], "total", np), c["dt"]))
+    pair = lambda a: (a.real, a.imag)
+    return float(_power(_intensity(pair(c["Ep"]), pair(c["Es"]), "total", np), c["dt"]))
 
 
 def peak_intensity(stages: int) -> float:
