@@ -316,6 +316,9 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     base.update({k: v for k, v in overrides.items() if k in par_fields})
     params = EnvParams(**base)
     _validate_params(params)
+    # Fixed dtypes (not Python scalars): a jitted step then never retraces on a weak-type change.
+    params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
+                          for k, v in vars(params).items()})
     return OPSEnv(config), params
 
 
