@@ -209,10 +209,11 @@ class OPSEnv:
         p_init = jnp.where(state.p_init < 0, m.power, state.p_init).astype(jnp.float32)
         return frames.reshape(-1), dataclasses.replace(state, frames=frames, p_init=p_init)
 
-    def reset(self, key, params: EnvParams):
-        """Start the first episode: returns (obs, state)."""
+    def reset(self, key, params: EnvParams, episode=0):
+        """Start an episode: returns (obs, state). ``episode`` counts earlier resets (0: the first);
+        it scales the hard-mode drift, so evaluation can start with the drift fully on."""
         k_state, k_obs = jax.random.split(key)
-        state = self._reset_state(k_state, params, 0, -1.0)
+        state = self._reset_state(k_state, params, episode, -1.0)
         return self._observe_reset(k_obs, state, params)
 
     def _check_action(self, action):
@@ -274,6 +275,12 @@ class OPSEnv:
             lambda: (obs, state),
         )
         return new_obs, new_state, reward, terminated, truncated, info
+
+    def probe(self, state: EnvState, offsets, params: EnvParams):
+        """P / P_max measured at the current lengths plus ``offsets`` (N,) wl, without moving them:
+        one extra detector reading (a dither probe, e.g. SPGD's). Agents count each call."""
+        del params
+        return self._measure(state.deltas + offsets).power / self.p_max
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""

@@ -1,0 +1,234 @@
+"""The one interface of all controllers: ``train`` / ``evaluate`` / ``save`` / ``load``.
+
+A controller is a ``Policy``: ``init(key, obs) -> carry`` and
+``act(params, carry, obs, key, probe) -> (actions, carry)`` on a batch (obs (B, D), actions
+(B, N) in [-1, 1]). ``probe(offsets (B, N) wl) -> P / P_max (B,)`` is an extra detector reading at
+the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``evaluate`` counts
+every probe as a measurement. Learned policies ignore carry and probe.
+
+Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
+``train(env_config, *, seed, total_steps, **hyper) -> TrainResult``,
+``make_policy(env_config, hyper) -> Policy`` and ``params_template(env_config, hyper)`` (a pytree
+of the parameters' structure, for ``load``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import importlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import ops_jax
+
+ALGOS = {
+    "spgd": "agents.spgd",
+    "ppo": "agents.ppo",
+    "sac": "agents.sac",
+    "td3": "agents.td3",
+    "physics": "agents.physics_informed",
+}
+CHECKPOINT_VERSION = 1
+
+
+class Policy(NamedTuple):
+    init: Callable  # (key, obs (B, D)) -> carry
+    act: Callable  # (params, carry, obs (B, D), key, probe) -> (actions (B, N), carry)
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What training returns. ``curve``: arrays keyed 'step' (env steps) and at least
+    'normalized_power' (evaluation P/Pmax at that step); ``wall_time``: seconds split into
+    'simulation', 'optimisation' and 'total'."""
+
+    algo: str
+    env_config: dict
+    hyper: dict
+    params: Any
+    curve: dict
+    wall_time: dict
+    seed: int
+
+    def policy(self) -> Policy:
+        return algo_module(self.algo).make_policy(self.env_config, self.hyper)
+
+
+class EvalResult(NamedTuple):
+    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``summary``: final
+    mean/std, steps to reach 0.9 (median over episodes that reach it) and the fraction that do,
+    measurements per control step, inference time per control step (s, batched)."""
+
+    normalized_power: np.ndarray
+    terminated: np.ndarray
+    summary: dict
+
+
+def algo_module(algo: str):
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {algo!r}")
+    return importlib.import_module(ALGOS[algo])
+
+
+def check_env_config(env_config) -> dict:
+    """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises)."""
+    if not isinstance(env_config, dict):
+        raise TypeError(f"env_config must be a dict of ops_jax.make keyword arguments, got {type(env_config).__name__}")
+    ops_jax.make(**env_config)
+    return dict(env_config)
+
+
+def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
+    """Train ``algo`` ("spgd", "ppo", "sac", "td3", "physics") on ``ops_jax.make(**env_config)``."""
+    module = algo_module(algo)
+    env_config = check_env_config(env_config)
+    if total_steps is not None and (not isinstance(total_steps, (int, np.integer)) or total_steps < 0):
+        raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
+    return module.train(env_config, seed=seed, total_steps=total_steps, **hyper)
+
+
+def _as_policy(result_or_policy):
+    if isinstance(result_or_policy, TrainResult):
+        return result_or_policy.policy(), result_or_policy.params
+    if isinstance(result_or_policy, tuple) and len(result_or_policy) == 2 and isinstance(result_or_policy[0], Policy):
+        return result_or_policy
+    if isinstance(result_or_policy, Policy):
+        return result_or_policy, None
+    raise TypeError("evaluate takes a TrainResult, a Policy or a (Policy, params) pair")
+
+
+def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: int = 0,
+             steps: int | None = None, drift_episode: int = 10) -> EvalResult:
+    """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
+    configuration's max_steps) in one jitted scan, without auto-reset. Each episode starts as the
+    ``drift_episode``-th reset of its environment, so hard mode's drift is fully on (r in [-1, 1]);
+    a different ``seed`` gives a different drift realisation (the paper's testing environment)."""
+    policy, params = _as_policy(result_or_policy)
+    env_config = check_env_config(env_config)
+    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    env, env_params = ops_jax.make(**env_config)
+    steps = int(steps or env.config.max_steps)
+    run, probes = _evaluator(env, policy, int(episodes), steps, int(drift_episode))
+    key = jax.random.key(seed)
+    jax.block_until_ready(run(params, env_params, key))  # compile and warm up
+    t0 = time.perf_counter()
+    npow, term = jax.block_until_ready(run(params, env_params, key))
+    elapsed = time.perf_counter() - t0
+    npow, term = np.asarray(npow).T, np.asarray(term).T
+    return EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
+                                            inference_s_per_step=elapsed / steps))
+
+
+def summarize(npow: np.ndarray, **extra) -> dict:
+    """Summary statistics of P/Pmax curves (episodes, steps)."""
+    final = npow[:, -1]
+    reached = npow >= 0.9
+    first = np.where(reached.any(1), reached.argmax(1) + 1, -1)
+    ok = first[first > 0]
+    return dict(
+        final_mean=float(final.mean()),
+        final_std=float(final.std()),
+        mean_last10=float(npow[:, -10:].mean()),
+        steps_to_0p9_median=float(np.median(ok)) if ok.size else float("nan"),
+        fraction_reached_0p9=float(ok.size / len(first)),
+        episodes=int(npow.shape[0]),
+        steps=int(npow.shape[1]),
+        **extra,
+    )
+
+
+def _evaluator(env, policy: Policy, episodes: int, steps: int, drift_episode: int):
+    probes = [0]
+    axes_params = None
+
+    @jax.jit
+    def run(params, env_params, key):
+        ids = jnp.arange(episodes)
+        k_reset, k_init, k_run = jax.random.split(key, 3)
+        keys = jax.vmap(jax.random.fold_in, (None, 0))(k_reset, ids)
+        obs, states = jax.vmap(env.reset, in_axes=(0, axes_params, None))(keys, env_params, drift_episode)
+        carry = policy.init(k_init, obs)
+
+        def body(c, t):
+            obs, states, carry = c
+            k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
+
+            def probe(offsets):
+                probes[0] += 1
+                return jax.vmap(env.probe, in_axes=(0, 0, None))(states, offsets, env_params)
+
+            probes[0] = 0
+            action, carry = policy.act(params, carry, obs, k_act, probe)
+            keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
+            obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
+                keys, states, action, env_params)
+            return (obs, states, carry), (info["normalized_power"], term)
+
+        _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
+        return out
+
+    return run, probes
+
+
+# -- checkpoints --------------------------------------------------------------------------------
+
+def save(path, result: TrainResult) -> Path:
+    """Write ``result`` to the folder ``path`` (meta.json + params.msgpack), atomically: a
+    temporary folder is renamed into place, so a crash never leaves a half-written checkpoint."""
+    from flax import serialization
+
+    path = Path(path)
+    blob = serialization.msgpack_serialize(serialization.to_state_dict(jax.device_get(result.params)))
+    meta = dict(
+        version=CHECKPOINT_VERSION,
+        algo=result.algo,
+        env_config=result.env_config,
+        hyper=result.hyper,
+        seed=result.seed,
+        wall_time=result.wall_time,
+        curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
+        params_sha256=hashlib.sha256(blob).hexdigest(),
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=path.name + ".tmp"))
+    (tmp / "params.msgpack").write_bytes(blob)
+    (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
+    if path.exists():
+        shutil.rmtree(path)
+    os.replace(tmp, path)
+    return path
+
+
+def load(path) -> TrainResult:
+    """Read a checkpoint written by ``save``; a missing or corrupt one raises a clear error."""
+    from flax import serialization
+
+    path = Path(path)
+    meta_file, blob_file = path / "meta.json", path / "params.msgpack"
+    if not meta_file.exists() or not blob_file.exists():
+        raise FileNotFoundError(f"no checkpoint at {path} (expected meta.json and params.msgpack)")
+    try:
+        meta = json.loads(meta_file.read_text())
+        blob = blob_file.read_bytes()
+        if hashlib.sha256(blob).hexdigest() != meta["params_sha256"]:
+            raise ValueError("params.msgpack does not match the checksum in meta.json")
+        state = serialization.msgpack_restore(blob)
+        module = algo_module(meta["algo"])
+        template = module.params_template(meta["env_config"], meta["hyper"])
+        params = serialization.from_state_dict(template, state) if template is not None else state
+    except (ValueError, KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"corrupt checkpoint at {path}: {exc}") from exc
+    curve = {k: np.asarray(v) for k, v in meta["curve"].items()}
+    return TrainResult(meta["algo"], meta["env_config"], meta["hyper"], params, curve,
+                       meta["wall_time"], meta["seed"])
