@@ -9,7 +9,6 @@ stage count and batch size, against the reference's recorded single-instance ste
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics

@@ -73,7 +73,7 @@ def test_step_and_step_batch_agree():
             one = step_one(k[i], jax.tree.map(lambda x: x[i], states), a[i], params)
             np.testing.assert_allclose(one[0], many[0][i], rtol=1e-6, atol=1e-7)
             np.testing.assert_allclose(one[2], many[2][i], rtol=1e-6)
-        obs, states = many[0], many[1]
+        states = many[1]
 
 
 def test_compiles_once():

@@ -1,0 +1,261 @@
+"""The paper's experiments on ops-jax, reproduced and extended, as one resumable command.
+
+    python -m benchmarks.sweep                      # default preset (5 seeds, <= ~30 min on 2 cores)
+    python -m benchmarks.sweep --quick              # a first look in a few minutes
+    python -m benchmarks.sweep --preset paper --seeds 20
+    python -m benchmarks.sweep --only table1 --out results/mine
+
+Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds: final P/Pmax in the training
+and testing environments, Welch's t-test bolding), ``table2`` (timings of the paper's Table 2, from
+the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on one mode, test on each),
+``feedback`` (train at k = 1, test at k = 1..100). Everything lands in ``results/<name>/``: tables
+(.md, .csv), figures (.png), ``summary.md``. Finished work units are stored in ``cells/`` the
+moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them.
+
+Evaluation as in the paper: P/Pmax at the end of 200-step test episodes. The training environment
+uses the training seed's draws; the testing environment another seed, so in hard mode it has a
+different drift realisation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmarks.cells import CellStore, config_hash
+
+MODES = ("easy", "medium", "hard")
+SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")
+PAPER_TABLE1 = {  # (mode, env) -> {algo: (mean, std)}, from ../shared/docs/paper_results.md
+    ("easy", "training"): {"spgd": (0.9919, 0.0121), "ppo": (0.8184, 0.0884), "sac": (0.9410, 0.0572), "td3": (0.9552, 0.0483)},
+    ("easy", "testing"): {"spgd": (0.9909, 0.0125), "ppo": (0.8067, 0.0661), "sac": (0.9403, 0.0531), "td3": (0.9572, 0.0501)},
+    ("medium", "training"): {"spgd": (0.6155, 0.0271), "ppo": (0.7591, 0.0728), "sac": (0.9145, 0.0727), "td3": (0.9353, 0.0451)},
+    ("medium", "testing"): {"spgd": (0.6178, 0.0263), "ppo": (0.7519, 0.0623), "sac": (0.9098, 0.0838), "td3": (0.9285, 0.0437)},
+    ("hard", "training"): {"spgd": (0.5321, 0.0352), "ppo": (0.6977, 0.0732), "sac": (0.8739, 0.0775), "td3": (0.8724, 0.0680)},
+    ("hard", "testing"): {"spgd": (0.5132, 0.0348), "ppo": (0.6526, 0.0687), "sac": (0.8371, 0.0804), "td3": (0.8488, 0.0615)},
+}
+PAPER_TABLE2 = {  # algo -> (sim TPS, opt TPS, convergence step, training s, inference TPS, test conv step, control s)
+    "ppo": (0.0086, 0.0274, "142666 ± 25390", "5141 ± 979", 0.0057, "78 ± 10", "1.13 ± 0.21"),
+    "sac": (0.0086, 0.0199, "168844 ± 24889", "4833 ± 740", 0.0046, "67 ± 10", "0.89 ± 0.18"),
+    "td3": (0.0086, 0.0175, "212018 ± 28484", "5456 ± 804", 0.0036, "58 ± 7", "0.71 ± 0.12"),
+}
+
+# Training budgets (environment steps) per preset and algorithm; hyper config per preset.
+PRESETS = {
+    "quick": dict(
+        seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=16,
+        budgets={"spgd": 0, "physics": 0, "ppo": 60_000, "sac": 6_000, "td3": 6_000},
+        stage_range=(2, 3), stage_modes=("easy", "hard"), stage_algos=("spgd", "td3"), stage_seeds=1,
+        feedback_ks=(1, 20, 100),
+    ),
+    "default": dict(
+        seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=50,
+        budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 60_000, "td3": 60_000},
+        stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3"), stage_seeds=2,
+        feedback_ks=(1, 20, 40, 60, 80, 100),
+    ),
+    "paper": dict(
+        seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,
+        budgets={"spgd": 0, "physics": 0, "ppo": 200_000, "sac": 200_000, "td3": 250_000},
+        stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
+        feedback_ks=(1, 20, 40, 60, 80, 100),
+    ),
+}
+TEST_SEED_OFFSET = 10_000
+
+
+class Sweep:
+    def __init__(self, preset: dict, out: Path, log):
+        self.p = preset
+        self.out = out
+        self.log = log
+        self.cells = CellStore(out / "cells", log)
+        self.ckpt_dir = out / "checkpoints"
+        self.timing = {}
+
+    # -- one trained controller ---------------------------------------------------------------
+    def trained(self, algo: str, env_config: dict, seed: int, label: str) -> dict:
+        """Train (or reuse) one controller, evaluate it in its training and testing environment."""
+        import agents
+
+        config = dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
+                      hyper={"config": self.p["config"]}, episodes=self.p["episodes"])
+        ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
+
+        def compute():
+            result = agents.train(algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"])
+            agents.save(ckpt, result)
+            ev_train = agents.evaluate(result, env_config, episodes=config["episodes"], seed=seed)
+            ev_test = agents.evaluate(result, env_config, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
+            return dict(
+                checkpoint=str(ckpt.relative_to(self.out)),
+                curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
+                wall_time=result.wall_time,
+                train_env=_eval_record(ev_train),
+                test_env=_eval_record(ev_test),
+            )
+
+        record = self.cells.get(label, config, compute)
+        if not (self.out / record["checkpoint"]).exists():  # checkpoint lost: retrain
+            self.cells.path(label, config).unlink()
+            record = self.cells.get(label, config, compute)
+        return record
+
+    def policy(self, record: dict):
+        import agents
+
+        return agents.load(self.out / record["checkpoint"])
+
+    def evaluated(self, label: str, record: dict, env_config: dict, seed: int) -> dict:
+        import agents
+
+        config = dict(kind="eval", checkpoint=record["checkpoint"], env=env_config, seed=seed,
+                      episodes=self.p["episodes"])
+        return self.cells.get(label, config, lambda: _eval_record(
+            agents.evaluate(self.policy(record), env_config, episodes=config["episodes"], seed=seed)))
+
+    def table1_runs(self, bar):
+        runs = {}
+        for mode in MODES:
+            for algo in self.p["algos"]:
+                for seed in range(self.p["seeds"]):
+                    bar.set_description(f"table1 {mode} {algo} seed {seed}")
+                    runs[mode, algo, seed] = self.trained(algo, {"stages": 5, "mode": mode}, seed,
+                                                          f"table1-{mode}-{algo}-s{seed}")
+                    bar.update()
+        return runs
+
+    # -- sections -----------------------------------------------------------------------------
+    def count(self, sections) -> int:
+        p = self.p
+        n1 = len(MODES) * len(p["algos"]) * p["seeds"]
+        nst = (p["stage_range"][1] - p["stage_range"][0] + 1) * len(p["stage_modes"]) * len(p["stage_algos"]) * p["stage_seeds"]
+        total = 0
+        if {"table1", "table2", "transfer", "feedback"} & set(sections):
+            total += n1
+        if "stages" in sections:
+            total += nst
+        if "transfer" in sections:
+            total += len(p["algos"]) * p["seeds"] * len(MODES) * len(MODES)
+        if "feedback" in sections:
+            total += len(p["algos"]) * p["seeds"] * len(p["feedback_ks"])
+        return total
+
+    def run(self, sections):
+        from benchmarks import sweep_report as report
+
+        bar = tqdm(total=self.count(sections), unit="cell", desc="sweep", dynamic_ncols=True)
+        t0 = time.perf_counter()
+        runs = self.table1_runs(bar) if {"table1", "table2", "transfer", "feedback"} & set(sections) else {}
+        self.timing["table1 training + evaluation"] = time.perf_counter() - t0
+        if "table1" in sections:
+            report.table1(self.out, runs, self.p)
+            report.training_curves(self.out, runs, self.p)
+            report.testing_curves(self.out, runs, self.p)
+        if "table2" in sections:
+            report.table2(self.out, runs, self.p)
+        if "stages" in sections:
+            t = time.perf_counter()
+            report.stages(self.out, self.stage_scan(bar), self.p)
+            self.timing["stages"] = time.perf_counter() - t
+        if "transfer" in sections:
+            t = time.perf_counter()
+            report.transfer(self.out, self.transfer(runs, bar), self.p)
+            self.timing["transfer"] = time.perf_counter() - t
+        if "feedback" in sections:
+            t = time.perf_counter()
+            report.feedback(self.out, self.feedback(runs, bar), self.p)
+            self.timing["feedback"] = time.perf_counter() - t
+        bar.close()
+        self.timing["total"] = time.perf_counter() - t0
+        report.summary(self.out, self.p, sections, self.timing, self.cells)
+
+    def stage_scan(self, bar):
+        res = {}
+        lo, hi = self.p["stage_range"]
+        for n in range(lo, hi + 1):
+            for mode in self.p["stage_modes"]:
+                for algo in self.p["stage_algos"]:
+                    for seed in range(self.p["stage_seeds"]):
+                        bar.set_description(f"stages N={n} {mode} {algo} seed {seed}")
+                        res[n, mode, algo, seed] = self.trained(algo, {"stages": n, "mode": mode}, seed,
+                                                                f"stages-N{n}-{mode}-{algo}-s{seed}")
+                        bar.update()
+        return res
+
+    def transfer(self, runs, bar):
+        res = {}
+        for (train_mode, algo, seed), record in runs.items():
+            for test_mode in MODES:
+                bar.set_description(f"transfer {algo} {train_mode}->{test_mode} seed {seed}")
+                res[train_mode, test_mode, algo, seed] = self.evaluated(
+                    f"transfer-{train_mode}-{test_mode}-{algo}-s{seed}", record,
+                    {"stages": 5, "mode": test_mode}, seed + TEST_SEED_OFFSET)
+                bar.update()
+        return res
+
+    def feedback(self, runs, bar):
+        res = {}
+        for (mode, algo, seed), record in runs.items():
+            if mode != "hard":
+                continue
+            for k in self.p["feedback_ks"]:
+                bar.set_description(f"feedback {algo} k={k} seed {seed}")
+                res[k, algo, seed] = self.evaluated(f"feedback-k{k}-{algo}-s{seed}", record,
+                                                    {"stages": 5, "mode": "hard", "feedback_k": k},
+                                                    seed + TEST_SEED_OFFSET)
+                bar.update()
+        return res
+
+
+def _eval_record(ev) -> dict:
+    npow = np.asarray(ev.normalized_power)
+    return dict(
+        summary=ev.summary,
+        final=npow[:, -1].tolist(),
+        mean_curve=npow.mean(0).tolist(),
+        std_curve=npow.std(0).tolist(),
+    )
+
+
+def build_preset(args) -> dict:
+    name = "quick" if args.quick else args.preset
+    preset = json.loads(json.dumps(PRESETS[name]))  # deep copy
+    preset["name"] = name
+    if args.seeds is not None:
+        if args.seeds < 2:
+            raise SystemExit("--seeds must be >= 2 (Welch's t-test needs two samples per algorithm)")
+        preset["seeds"] = args.seeds
+    if args.algos:
+        preset["algos"] = list(args.algos)
+        preset["stage_algos"] = [a for a in preset["stage_algos"] if a in args.algos] or list(args.algos)
+    return preset
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--preset", choices=("default", "paper"), default="default")
+    ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
+    ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
+    ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
+    ap.add_argument("--only", nargs="+", choices=SECTIONS, help="sections to run (default: all)")
+    ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
+    args = ap.parse_args(argv)
+    preset = build_preset(args)
+    out = args.out or Path("results") / preset["name"]
+    out.mkdir(parents=True, exist_ok=True)
+    sections = args.only or list(SECTIONS)
+    sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
+    sweep.run(sections)
+    print(f"wrote {out}/summary.md ({sweep.cells.computed} cells computed, {sweep.cells.reused} reused)")
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,288 @@
+"""Tables, figures and the summary page of ``benchmarks.sweep`` (results/<name>/)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.sweep import MODES, PAPER_TABLE1, PAPER_TABLE2
+
+ENVS = ("training", "testing")
+NAMES = {"spgd": "SPGD", "ppo": "PPO", "sac": "SAC", "td3": "TD3", "physics": "Physics"}
+
+
+def bold_mask(samples: dict, alpha: float = 0.05) -> dict:
+    """Best mean per row, and every algorithm not significantly different from it (Welch's
+    t-test, p >= alpha), are bold. Identical constant samples count as not different."""
+    from scipy.stats import ttest_ind
+
+    means = {a: float(np.mean(v)) for a, v in samples.items()}
+    best = max(means, key=means.get)
+    mask = {}
+    for algo, values in samples.items():
+        if algo == best:
+            mask[algo] = True
+            continue
+        p = ttest_ind(samples[best], values, equal_var=False).pvalue
+        mask[algo] = bool(np.isnan(p) and means[algo] == means[best]) or bool(p >= alpha)
+    return mask
+
+
+def _fmt(mean, std, bold=False):
+    s = f"{mean:.4f} ± {std:.4f}"
+    return f"**{s}**" if bold else s
+
+
+def _per_seed_final(record, env):
+    return float(np.mean(record["train_env" if env == "training" else "test_env"]["final"]))
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def table1(out: Path, runs: dict, p: dict):
+    algos = p["algos"]
+    rows_md, rows_csv = [], []
+    for mode in MODES:
+        for env in ENVS:
+            samples = {a: [_per_seed_final(runs[mode, a, s], env) for s in range(p["seeds"])] for a in algos}
+            bold = bold_mask(samples)
+            paper = PAPER_TABLE1[mode, env]
+            cells = [_fmt(np.mean(samples[a]), np.std(samples[a]), bold[a]) for a in algos]
+            paper_cells = [_fmt(*paper[a]) if a in paper else "–" for a in algos]
+            rows_md.append(f"| {mode} | {env} | " + " | ".join(cells) + " |")
+            rows_md.append("| | paper | " + " | ".join(paper_cells) + " |")
+            for a in algos:
+                rows_csv.append([mode, env, a, np.mean(samples[a]), np.std(samples[a]), len(samples[a]), bold[a],
+                                 *(paper[a] if a in paper else ("", ""))])
+    header = "| mode | evaluation env | " + " | ".join(NAMES[a] for a in algos) + " |"
+    sep = "|" + "---|" * (len(algos) + 2)
+    text = (f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
+            f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes). "
+            "Bold: best per row and every algorithm not significantly different from it (Welch's t-test, "
+            "p < 0.05). The 'paper' rows are the published values (20 seeds, stable-baselines3).\n\n"
+            + "\n".join([header, sep, *rows_md]) + "\n")
+    (out / "table1.md").write_text(text)
+    with open(out / "table1.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["mode", "env", "algo", "mean", "std", "seeds", "bold", "paper_mean", "paper_std"])
+        w.writerows(rows_csv)
+
+
+def convergence_step(steps, values, tol=0.02):
+    """First step from which the curve stays within ``tol`` (P/Pmax) of its final value (the mean
+    of its last three points): where it 'reaches its peak and stops changing'."""
+    steps, values = np.asarray(steps, float), np.asarray(values, float)
+    if len(values) == 0:
+        return float("nan")
+    final = values[-3:].mean()
+    outside = np.nonzero(np.abs(values - final) > tol)[0]
+    idx = 0 if len(outside) == 0 else min(outside[-1] + 1, len(values) - 1)
+    return float(steps[idx])
+
+
+def table2(out: Path, runs: dict, p: dict):
+    lines = [
+        "# Table 2: time usage, 5-stage hard (TPS = seconds per step)",
+        "",
+        "Ours: this machine, batched JAX; per-step times are wall time divided by environment steps "
+        "(simulation = stepping the environment, optimisation = the rest of training). Convergence "
+        "step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value. "
+        "Inference TPS: one batched policy step divided by the number of test episodes. Test-time "
+        "convergence step: the same rule on the mean test curve. Total control time = test-time "
+        "convergence steps x (inference + simulation TPS), as the paper's numbers imply.",
+        "",
+        "| algo | simulation TPS | optimisation TPS | convergence step | total training time (s) | "
+        "inference TPS | test-time convergence step | total control time (s) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for algo in p["algos"]:
+        recs = [runs["hard", algo, s] for s in range(p["seeds"])]
+        steps = max(p["budgets"][algo], 1)
+        sim = np.mean([r["wall_time"].get("simulation", 0.0) for r in recs]) / steps
+        opt = np.mean([r["wall_time"].get("optimisation", 0.0) for r in recs]) / steps
+        conv = [convergence_step(r["curve"].get("step", []), r["curve"].get("normalized_power", [])) for r in recs]
+        total = [r["wall_time"].get("total", 0.0) for r in recs]
+        inf = np.mean([r["test_env"]["summary"]["inference_s_per_step"] / r["test_env"]["summary"]["episodes"]
+                       for r in recs])
+        test_conv = [convergence_step(np.arange(1, len(r["test_env"]["mean_curve"]) + 1), r["test_env"]["mean_curve"])
+                     for r in recs]
+        ctrl = [c * (inf + sim) for c in test_conv]
+        lines.append(f"| {NAMES[algo]} | {sim:.2e} | {opt:.2e} | {np.nanmean(conv):.0f} ± {np.nanstd(conv):.0f} | "
+                     f"{np.mean(total):.1f} ± {np.std(total):.1f} | {inf:.2e} | {np.mean(test_conv):.0f} ± "
+                     f"{np.std(test_conv):.0f} | {np.mean(ctrl):.4f} ± {np.std(ctrl):.4f} |")
+        if algo in PAPER_TABLE2:
+            lines.append("| paper | " + " | ".join(str(v) for v in PAPER_TABLE2[algo]) + " |")
+    (out / "table2.md").write_text("\n".join(lines) + "\n")
+
+
+def _band(ax, x, runs_y, label):
+    y = np.asarray(runs_y)
+    m, s = y.mean(0), y.std(0)
+    (line,) = ax.plot(x, m, label=label)
+    ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
+
+
+def training_curves(out: Path, runs: dict, p: dict):
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
+    for ax, mode in zip(axes, MODES):
+        for algo in p["algos"]:
+            curves = [runs[mode, algo, s]["curve"] for s in range(p["seeds"])]
+            if not all(len(c.get("step", [])) >= 2 for c in curves):
+                continue
+            grid = np.linspace(0, min(c["step"][-1] for c in curves), 50)
+            ys = [np.interp(grid, c["step"], c["normalized_power"]) for c in curves]
+            _band(ax, grid, ys, NAMES[algo])
+        ax.set_title(f"training, 5-stage {mode}")
+        ax.set_xlabel("environment steps")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("evaluation P/Pmax")
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(out / "training_curves.png", dpi=110)
+    plt.close(fig)
+
+
+def testing_curves(out: Path, runs: dict, p: dict):
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
+    for ax, mode in zip(axes, MODES):
+        for algo in p["algos"]:
+            ys = [runs[mode, algo, s]["test_env"]["mean_curve"] for s in range(p["seeds"])]
+            _band(ax, np.arange(1, len(ys[0]) + 1), ys, NAMES[algo])
+        ax.set_title(f"testing, 5-stage {mode}")
+        ax.set_xlabel("control iteration")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("P/Pmax (mean over test episodes)")
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(out / "testing_curves.png", dpi=110)
+    plt.close(fig)
+
+
+def stages(out: Path, res: dict, p: dict):
+    plt = _plt()
+    ns = sorted({k[0] for k in res})
+    fig, axes = plt.subplots(1, len(p["stage_modes"]) + 1, figsize=(5 * (len(p["stage_modes"]) + 1), 4))
+    lines = ["# Stage scan: final testing P/Pmax vs stage count N", "",
+             "| N | mode | " + " | ".join(NAMES[a] for a in p["stage_algos"]) + " |",
+             "|" + "---|" * (len(p["stage_algos"]) + 2)]
+    for ax, mode in zip(axes, p["stage_modes"]):
+        for algo in p["stage_algos"]:
+            finals = [[np.mean(res[n, mode, algo, s]["test_env"]["final"]) for s in range(p["stage_seeds"])] for n in ns]
+            ax.errorbar(ns, np.mean(finals, 1), yerr=np.std(finals, 1), marker="o", capsize=3, label=NAMES[algo])
+        ax.set_title(f"{mode}")
+        ax.set_xlabel("stages N")
+        ax.set_ylabel("final testing P/Pmax")
+        ax.set_ylim(0, 1.05)
+        ax.grid(alpha=0.3)
+        for n in ns:
+            vals = [np.mean([np.mean(res[n, mode, a, s]["test_env"]["final"]) for s in range(p["stage_seeds"])])
+                    for a in p["stage_algos"]]
+            lines.append(f"| {n} | {mode} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
+    ax = axes[-1]
+    for algo in p["stage_algos"]:
+        conv = [np.mean([convergence_step(res[n, "hard" if "hard" in p["stage_modes"] else p["stage_modes"][-1], algo, s]["curve"].get("step", []),
+                                          res[n, "hard" if "hard" in p["stage_modes"] else p["stage_modes"][-1], algo, s]["curve"].get("normalized_power", []))
+                         for s in range(p["stage_seeds"])]) for n in ns]
+        ax.plot(ns, conv, marker="o", label=NAMES[algo])
+    ax.set_title("training convergence step (hardest mode)")
+    ax.set_xlabel("stages N")
+    ax.set_ylabel("environment steps")
+    ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(out / "stages.png", dpi=110)
+    plt.close(fig)
+    (out / "stages.md").write_text("\n".join(lines) + "\n")
+
+
+def transfer(out: Path, res: dict, p: dict):
+    plt = _plt()
+    algos = p["algos"]
+    fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
+    lines = ["# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax", ""]
+    for ax, algo in zip(np.atleast_1d(axes), algos):
+        m = np.array([[np.mean([np.mean(res[a, b, algo, s]["final"]) for s in range(p["seeds"])]) for b in MODES]
+                      for a in MODES])
+        im = ax.imshow(m, vmin=0, vmax=1, cmap="viridis")
+        for i in range(3):
+            for j in range(3):
+                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", color="w" if m[i, j] < 0.6 else "k")
+        ax.set_xticks(range(3), MODES)
+        ax.set_yticks(range(3), MODES)
+        ax.set_xlabel("tested on")
+        ax.set_ylabel("trained on")
+        ax.set_title(NAMES[algo])
+        lines += [f"## {NAMES[algo]}", "", "| trained \\ tested | " + " | ".join(MODES) + " |", "|---|---|---|---|"]
+        lines += [f"| {MODES[i]} | " + " | ".join(f"{v:.3f}" for v in m[i]) + " |" for i in range(3)] + [""]
+    fig.colorbar(im, ax=np.atleast_1d(axes).tolist(), shrink=0.8, label="P/Pmax")
+    fig.savefig(out / "transfer.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    (out / "transfer.md").write_text("\n".join(lines) + "\n")
+
+
+def feedback(out: Path, res: dict, p: dict):
+    plt = _plt()
+    ks = p["feedback_ks"]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    lines = ["# Feedback delay: trained at k = 1 (hard), tested at k", "",
+             "| algo | " + " | ".join(f"k={k} final / mean" for k in ks) + " |", "|" + "---|" * (len(ks) + 1)]
+    for algo in p["algos"]:
+        finals = [np.mean([np.mean(res[k, algo, s]["final"]) for s in range(p["seeds"])]) for k in ks]
+        cum = [np.mean([np.mean(res[k, algo, s]["mean_curve"]) for s in range(p["seeds"])]) for k in ks]
+        axes[0].plot(ks, finals, marker="o", label=NAMES[algo])
+        axes[1].plot(ks, cum, marker="o", label=NAMES[algo])
+        lines.append(f"| {NAMES[algo]} | " + " | ".join(f"{f:.3f} / {c:.3f}" for f, c in zip(finals, cum)) + " |")
+    axes[0].set_ylabel("final P/Pmax")
+    axes[1].set_ylabel("P/Pmax averaged over the episode")
+    for ax in axes:
+        ax.set_xlabel("feedback delay factor k (free-run draws per control step)")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(out / "feedback.png", dpi=110)
+    plt.close(fig)
+    (out / "feedback.md").write_text("\n".join(lines) + "\n")
+
+
+def summary(out: Path, p: dict, sections, timing: dict, cells):
+    import jax
+
+    files = sorted(f.name for f in out.iterdir() if f.suffix in (".md", ".csv", ".png") and f.name != "summary.md")
+    lines = [
+        f"# ops-jax sweep: preset {p['name']}",
+        "",
+        f"- sections: {', '.join(sections)}",
+        f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: {p['episodes']}",
+        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['config']}",
+        f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
+        f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
+        f"- cells computed this run: {cells.computed}, reused from earlier runs: {cells.reused}",
+        "",
+        "## Wall time per section (this run)",
+        "",
+        *[f"- {k}: {v:.1f} s" for k, v in timing.items()],
+        "",
+        "## Files",
+        "",
+        *[f"- [{f}]({f})" for f in files],
+        "",
+    ]
+    for f in files:
+        if f.endswith(".png"):
+            lines += [f"![{f}]({f})", ""]
+    (out / "summary.md").write_text("\n".join(lines))
