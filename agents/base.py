@@ -119,11 +119,12 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, env_params = ops_jax.make(**env_config)
     steps = int(steps or env.config.max_steps)
-    run, probes = _evaluator(env, policy, int(episodes), steps, int(drift_episode))
+    run, probes = _evaluator(env, policy, steps, int(drift_episode))
     key = jax.random.key(seed)
-    jax.block_until_ready(run(params, env_params, key))  # compile and warm up
+    ids = episode_ids(int(episodes))
+    jax.block_until_ready(run(params, env_params, key, ids))  # compile and warm up
     t0 = time.perf_counter()
-    npow, term = jax.block_until_ready(run(params, env_params, key))
+    npow, term = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
     return EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
@@ -148,13 +149,24 @@ def summarize(npow: np.ndarray, **extra) -> dict:
     )
 
 
-def _evaluator(env, policy: Policy, episodes: int, steps: int, drift_episode: int):
+def episode_ids(episodes: int):
+    """Episode indices, sharded over all local devices when they divide evenly (a multi-GPU host,
+    or XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU): the jitted evaluation then
+    splits its episodes across devices. Results do not depend on the device count."""
+    ids = jnp.arange(episodes)
+    devices = jax.local_devices()
+    if len(devices) > 1 and episodes % len(devices) == 0:
+        mesh = jax.sharding.Mesh(np.array(devices), ("episodes",))
+        ids = jax.device_put(ids, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("episodes")))
+    return ids
+
+
+def _evaluator(env, policy: Policy, steps: int, drift_episode: int):
     probes = [0]
     axes_params = None
 
     @jax.jit
-    def run(params, env_params, key):
-        ids = jnp.arange(episodes)
+    def run(params, env_params, key, ids):
         k_reset, k_init, k_run = jax.random.split(key, 3)
         keys = jax.vmap(jax.random.fold_in, (None, 0))(k_reset, ids)
         obs, states = jax.vmap(env.reset, in_axes=(0, axes_params, None))(keys, env_params, drift_episode)

@@ -193,12 +193,13 @@ def stages(out: Path, res: dict, p: dict):
                     for a in p["stage_algos"]]
             lines.append(f"| {n} | {mode} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
     ax = axes[-1]
+    hardest = p["stage_modes"][-1]
     for algo in p["stage_algos"]:
-        conv = [np.mean([convergence_step(res[n, "hard" if "hard" in p["stage_modes"] else p["stage_modes"][-1], algo, s]["curve"].get("step", []),
-                                          res[n, "hard" if "hard" in p["stage_modes"] else p["stage_modes"][-1], algo, s]["curve"].get("normalized_power", []))
+        conv = [np.mean([convergence_step(res[n, hardest, algo, s]["curve"].get("step", []),
+                                          res[n, hardest, algo, s]["curve"].get("normalized_power", []))
                          for s in range(p["stage_seeds"])]) for n in ns]
         ax.plot(ns, conv, marker="o", label=NAMES[algo])
-    ax.set_title("training convergence step (hardest mode)")
+    ax.set_title(f"training convergence step ({hardest})")
     ax.set_xlabel("stages N")
     ax.set_ylabel("environment steps")
     ax.grid(alpha=0.3)

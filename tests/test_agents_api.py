@@ -1,0 +1,90 @@
+"""The shared agents API: evaluate (probes counted, deterministic, device-count independent),
+checkpoints (round trip, missing, corrupt), bad input."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agents
+from agents.base import Policy, TrainResult
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {"stages": 3, "mode": "hard"}
+
+
+def _dither_policy():
+    def act(params, carry, obs, key, probe):
+        d = 0.05 * jnp.sign(jax.random.normal(key, obs.shape[:1] + (3,)))
+        gain = probe(d) - probe(-d)  # two extra measurements
+        return jnp.clip(params["k"] * gain[:, None] * d / 0.05, -1, 1), carry
+
+    return Policy(lambda key, obs: (), act)
+
+
+def test_evaluate_counts_probes_and_is_deterministic():
+    pair = (_dither_policy(), {"k": jnp.float32(5.0)})
+    a = agents.evaluate(pair, ENV, episodes=6, seed=3, steps=20)
+    b = agents.evaluate(pair, ENV, episodes=6, seed=3, steps=20)
+    c = agents.evaluate(pair, ENV, episodes=6, seed=4, steps=20)
+    assert a.normalized_power.shape == (6, 20)
+    assert a.summary["measurements_per_step"] == 3
+    np.testing.assert_array_equal(a.normalized_power, b.normalized_power)
+    assert not np.allclose(a.normalized_power, c.normalized_power)
+    assert 0 < a.summary["final_mean"] <= 1
+
+
+def test_evaluate_is_the_same_on_two_devices():
+    code = (
+        "import numpy as np, jax, jax.numpy as jnp, agents; from agents.base import Policy;"
+        "p = Policy(lambda k, o: (), lambda pr, c, o, k, probe: (jnp.tanh(-3 * o[:, -3:]), c));"
+        "r = agents.evaluate(p, {'stages': 3, 'mode': 'hard'}, episodes=8, seed=1, steps=15);"
+        "print(len(jax.devices())); np.save(__import__('sys').argv[1], r.normalized_power)"
+    )
+    outs = []
+    for count in (1, 2):
+        path = f"/tmp/ops_eval_{count}_{os.getpid()}.npy"
+        env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": f"--xla_force_host_platform_device_count={count}"}
+        res = subprocess.run([sys.executable, "-c", code, path], env=env, capture_output=True, text=True, check=True)
+        assert res.stdout.strip() == str(count)
+        outs.append(np.load(path))
+        os.unlink(path)
+    np.testing.assert_allclose(outs[0], outs[1], atol=1e-6)
+
+
+def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
+    params = {"k": np.float32(5.0), "w": np.arange(6, dtype=np.float32).reshape(2, 3)}
+    result = TrainResult("spgd", {"stages": 3, "mode": "easy"}, {"gain": 1.0}, params,
+                         {"step": np.array([0, 10]), "normalized_power": np.array([0.5, 0.9])},
+                         {"simulation": 1.0, "optimisation": 0.0, "total": 1.0}, 7)
+    path = agents.save(tmp_path / "ck", result)
+    back = agents.load(path)
+    assert back.algo == "spgd" and back.seed == 7 and back.hyper == {"gain": 1.0}
+    np.testing.assert_array_equal(np.asarray(back.curve["normalized_power"]), [0.5, 0.9])
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        agents.load(tmp_path / "nothing")
+    blob = path / "params.msgpack"
+    blob.write_bytes(blob.read_bytes()[:-3] + b"xyz")
+    with pytest.raises(ValueError, match="corrupt checkpoint"):
+        agents.load(path)
+
+
+@pytest.mark.parametrize(
+    "call, exc, words",
+    [
+        (lambda: agents.train("dqn", ENV), ValueError, "algo"),
+        (lambda: agents.train("spgd", "stages=5"), TypeError, "env_config"),
+        (lambda: agents.train("spgd", {"stages": 0}), ValueError, "stages"),
+        (lambda: agents.train("spgd", ENV, total_steps=-5), ValueError, "total_steps"),
+        (lambda: agents.evaluate(_dither_policy(), ENV, episodes=0), ValueError, "episodes"),
+        (lambda: agents.evaluate("policy", ENV), TypeError, "evaluate takes"),
+    ],
+)
+def test_bad_input(call, exc, words):
+    with pytest.raises(exc, match=words):
+        call()
