@@ -72,6 +72,19 @@ def measure(stages: int, model: str, batch: int, repeats: int) -> dict:
     )
 
 
+def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
+    """Median seconds per instance of ``physics.measure`` alone (power and samples) on a batch."""
+    x = jax.random.uniform(jax.random.key(0), (batch, stages), minval=-0.3, maxval=0.3)
+    fn = jax.jit(lambda x: ops_jax.physics.measure(x, stages=stages, model=model)[:2])
+    jax.block_until_ready(fn(x))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(x))
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times) / batch
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
@@ -98,6 +111,12 @@ def main(argv=None):
         sp = f"{r['speedup_vs_reference']:.0f}" if r["speedup_vs_reference"] else "-"
         print(f"{r['model']:7} {r['stages']:>2} {r['batch']:>6} {r['steps_per_s']:>13,.0f} "
               f"{r['us_per_step_per_instance']:>9.3f} {r['compile_s']:>9.2f} {sp:>12}")
+    physics_rows = []
+    print(f"\nphysics.measure alone, batch 1024 (us per instance)\n{'N':>2} " + " ".join(f"{m:>8}" for m in args.models))
+    for n in args.stages:
+        t = {m: measure_only(n, m, 1024, args.repeats) for m in args.models}
+        physics_rows.append(dict(stages=n, **{f"{m}_us": 1e6 * v for m, v in t.items()}))
+        print(f"{n:>2} " + " ".join(f"{1e6 * t[m]:>8.2f}" for m in args.models))
     meta = dict(
         jax=jax.__version__,
         backend=jax.default_backend(),
@@ -107,7 +126,7 @@ def main(argv=None):
         scan_steps=SCAN_STEPS,
         repeats=args.repeats,
     )
-    write_json_atomic(args.out, dict(meta=meta, rows=rows))
+    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows))
     print(f"wrote {args.out}")
     return rows
 
