@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -229,6 +230,17 @@ def _eval_record(ev) -> dict:
     )
 
 
+def enable_compilation_cache():
+    """Persist XLA compilations (``OPS_JAX_CACHE`` or ~/.cache/ops-jax/xla): the many trainings of a
+    sweep share programs that differ only in their seed, so later cells and re-runs skip compiling."""
+    import jax
+
+    folder = Path(os.environ.get("OPS_JAX_CACHE", Path.home() / ".cache" / "ops-jax" / "xla"))
+    folder.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
 def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
     preset = json.loads(json.dumps(PRESETS[name]))  # deep copy
@@ -256,6 +268,7 @@ def main(argv=None):
     out = args.out or Path("results") / preset["name"]
     out.mkdir(parents=True, exist_ok=True)
     sections = args.only or list(SECTIONS)
+    enable_compilation_cache()
     sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
     sweep.run(sections)
     print(f"wrote {out}/summary.md ({sweep.cells.computed} cells computed, {sweep.cells.reused} reused)")
