@@ -1,0 +1,275 @@
+"""PPO: ``brax.training.agents.ppo.train`` on the Brax adapter (``ops_jax.brax_env.OPSBraxEnv``),
+unchanged; this module only chooses hyperparameters, records the curve and wraps the result.
+
+Configurations (``hyper["config"]``; any key below may be overridden):
+- "paper": the paper's SB3 PPO (Table 5): 2 x 256 tanh networks, lr 3e-4, gamma 0.99, GAE lambda
+  0.95, clip 0.2, entropy 0.001, vf coefficient 0.5, max grad norm 0.5, 10 epochs over a 512-step
+  rollout in minibatches of 64. In brax terms: 8 envs x unroll 64 (= 512 steps per update),
+  batch_size 1 x num_minibatches 8 (minibatches of one 64-step segment = 64 transitions),
+  num_updates_per_batch 10. (SB3 ran one env and shuffled single transitions; brax shuffles
+  segments, whose GAE bootstraps at the segment end.)
+- "fast": tuned for wall clock on a 2-core CPU: 256 parallel envs, unroll 16, larger minibatches,
+  4 epochs, observation normalisation, gamma 0.95 (the task is a regulation problem: a short
+  horizon suffices and lowers the value variance), lr 1e-3 (see ``FAST_NOTES``).
+
+Both train on ``model="phasor"`` (unless env_config names a model) with ``episode_length =
+max_steps``; brax evaluates (``num_evals`` times, ``num_eval_envs`` episodes, deterministic
+actions) on the adapter with ``first_episode = 10`` (hard mode's drift fully on, as
+``agents.evaluate``). Curve: 'step' (env steps), 'normalized_power' (evaluation's final P/Pmax,
+mean over episodes), 'reward' (evaluation episode return), 'wall' (s since training started).
+
+Wall time: 'total' is the whole brax ``train`` call (compilation included); 'simulation' is
+estimated as (training + evaluation env steps) x (seconds per env step), the latter measured by
+timing a jitted scan of the wrapped batched env alone (uniform random actions, same num_envs,
+after compilation); 'optimisation' = total - simulation (network inference while acting,
+gradient steps, compilation, host overhead).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agents import base
+
+CONFIGS = {
+    "paper": dict(
+        num_envs=8, unroll_length=64, batch_size=1, num_minibatches=8, num_updates_per_batch=10,
+        learning_rate=3e-4, entropy_cost=1e-3, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
+        vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=False,
+        hidden=(256, 256), activation="tanh", total_steps=300_000, num_evals=10, num_eval_envs=64,
+    ),
+    "fast": dict(
+        num_envs=256, unroll_length=16, batch_size=256, num_minibatches=4, num_updates_per_batch=4,
+        learning_rate=1e-3, entropy_cost=1e-3, discounting=0.95, gae_lambda=0.95, clipping_epsilon=0.2,
+        vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=True,
+        hidden=(256, 256), activation="tanh", total_steps=3_000_000, num_evals=10, num_eval_envs=64,
+    ),
+}
+FAST_NOTES = "see the final report / README: short CPU runs, few settings tried"
+EVAL_FIRST_EPISODE = 10
+_ACTIVATIONS = ("tanh", "relu", "swish", "elu")
+
+
+# -- shared with agents.sac ----------------------------------------------------------------------
+
+def resolve(name: str, configs: dict, hyper: dict | None) -> dict:
+    """Full hyperparameters: ``config`` (default "fast") plus overrides, validated. Unknown keys
+    raise TypeError; out-of-range values ValueError naming the key."""
+    hyper = dict(hyper or {})
+    config = hyper.pop("config", "fast")
+    if config not in configs:
+        raise ValueError(f"config must be one of {sorted(configs)}, got {config!r}")
+    out = dict(configs[config])
+    unknown = set(hyper) - set(out)
+    if unknown:
+        raise TypeError(f"unknown {name} hyperparameter(s) {sorted(unknown)}; accepted: config, {sorted(out)}")
+    out.update(hyper)
+    for k, default in configs[config].items():
+        v = out[k]
+        if isinstance(default, bool):
+            if not isinstance(v, (bool, np.bool_)):
+                raise TypeError(f"{k} must be a bool, got {v!r}")
+            out[k] = bool(v)
+        elif isinstance(default, int):
+            lo = 0 if k in ("total_steps", "min_replay_size") else 1
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
+            out[k] = int(v)
+        elif isinstance(default, float):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
+            if k in ("discounting", "gae_lambda", "tau") and not 0 < v <= 1:
+                raise ValueError(f"{k} must be in (0, 1], got {v!r}")
+            if k == "learning_rate" and v <= 0:
+                raise ValueError(f"learning_rate must be > 0, got {v!r}")
+            out[k] = float(v)
+    hidden = out["hidden"]
+    if (not isinstance(hidden, (list, tuple)) or not hidden
+            or not all(isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in hidden)):
+        raise ValueError(f"hidden must be a non-empty sequence of layer widths >= 1, got {hidden!r}")
+    out["hidden"] = [int(h) for h in hidden]
+    if "activation" in out and out["activation"] not in _ACTIVATIONS:
+        raise ValueError(f"activation must be one of {_ACTIVATIONS}, got {out['activation']!r}")
+    out["config"] = config
+    return out
+
+
+def train_env_config(env_config: dict) -> dict:
+    """The env_config used for training: ``model="phasor"`` unless one is given."""
+    return {"model": "phasor", **env_config}
+
+
+def activation(name: str):
+    import flax.linen as nn
+
+    return {"tanh": nn.tanh, "relu": nn.relu, "swish": nn.swish, "elu": nn.elu}[name]
+
+
+def make_brax_env(env_config: dict, first_episode: int = 0):
+    from ops_jax.brax_env import OPSBraxEnv
+
+    return OPSBraxEnv(first_episode=first_episode, **train_env_config(env_config))
+
+
+def obs_spec(size: int):
+    from brax.training.acme import specs
+
+    return specs.Array((size,), jnp.dtype("float32"))
+
+
+def seconds_per_env_step(env, num_envs: int, steps: int = 64, seed: int = 0) -> float:
+    """Wall seconds per single-instance env step of brax's training-wrapped ``env`` (``num_envs``
+    instances, a jitted scan of ``steps`` batched steps with uniform random actions, timed after
+    compilation). Noisy on a shared machine."""
+    from brax.envs.wrappers import training as wrappers
+
+    wrapped = wrappers.wrap(env, episode_length=env.max_steps)
+    n = env.action_size
+
+    @jax.jit
+    def run(key):
+        state = wrapped.reset(jax.random.split(key, num_envs))
+
+        def body(s, k):
+            a = jax.random.uniform(k, (num_envs, n), minval=-1.0, maxval=1.0)
+            s = wrapped.step(s, a)
+            return s, s.reward.mean()
+
+        return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
+
+    key = jax.random.PRNGKey(seed)
+    jax.block_until_ready(run(key))
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(jax.random.fold_in(key, 1)))
+    t1 = time.perf_counter()
+    reset_only = jax.jit(lambda k: wrapped.reset(jax.random.split(k, num_envs)).obs)
+    jax.block_until_ready(reset_only(key))
+    t2 = time.perf_counter()
+    jax.block_until_ready(reset_only(jax.random.fold_in(key, 2)))
+    t3 = time.perf_counter()
+    return max((t1 - t0) - (t3 - t2), 1e-9) / (steps * num_envs)
+
+
+class Recorder:
+    """brax ``progress_fn``: collects the evaluation curve."""
+
+    def __init__(self, callback=None):
+        self.t0 = time.perf_counter()
+        self.rows = []
+        self.callback = callback
+
+    def __call__(self, step, metrics):
+        row = dict(
+            step=int(step),
+            normalized_power=float(metrics.get("eval/episode_final_normalized_power", np.nan)),
+            reward=float(metrics.get("eval/episode_reward", np.nan)),
+            wall=time.perf_counter() - self.t0,
+        )
+        self.rows.append(row)
+        if self.callback is not None:
+            self.callback(row)
+
+    def curve(self) -> dict:
+        keys = ("step", "normalized_power", "reward", "wall")
+        return {k: np.asarray([r[k] for r in self.rows], np.int64 if k == "step" else np.float64) for k in keys}
+
+
+def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
+    sim = min(sim_per_step * env_steps, total)
+    return {"simulation": sim, "optimisation": total - sim, "total": total}
+
+
+# -- PPO -----------------------------------------------------------------------------------------
+
+def resolve_hyper(hyper: dict | None = None) -> dict:
+    h = resolve("PPO", CONFIGS, hyper)
+    if (h["batch_size"] * h["num_minibatches"]) % h["num_envs"]:
+        raise ValueError(f"batch_size * num_minibatches must be divisible by num_envs, got "
+                         f"{h['batch_size']} * {h['num_minibatches']} and {h['num_envs']}")
+    return h
+
+
+def _network_factory(h: dict):
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    return functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=tuple(h["hidden"]),
+                             value_hidden_layer_sizes=tuple(h["hidden"]), activation=activation(h["activation"]))
+
+
+def _networks(env_config: dict, h: dict):
+    from brax.training.acme import running_statistics
+
+    import ops_jax
+
+    env, _ = ops_jax.make(**train_env_config(env_config))
+    normalize = running_statistics.normalize if h["normalize_observations"] else (lambda x, y: x)
+    net = _network_factory(h)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
+    return net, env.observation_size
+
+
+def params_template(env_config: dict, hyper: dict):
+    """brax's PPO params tuple (normalizer state, policy params, value params), freshly initialised."""
+    from brax.training.acme import running_statistics
+
+    h = resolve_hyper(hyper)
+    net, d = _networks(env_config, h)
+    key = jax.random.PRNGKey(0)
+    return (running_statistics.init_state(obs_spec(d)), net.policy_network.init(key), net.value_network.init(key))
+
+
+def make_policy(env_config: dict, hyper: dict) -> base.Policy:
+    """brax's ``make_inference_fn`` with deterministic actions (the mode of the tanh-Gaussian);
+    ignores carry and probe."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    h = resolve_hyper(hyper)
+    net, _ = _networks(env_config, h)
+    make = ppo_networks.make_inference_fn(net)
+
+    def act(params, carry, obs, key, probe):
+        del probe
+        actions, _ = make(params, deterministic=True)(obs, key)
+        return actions, carry
+
+    return base.Policy(lambda key, obs: (), act)
+
+
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress=None,
+          **hyper) -> base.TrainResult:
+    """Train PPO with ``brax.training.agents.ppo.train``. ``progress(row)`` (optional) is called
+    with each evaluation row (step, normalized_power, reward, wall)."""
+    from brax.training.agents.ppo import train as ppo_train
+
+    env_config = base.check_env_config(env_config)
+    h = resolve_hyper(hyper)
+    if total_steps is not None:
+        h["total_steps"] = int(total_steps)
+    env = make_brax_env(env_config)
+    eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
+    rec = Recorder(progress)
+    t0 = time.perf_counter()
+    _, params, _ = ppo_train.train(
+        environment=env, eval_env=eval_env, num_timesteps=h["total_steps"], episode_length=env.max_steps,
+        num_envs=h["num_envs"], unroll_length=h["unroll_length"], batch_size=h["batch_size"],
+        num_minibatches=h["num_minibatches"], num_updates_per_batch=h["num_updates_per_batch"],
+        learning_rate=h["learning_rate"], entropy_cost=h["entropy_cost"], discounting=h["discounting"],
+        gae_lambda=h["gae_lambda"], clipping_epsilon=h["clipping_epsilon"],
+        vf_loss_coefficient=h["vf_loss_coefficient"], max_grad_norm=h["max_grad_norm"],
+        reward_scaling=h["reward_scaling"], normalize_observations=h["normalize_observations"],
+        network_factory=_network_factory(h), seed=int(seed), num_evals=h["num_evals"],
+        num_eval_envs=h["num_eval_envs"], deterministic_eval=True, progress_fn=rec,
+        use_pmap_on_reset=False,
+    )
+    total = time.perf_counter() - t0
+    curve = rec.curve()
+    steps = int(curve["step"][-1]) if curve["step"].size else 0
+    eval_steps = len(rec.rows) * h["num_eval_envs"] * env.max_steps
+    sim = seconds_per_env_step(env, h["num_envs"], seed=seed)
+    params = jax.device_get(params)
+    return base.TrainResult("ppo", env_config, h, params, curve, wall_split(total, sim, steps + eval_steps), int(seed))

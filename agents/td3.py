@@ -1,0 +1,414 @@
+"""TD3 (Fujimoto et al. 2018) in pure JAX, in the style of brax's trainers.
+
+Flax (linen) networks, optax Adam, brax's ``UniformSamplingQueue`` replay buffer, and the whole
+training loop as jitted ``lax.scan`` chunks over the batched ``ops_jax`` environment
+(``env.reset_batch`` / ``env.step_batch``, ``model="phasor"`` unless the env_config names a model).
+Twin critics, target policy smoothing, delayed actor and target updates, Gaussian exploration.
+Time-outs bootstrap: the stored discount is ``1 - terminated`` and the stored next observation is
+``info["final_observation"]`` (the pre-reset one), so truncation is not treated as termination.
+
+One training *iteration* = one batched env step of ``num_envs`` instances (exploration actions),
+their insertion into the buffer, then ``updates_per_iter`` gradient steps (critic every step, actor
+and targets every ``policy_delay`` steps). With ``unroll`` > 1 (the paper's SB3 setting: 100 env
+steps, then 100 gradient steps) an iteration collects ``unroll`` batched steps first.
+
+Observations are standardised with a mean / std frozen after the random warm-up (the offsets
+x_i / 3 are ~0.05 while the powers span [-1, 1]); the statistics are part of the policy params.
+
+Wall time: ``total`` is everything; ``compile`` the jit compilations; ``evaluation`` the periodic
+evaluation rollouts; ``simulation`` is the warm-up (a jitted env-only scan: uniform random
+actions, ``step_batch`` and buffer insertion, no updates) plus, for the training chunks, the
+warm-up's measured time per iteration times the number of training iterations (an estimate: it
+leaves out the actor's forward pass for exploration, a few percent); ``optimisation`` =
+training-chunk time - that estimate. The warm-up is ``ceil(learning_starts / (num_envs * unroll))``
+iterations; ``learning_starts`` >= ``batch_size`` is required.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import ops_jax
+from agents import base
+
+CONFIGS = {
+    # The paper's Table 4 (SB3 TD3, grid-searched on 5-stage medium): one env, 100 env steps then
+    # 100 gradient steps, replay 1e4, learning starts 1000, gamma 0.98, N(0, 0.7) action noise,
+    # lr 3e-4, 2 x 256. Batch 100 and tau 0.005, target noise 0.2 / clip 0.5: SB3 defaults.
+    "paper": dict(
+        num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
+        actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
+        expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
+        total_steps=300_000, eval_every=10_000, eval_episodes=16,
+    ),
+    # Tuned for wall clock on a 2-core CPU: many parallel envs, larger batch, fewer updates per
+    # env step, normalised observations.
+    "fast": dict(
+        num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
+        actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
+        expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
+        total_steps=300_000, eval_every=20_000, eval_episodes=16,
+    ),
+}
+_INT_KEYS = ("num_envs", "unroll", "updates_per_iter", "batch_size", "buffer_size", "learning_starts",
+             "policy_delay", "total_steps", "eval_every", "eval_episodes")
+_POS_FLOAT = ("actor_lr", "critic_lr")
+_UNIT_FLOAT = ("gamma", "tau")
+_NONNEG_FLOAT = ("expl_std", "target_noise", "noise_clip")
+
+
+def resolve_hyper(hyper: dict | None = None) -> dict:
+    """Full hyperparameter dict: ``config`` ("fast" | "paper", default "fast") plus overrides.
+    Unknown keys raise TypeError, out-of-range values ValueError."""
+    hyper = dict(hyper or {})
+    config = hyper.pop("config", "fast")
+    if config not in CONFIGS:
+        raise ValueError(f"config must be one of {sorted(CONFIGS)}, got {config!r}")
+    out = dict(CONFIGS[config])
+    unknown = set(hyper) - set(out)
+    if unknown:
+        raise TypeError(f"unknown TD3 hyperparameter(s) {sorted(unknown)}; accepted: config, {sorted(out)}")
+    out.update(hyper)
+    for k in _INT_KEYS:
+        v = out[k]
+        lo = 0 if k in ("learning_starts", "total_steps") else 1
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
+        out[k] = int(v)
+    for k in _POS_FLOAT:
+        if not (isinstance(out[k], (int, float)) and 0 < out[k] < math.inf):
+            raise ValueError(f"{k} must be a finite float > 0, got {out[k]!r}")
+    for k in _UNIT_FLOAT:
+        if not (isinstance(out[k], (int, float)) and 0 < out[k] <= 1):
+            raise ValueError(f"{k} must be in (0, 1], got {out[k]!r}")
+    for k in _NONNEG_FLOAT:
+        if not (isinstance(out[k], (int, float)) and 0 <= out[k] < math.inf):
+            raise ValueError(f"{k} must be a finite float >= 0, got {out[k]!r}")
+    hidden = out["hidden"]
+    if (not isinstance(hidden, (list, tuple)) or not hidden
+            or not all(isinstance(h, (int, np.integer)) and h >= 1 for h in hidden)):
+        raise ValueError(f"hidden must be a non-empty sequence of layer widths >= 1, got {hidden!r}")
+    out["hidden"] = [int(h) for h in hidden]
+    if out["buffer_size"] < out["num_envs"] * out["unroll"]:
+        raise ValueError(f"buffer_size must be >= num_envs * unroll = {out['num_envs'] * out['unroll']}, "
+                         f"got {out['buffer_size']}")
+    if out["learning_starts"] < out["batch_size"]:
+        raise ValueError(f"learning_starts must be >= batch_size = {out['batch_size']}, got {out['learning_starts']}")
+    if out["batch_size"] > out["buffer_size"]:
+        raise ValueError(f"batch_size must be <= buffer_size, got {out['batch_size']}")
+    out["normalize_obs"] = bool(out["normalize_obs"])
+    out["config"] = config
+    return out
+
+
+def train_env_config(env_config: dict) -> dict:
+    """The env_config used for training: ``model="phasor"`` unless one is given."""
+    return {"model": "phasor", **env_config}
+
+
+# -- networks -----------------------------------------------------------------------------------
+
+def _networks(hidden: Sequence[int], num_actions: int):
+    import flax.linen as nn
+
+    class MLP(nn.Module):
+        out: int
+
+        @nn.compact
+        def __call__(self, x):
+            for h in hidden:
+                x = nn.relu(nn.Dense(h)(x))
+            return nn.Dense(self.out)(x)
+
+    class Actor(nn.Module):
+        @nn.compact
+        def __call__(self, obs):
+            return jnp.tanh(MLP(num_actions)(obs))
+
+    class Critic(nn.Module):
+        @nn.compact
+        def __call__(self, obs, action):
+            x = jnp.concatenate([obs, action], -1)
+            return MLP(1)(x)[..., 0], MLP(1)(x)[..., 0]
+
+    return Actor(), Critic()
+
+
+def _normalise(norm, obs):
+    return (obs - norm["mean"]) / norm["std"]
+
+
+def params_template(env_config: dict, hyper: dict):
+    """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
+    hyper = resolve_hyper({k: v for k, v in hyper.items() if k in CONFIGS["fast"] or k == "config"})
+    env, _ = ops_jax.make(**train_env_config(env_config))
+    actor, _ = _networks(hyper["hidden"], env.num_actions)
+    d = env.observation_size
+    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
+            "obs_norm": {"mean": jnp.zeros(d), "std": jnp.ones(d)}}
+
+
+def make_policy(env_config: dict, hyper: dict) -> base.Policy:
+    """The deterministic actor: a = tanh(MLP((obs - mean) / std)); ignores key, carry and probe."""
+    hyper = resolve_hyper({k: v for k, v in hyper.items() if k in CONFIGS["fast"] or k == "config"})
+    env, _ = ops_jax.make(**train_env_config(env_config))
+    actor, _ = _networks(hyper["hidden"], env.num_actions)
+
+    def act(params, carry, obs, key, probe):
+        del key, probe
+        return actor.apply(params["actor"], _normalise(params["obs_norm"], obs)), carry
+
+    return base.Policy(lambda key, obs: (), act)
+
+
+# -- training -----------------------------------------------------------------------------------
+
+class TrainState(NamedTuple):
+    actor: Any
+    critic: Any
+    actor_target: Any
+    critic_target: Any
+    actor_opt: Any
+    critic_opt: Any
+    obs_norm: Any
+    buffer: Any
+    env_state: Any
+    obs: jax.Array
+    key: jax.Array
+    updates: jax.Array  # gradient steps so far
+
+
+def _build(env, env_params, h):
+    import optax
+    from brax.training.replay_buffers import UniformSamplingQueue
+
+    actor, critic = _networks(h["hidden"], env.num_actions)
+    d, n, b = env.observation_size, env.num_actions, h["num_envs"]
+    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
+                 next_obs=jnp.zeros(d))
+    buffer = UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
+    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
+    gamma, tau = h["gamma"], h["tau"]
+
+    def explore(ts, key, obs, random):
+        k1, k2 = jax.random.split(key)
+        greedy = actor.apply(ts.actor, _normalise(ts.obs_norm, obs))
+        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
+        uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
+        return jnp.where(random, uniform, noisy)
+
+    def env_step(ts, key, random):
+        k_act, k_env = jax.random.split(key)
+        action = explore(ts, k_act, ts.obs, random)
+        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
+                                                               action, env_params)
+        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
+                  next_obs=info["final_observation"])
+        return ts._replace(env_state=env_state, obs=obs2), tr
+
+    def critic_loss(cp, ts, batch, key):
+        nobs = _normalise(ts.obs_norm, batch["next_obs"])
+        obs = _normalise(ts.obs_norm, batch["obs"])
+        a2 = actor.apply(ts.actor_target, nobs)
+        eps = jnp.clip(h["target_noise"] * jax.random.normal(key, a2.shape), -h["noise_clip"], h["noise_clip"])
+        a2 = jnp.clip(a2 + eps, -1, 1)
+        q1t, q2t = critic.apply(ts.critic_target, nobs, a2)
+        y = jax.lax.stop_gradient(batch["reward"] + gamma * batch["discount"] * jnp.minimum(q1t, q2t))
+        q1, q2 = critic.apply(cp, obs, batch["action"])
+        return jnp.mean((q1 - y) ** 2 + (q2 - y) ** 2)
+
+    def actor_loss(ap, ts, batch):
+        obs = _normalise(ts.obs_norm, batch["obs"])
+        q1, _ = critic.apply(ts.critic, obs, actor.apply(ap, obs))
+        return -jnp.mean(q1)
+
+    def soft(target, online):
+        return jax.tree.map(lambda t, o: (1 - tau) * t + tau * o, target, online)
+
+    def update(ts, _):
+        buf, batch = buffer.sample(ts.buffer)
+        key, k_noise = jax.random.split(ts.key)
+        closs, grads = jax.value_and_grad(critic_loss)(ts.critic, ts, batch, k_noise)
+        upd, copt = critic_tx.update(grads, ts.critic_opt)
+        ts = ts._replace(critic=optax.apply_updates(ts.critic, upd), critic_opt=copt, buffer=buf, key=key)
+
+        def actor_step(ts):
+            aloss, g = jax.value_and_grad(actor_loss)(ts.actor, ts, batch)
+            u, aopt = actor_tx.update(g, ts.actor_opt)
+            ap = optax.apply_updates(ts.actor, u)
+            return ts._replace(actor=ap, actor_opt=aopt, actor_target=soft(ts.actor_target, ap),
+                               critic_target=soft(ts.critic_target, ts.critic)), aloss
+
+        ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step,
+                                 lambda ts: (ts, jnp.float32(jnp.nan)), ts)
+        return ts._replace(updates=ts.updates + 1), (closs, aloss)
+
+    def collect(ts, random):
+        def body(ts, _):
+            key, k = jax.random.split(ts.key)
+            ts, tr = env_step(ts._replace(key=key), k, random)
+            return ts._replace(buffer=buffer.insert(ts.buffer, tr)), tr["reward"]
+        return jax.lax.scan(body, ts, None, length=h["unroll"])
+
+    def iteration(ts, _):
+        ts, reward = collect(ts, False)
+        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=h["updates_per_iter"])
+        return ts, dict(reward=reward.mean(), critic_loss=closs.mean(), actor_loss=jnp.nanmean(aloss))
+
+    def train_chunk(ts, length):
+        ts, m = jax.lax.scan(iteration, ts, None, length=length)
+        return ts, jax.tree.map(jnp.mean, m)
+
+    def warmup(ts, length):
+        ts, _ = jax.lax.scan(lambda ts, _: collect(ts, True), ts, None, length=length)
+        return ts
+
+    def init(key):
+        k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
+        dummy_obs, dummy_act = jnp.zeros((1, d)), jnp.zeros((1, n))
+        ap = actor.init(k_a, dummy_obs)
+        cp = critic.init(k_c, dummy_obs, dummy_act)
+        obs, env_state = env.reset_batch(jax.random.split(k_env, b), env_params)
+        return TrainState(ap, cp, ap, cp, actor_tx.init(ap), critic_tx.init(cp),
+                          {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buffer.init(k_buf), env_state, obs, k_run,
+                          jnp.int32(0))
+
+    def fit_norm(ts):
+        """Freeze the observation statistics from the buffer's warm-up data (std floored at 1e-2)."""
+        if not h["normalize_obs"]:
+            return ts
+        data = buffer._unflatten_fn(ts.buffer.data)["obs"]
+        valid = (jnp.arange(data.shape[0]) < ts.buffer.insert_position)[:, None]
+        count = jnp.maximum(valid.sum(), 1)
+        mean = jnp.where(valid, data, 0).sum(0) / count
+        var = jnp.where(valid, (data - mean) ** 2, 0).sum(0) / count
+        return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(jnp.sqrt(var), 1e-2)})
+
+    return dict(init=jax.jit(init), warmup=jax.jit(warmup, static_argnums=1),
+                fit_norm=jax.jit(fit_norm), train_chunk=jax.jit(train_chunk, static_argnums=1, donate_argnums=0))
+
+
+_BUILD_KEYS = ("num_envs", "unroll", "updates_per_iter", "batch_size", "hidden", "actor_lr", "critic_lr", "gamma",
+               "tau", "buffer_size", "expl_std", "target_noise", "noise_clip", "policy_delay", "normalize_obs")
+_BUILDS: dict = {}
+
+
+def _cached_build(env_config: dict, h: dict) -> dict:
+    """Jitted training functions, built once per (env config, hyperparameters) in this process, so
+    that a second ``train`` call with the same setting does not recompile."""
+    cfg = train_env_config(env_config)
+    key = (repr(sorted(cfg.items())), repr([(k, h[k]) for k in _BUILD_KEYS]))
+    if key not in _BUILDS:
+        env, env_params = ops_jax.make(**cfg)
+        fns = _build(env, env_params, h)
+        evaluate_fn, _ = base._evaluator(env, make_policy(env_config, h), env.config.max_steps, 10)
+        compiled = {}
+
+        def get_compiled(name, *args):
+            """Compiled ``name`` ("warmup" | "train_chunk": args (ts, length); "evaluate": its args)."""
+            if name == "evaluate":
+                sig = ("evaluate", args[-1].shape)
+                if sig not in compiled:
+                    compiled[sig] = evaluate_fn.lower(*args).compile()
+                return compiled[sig]
+            ts, length = args
+            if (name, length) not in compiled:
+                compiled[name, length] = fns[name].lower(ts, length).compile()
+            return compiled[name, length]
+
+        fns.update(env_params=env_params, evaluate=evaluate_fn, compiled=get_compiled)
+        _BUILDS[key] = fns
+    return _BUILDS[key]
+
+
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
+          progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> base.TrainResult:
+    """Train TD3 on ``ops_jax.make(**env_config)`` (phasor model unless set) for ``total_steps`` env
+    steps (default: the config's). ``hyper``: ``config`` ("fast" default | "paper") and overrides of
+    its keys (see ``CONFIGS``). ``progress_fn(step, metrics)`` is called after every evaluation
+    with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Env steps are rounded
+    up to whole training chunks; the curve's 'step' holds the true counts."""
+    env_config = base.check_env_config(env_config)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"seed must be an int, got {seed!r}")
+    h = resolve_hyper(hyper)
+    if total_steps is not None:
+        if isinstance(total_steps, bool) or not isinstance(total_steps, (int, np.integer)) or total_steps < 0:
+            raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
+        h["total_steps"] = int(total_steps)
+    fns = _cached_build(env_config, h)
+    env_params = fns["env_params"]
+    eval_ids = jnp.arange(h["eval_episodes"])
+
+    per_iter = h["num_envs"] * h["unroll"]
+    warm_iters = -(-h["learning_starts"] // per_iter)
+    train_iters = max(0, -(-(h["total_steps"] - warm_iters * per_iter) // per_iter))
+    n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
+    chunk = -(-train_iters // n_chunks) if n_chunks else 0
+
+    t_start = time.perf_counter()
+    timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
+    key = jax.random.key(seed)
+    k_init, k_eval = jax.random.split(key)
+    ts = fns["init"](k_init)
+    t0 = time.perf_counter()
+    warmup = fns["compiled"]("warmup", ts, warm_iters)
+    t1 = time.perf_counter()
+    ts = jax.block_until_ready(warmup(ts))
+    timing["compile"] += t1 - t0
+    timing["simulation"] += time.perf_counter() - t1
+    sim_per_iter = (time.perf_counter() - t1) / warm_iters
+    ts = fns["fit_norm"](ts)
+
+    def params_of(ts):
+        return {"actor": ts.actor, "obs_norm": ts.obs_norm}
+
+    t0 = time.perf_counter()
+    evaluate_fn = fns["compiled"]("evaluate", params_of(ts), env_params, k_eval, eval_ids)
+    timing["compile"] += time.perf_counter() - t0
+
+    def run_eval(ts, step):
+        t0 = time.perf_counter()
+        npow, _ = evaluate_fn(params_of(ts), env_params, k_eval, eval_ids)
+        npow = np.asarray(npow)  # (steps, episodes)
+        timing["evaluation"] += time.perf_counter() - t0
+        return float(npow[-10:].mean()), float(npow[-1].mean())
+
+    steps, npows, finals, closses, alosses = [], [], [], [], []
+    step = warm_iters * per_iter
+    sim_per_chunk = sim_per_iter * chunk
+    if chunk:
+        t0 = time.perf_counter()
+        train_compiled = fns["compiled"]("train_chunk", ts, chunk)
+        timing["compile"] += time.perf_counter() - t0
+    npow, final = run_eval(ts, step)
+    steps.append(step), npows.append(npow), finals.append(final), closses.append(np.nan), alosses.append(np.nan)
+    if progress_fn is not None:
+        progress_fn(step, dict(normalized_power=npow, elapsed_s=time.perf_counter() - t_start))
+    for _ in range(n_chunks):
+        t0 = time.perf_counter()
+        ts, m = train_compiled(ts)
+        m = jax.device_get(m)
+        dt = time.perf_counter() - t0
+        timing["simulation"] += min(sim_per_chunk, dt)
+        timing["optimisation"] += max(0.0, dt - sim_per_chunk)
+        step += chunk * per_iter
+        npow, final = run_eval(ts, step)
+        steps.append(step), npows.append(npow), finals.append(final)
+        closses.append(float(m["critic_loss"])), alosses.append(float(m["actor_loss"]))
+        if progress_fn is not None:
+            progress_fn(step, dict(normalized_power=npow, critic_loss=float(m["critic_loss"]),
+                                   actor_loss=float(m["actor_loss"]), reward=float(m["reward"]),
+                                   elapsed_s=time.perf_counter() - t_start))
+    timing["total"] = time.perf_counter() - t_start
+    curve = dict(step=np.asarray(steps), normalized_power=np.asarray(npows), final_normalized_power=np.asarray(finals),
+                 critic_loss=np.asarray(closses), actor_loss=np.asarray(alosses))
+    params = jax.device_get(params_of(ts))
+    hyper_out = {k: v for k, v in h.items()}
+    return base.TrainResult("td3", env_config, hyper_out, params, curve, timing, int(seed))

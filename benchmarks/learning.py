@@ -1,0 +1,148 @@
+"""Learning benchmark: train each algorithm on N-stage easy / medium / hard with several seeds and
+report the testing P/Pmax (mean +- std over seeds), wall time per run and test-time steps to 0.9.
+
+    python -m benchmarks.learning [--algos td3 sac ...] [--modes easy medium hard] [--seeds 5]
+                                  [--stages 5] [--steps N] [--config fast] [--episodes 50]
+                                  [--out results/learning] [--fresh]
+
+Each run: ``agents.train(algo, {"stages", "mode"}, seed=s, total_steps=--steps, config=--config)``,
+then ``agents.evaluate`` on the testing environment (seed 1000 + s, drift fully on in hard mode,
+``--episodes`` episodes of 200 steps, the exact "field" model). Per run it records the final
+P/Pmax (mean over episodes), the median test-time steps to reach 0.9 and the fraction of episodes
+that do, and the wall time (total, simulation, optimisation). Results go to ``<out>/learning.json``
+(rewritten atomically after every run; existing runs are reused, and said so, unless ``--fresh``)
+and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. A run that fails is recorded with
+its error and printed; nothing is skipped silently.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import write_json_atomic
+
+
+def run_key(algo: str, mode: str, seed: int) -> str:
+    return f"{algo}/{mode}/{seed}"
+
+
+def run_one(algo: str, stages: int, mode: str, seed: int, steps, config, episodes: int, ckpt_dir: Path | None) -> dict:
+    """Train and evaluate one (algo, mode, seed); returns the run record."""
+    import agents
+    from agents import base
+
+    env_config = {"stages": stages, "mode": mode}
+    hyper = {} if config is None else {"config": config}
+    t0 = time.perf_counter()
+    result = base.train(algo, env_config, seed=seed, total_steps=steps, **hyper)
+    train_s = time.perf_counter() - t0
+    ev = agents.evaluate(result, env_config, episodes=episodes, seed=1000 + seed)
+    if ckpt_dir is not None:
+        agents.save(ckpt_dir / f"{algo}_{mode}_s{seed}", result)
+    s = ev.summary
+    return dict(algo=algo, mode=mode, seed=seed, stages=stages, status="ok",
+                testing_p_pmax=s["final_mean"], testing_p_pmax_std_over_episodes=s["final_std"],
+                mean_last10=s["mean_last10"], steps_to_0p9=s["steps_to_0p9_median"],
+                fraction_reached_0p9=s["fraction_reached_0p9"], measurements_per_step=s["measurements_per_step"],
+                train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0,
+                wall_time=dict(result.wall_time), train_call_s=train_s,
+                curve={k: np.asarray(v).tolist() for k, v in result.curve.items()}, hyper=result.hyper)
+
+
+def aggregate(runs: list[dict]) -> dict:
+    """Per (algo, mode): mean / std over seeds of the testing P/Pmax, wall time, steps to 0.9."""
+    table = {}
+    for r in runs:
+        table.setdefault((r["algo"], r["mode"]), []).append(r)
+    out = {}
+    for (algo, mode), rs in sorted(table.items()):
+        ok = [r for r in rs if r["status"] == "ok"]
+        p = np.array([r["testing_p_pmax"] for r in ok])
+        st = np.array([r["steps_to_0p9"] for r in ok], float)
+        wt = np.array([r["wall_time"].get("total", np.nan) for r in ok], float)
+        out[f"{algo}/{mode}"] = dict(
+            algo=algo, mode=mode, seeds=len(ok), failed=len(rs) - len(ok),
+            p_pmax_mean=float(p.mean()) if p.size else float("nan"),
+            p_pmax_std=float(p.std()) if p.size else float("nan"),
+            steps_to_0p9_mean=float(np.nanmean(st)) if np.isfinite(st).any() else float("nan"),
+            wall_time_s_mean=float(wt.mean()) if wt.size else float("nan"),
+            wall_time_s_max=float(wt.max()) if wt.size else float("nan"),
+        )
+    return out
+
+
+def format_table(agg: dict) -> str:
+    lines = [f"{'algo':8s} {'mode':7s} {'seeds':>5s} {'testing P/Pmax':>18s} {'steps to 0.9':>12s} {'wall s/run':>10s}"]
+    for row in agg.values():
+        fail = f"  ({row['failed']} failed)" if row["failed"] else ""
+        lines.append(f"{row['algo']:8s} {row['mode']:7s} {row['seeds']:5d} "
+                     f"{row['p_pmax_mean']:8.4f} +- {row['p_pmax_std']:6.4f} {row['steps_to_0p9_mean']:12.1f} "
+                     f"{row['wall_time_s_mean']:10.1f}{fail}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    from agents.base import ALGOS
+
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__.split("\n")[0])
+    ap.add_argument("--algos", nargs="+", default=[a for a in ALGOS], choices=sorted(ALGOS))
+    ap.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seed0", type=int, default=0, help="first seed")
+    ap.add_argument("--stages", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=None, help="env steps per run (default: each algorithm's)")
+    ap.add_argument("--config", default=None, help="hyperparameter set passed as config= (default: the algorithm's)")
+    ap.add_argument("--episodes", type=int, default=50)
+    ap.add_argument("--out", type=Path, default=Path("results/learning"))
+    ap.add_argument("--fresh", action="store_true", help="ignore runs already in <out>/learning.json")
+    ap.add_argument("--no-checkpoints", action="store_true")
+    args = ap.parse_args(argv)
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+
+    from tqdm import tqdm
+
+    path = args.out / "learning.json"
+    done = {}
+    if path.exists() and not args.fresh:
+        done = {run_key(r["algo"], r["mode"], r["seed"]): r for r in json.loads(path.read_text())["runs"]
+                if r["status"] == "ok" and r["stages"] == args.stages}
+    ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
+    jobs = [(a, m, s) for a in args.algos for m in args.modes for s in range(args.seed0, args.seed0 + args.seeds)]
+    runs = dict(done)
+    bar = tqdm(jobs, unit="run", dynamic_ncols=True)
+    for algo, mode, seed in bar:
+        key = run_key(algo, mode, seed)
+        bar.set_description(key)
+        if key in done:
+            p = done[key]["testing_p_pmax"]
+            tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {p:.4f}); --fresh reruns it")
+            continue
+        try:
+            rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
+            wall = rec["wall_time"].get("total", float("nan"))
+            tqdm.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
+                       f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s")
+        except Exception as exc:  # recorded and printed, never silently skipped
+            rec = dict(algo=algo, mode=mode, seed=seed, stages=args.stages, status="error",
+                       error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=5))
+            tqdm.write(f"{key}: FAILED {rec['error']}")
+        runs[key] = rec
+        write_json_atomic(path, dict(stages=args.stages, steps=args.steps, config=args.config, episodes=args.episodes,
+                                     runs=list(runs.values()), summary=aggregate(list(runs.values()))))
+    agg = aggregate(list(runs.values()))
+    write_json_atomic(path, dict(stages=args.stages, steps=args.steps, config=args.config, episodes=args.episodes,
+                                 runs=list(runs.values()), summary=agg))
+    print(format_table(agg))
+    print(f"written to {path}")
+    return agg
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,353 @@
+"""Gymnasium adapters: ``OPSGymEnv`` (one instance) and ``OPSVectorEnv`` (a batch, one jitted call
+per step), registered as ``"ops_jax/OPS-v0"`` by ``import ops_jax``::
+
+    env = gymnasium.make("ops_jax/OPS-v0", stages=5, mode="hard", render_mode="rgb_array")
+    envs = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=1024, vectorization_mode="vector_entry_point")
+
+Keywords: ``stages``, ``mode`` and every ``ops_jax.make`` option (``model``, ``reward``, ``max_steps``,
+``obs_noise``, ...), plus ``render_mode`` and ``device`` (the JAX device the state lives on:
+"cpu" by default for the single instance, whose per-step cost is dispatch-bound; the default
+backend for the vector env).
+
+Semantics (both adapters):
+- observation: the ``OPSEnv`` observation (float32 NumPy), in a finite ``Box`` whose bounds are
+  derived from the parameters (10 std of observation noise as margin); action: ``Box(-1, 1, (N,))``
+  float32 (0.01 wl per unit by default).
+- reward: the configured reward (``"paper"``: in [-1, 0]); ``terminated`` when a delay leaves the
+  +-window; ``truncated`` after ``max_steps`` (the environment truncates itself, so the registered
+  spec has no ``TimeLimit``; ``env.unwrapped.max_episode_steps`` is ``max_steps``).
+- info: ``power``, ``normalized_power`` (P / P_max), ``deltas_wl`` (N,), ``action_nonfinite``.
+- randomness: ``reset(seed=s)`` seeds ``np_random`` and restarts the episode counter (hard mode's
+  drift ramps with it); the JAX key of the episode is drawn from ``np_random``. ``reset(options=
+  {"episode": k})`` starts as the k-th episode (k >= 10: hard mode's drift fully on).
+- the vector env auto-resets in the same step (``AutoresetMode.SAME_STEP``): the returned obs of a
+  finished instance is its next episode's first; ``infos["final_obs"]`` (object array, ``None`` where
+  not finished) and ``infos["final_info"]`` hold the finished episode's last observation and info.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ops_jax import noise
+from ops_jax.env import make
+
+ENV_ID = "ops_jax/OPS-v0"
+RENDER_FPS = 10
+
+
+def register() -> None:
+    """Register ``"ops_jax/OPS-v0"`` (entry point and vector entry point) with Gymnasium; idempotent."""
+    if ENV_ID in gymnasium.registry:
+        return
+    gymnasium.register(
+        id=ENV_ID,
+        entry_point="ops_jax.gym_env:OPSGymEnv",
+        vector_entry_point="ops_jax.gym_env:OPSVectorEnv",
+        max_episode_steps=None,  # the environment truncates itself after its own max_steps
+    )
+
+
+def _device(device):
+    if device is None:
+        return None
+    if isinstance(device, jax.Device):
+        return device
+    if not isinstance(device, str):
+        raise TypeError(f"device must be None, a platform name such as 'cpu' or a jax.Device, got {device!r}")
+    try:
+        return jax.devices(device)[0]
+    except RuntimeError as exc:
+        raise ValueError(f"device {device!r} is not available: {exc}") from exc
+
+
+def _observation_bounds(env, params) -> np.ndarray:
+    """Per-entry bound B (obs in [-B, B]) of one frame, from the physics and the noise parameters."""
+    n = env.config.stages
+    p = {k: float(np.max(np.asarray(v))) for k, v in vars(params).items()}
+    margin = 10.0 * p["obs_noise"] + 1e-3
+    k = env.config.feedback_k
+    mu_max = p["drift_cap"] * p["step_sigma"] + p["drift_amplitude"]
+    # Largest |offset| seen: a reset ((cap + 2) s0) or the step that leaves the window.
+    x_max = max((p["drift_cap"] + 2.0) * p["init_spread"],
+                p["window"] + p["action_scale"] + k * (mu_max + 3.0 * p["step_sigma"]))
+    parts = [np.full(2**n, 1.0 + margin), np.full(n, x_max / p["window"] + margin)]
+    if env.config.include_noise:
+        parts.append(np.full(n, mu_max / noise.REFERENCE_SIGMA_WL + margin))
+    return np.tile(np.concatenate(parts), env.config.frame_stack).astype(np.float32)
+
+
+def _split_step_keys(key, num_envs: int):
+    """The vector env's key schedule: (next carried key, one key per instance for this step)."""
+    key, sub = jax.random.split(key)
+    return key, jax.random.split(sub, num_envs)
+
+
+def _pack(obs, reward, terminated, truncated, info, extra=()):
+    """One float32 array (..., D + 5 + N [+ extra]) so that one device->host copy returns a step."""
+    scal = [reward, terminated, truncated, info["power"], info["normalized_power"], info["action_nonfinite"]]
+    cols = [obs] + [jnp.asarray(s, jnp.float32)[..., None] for s in scal] + [info["deltas_wl"]] + list(extra)
+    return jnp.concatenate([jnp.asarray(c, jnp.float32) for c in cols], axis=-1)
+
+
+class _Unpacked:
+    """Views of a packed step (see ``_pack``)."""
+
+    def __init__(self, packed: np.ndarray, d: int, n: int):
+        self.obs = packed[..., :d]
+        self.reward = packed[..., d]
+        self.terminated = packed[..., d + 1] != 0
+        self.truncated = packed[..., d + 2] != 0
+        self.power = packed[..., d + 3]
+        self.normalized_power = packed[..., d + 4]
+        self.action_nonfinite = packed[..., d + 5] != 0
+        self.deltas_wl = packed[..., d + 6:d + 6 + n]
+        self.extra = packed[..., d + 6 + n:]
+
+
+class OPSGymEnv(gymnasium.Env):
+    """One OPS instance behind the Gymnasium 1.x ``Env`` API (see the module docstring).
+
+    ``OPSGymEnv(stages=5, mode="hard", render_mode=None, device="cpu", **options)``; ``options`` are
+    ``ops_jax.make`` overrides. The step is one jitted call (state kept on ``device``) returning one
+    packed array; per-step overhead is a few tens of microseconds on CPU."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}
+
+    def __init__(self, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
+                 device: Any = "cpu", **options):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.env, self.params = make(stages, mode, **options)
+        self.options = dict(stages=stages, mode=mode, **options)
+        self.render_mode = render_mode
+        self.device = _device(device)
+        n, d = self.env.num_actions, self.env.observation_size
+        self._n, self._d = n, d
+        bound = _observation_bounds(self.env, self.params)
+        self.observation_space = spaces.Box(-bound, bound, (d,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.max_episode_steps = self.env.config.max_steps
+        env, params = self.env, self.params
+
+        def step(carry, action):
+            key, state = carry
+            key, sub = jax.random.split(key)
+            obs, state, reward, term, trunc, info = env.step_env(sub, state, action, params)
+            return (key, state), _pack(obs, reward, term, trunc, info)
+
+        def reset(key, episode, p_init):
+            # p_init < 0: measure it now (a seeded start); else carry it (the "reference" reward's
+            # P at the first reset of the run).
+            key, k_reset = jax.random.split(key)
+            obs, state = env.reset(k_reset, params, episode)
+            state = dataclasses.replace(state, p_init=jnp.where(p_init < 0, state.p_init, p_init))
+            return (key, state), obs
+
+        self._step = jax.jit(step, device=self.device)
+        self._reset = jax.jit(reset, device=self.device)
+        self._carry = None
+        self._episode = 0
+        self._last = None
+        self._scope = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode. ``seed`` reseeds ``np_random`` and restarts the episode counter;
+        ``options={"episode": k}`` sets the counter (drift ramp of hard mode). Returns (obs, info)."""
+        super().reset(seed=seed)
+        if seed is not None:
+            self._episode = 0
+        if options:
+            unknown = set(options) - {"episode"}
+            if unknown:
+                raise ValueError(f"reset options accept only 'episode', got {sorted(unknown)}")
+            episode = options["episode"]
+            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
+                raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
+            self._episode = int(episode)
+        key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
+        if self.device is not None:
+            key = jax.device_put(key, self.device)
+        p_init = self._carry[1].p_init if (self._carry is not None and seed is None) else np.float32(-1)
+        self._carry, obs = self._reset(key, np.int32(self._episode), p_init)
+        self._episode += 1
+        obs = np.asarray(obs)
+        deltas = np.asarray(self._carry[1].deltas)
+        self._last = dict(step=0, deltas_wl=deltas)
+        if self.render_mode == "human":
+            self.render()
+        return obs, {"deltas_wl": deltas}
+
+    def step(self, action):
+        """One control step: returns (obs, reward, terminated, truncated, info)."""
+        if self._carry is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, np.float32)
+        if action.shape != (self._n,):
+            raise ValueError(f"action must have shape ({self._n},) for stages={self._n}, got {action.shape}")
+        self._carry, packed = self._step(self._carry, action)
+        u = _Unpacked(np.asarray(packed), self._d, self._n)
+        info = {
+            "power": float(u.power),
+            "normalized_power": float(u.normalized_power),
+            "deltas_wl": u.deltas_wl.copy(),
+            "action_nonfinite": bool(u.action_nonfinite),
+        }
+        self._last = dict(step=self._last["step"] + 1, deltas_wl=info["deltas_wl"])
+        if self.render_mode == "human":
+            self.render()
+        return u.obs.copy(), float(u.reward), bool(u.terminated), bool(u.truncated), info
+
+    def render(self):
+        """``"rgb_array"``: an (H, W, 3) uint8 oscilloscope frame of the current pulse train (exact
+        field model); ``"human"``: the same frame in a matplotlib window (no-op without a display)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self._last is None:
+            raise RuntimeError("call reset() before render()")
+        from ops_jax import render as _render
+
+        if self._scope is None:
+            self._scope = _render.Oscilloscope(self._n, detector=self.env.config.detector)
+        frame = self._scope.frame(self._last["deltas_wl"], step=self._last["step"])
+        if self.render_mode == "rgb_array":
+            return frame
+        _render.show(frame, title=ENV_ID)
+        return None
+
+    def close(self):
+        if self._scope is not None:
+            self._scope.close()
+            self._scope = None
+        super().close()
+
+
+class OPSVectorEnv(VectorEnv):
+    """``num_envs`` OPS instances stepped by one jitted ``OPSEnv.step_batch`` call; same-step
+    auto-reset (see the module docstring). ``device=None``: JAX's default backend."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"],
+                "render_fps": RENDER_FPS}
+
+    def __init__(self, num_envs: int = 1, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
+                 device: Any = None, **options):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        options.pop("max_episode_steps", None)  # make_vec forwards the spec's (None); truncation is max_steps
+        self.env, self.params = make(stages, mode, **options)
+        self.num_envs = int(num_envs)
+        self.render_mode = render_mode
+        self.device = _device(device)
+        n, d = self.env.num_actions, self.env.observation_size
+        self._n, self._d = n, d
+        bound = _observation_bounds(self.env, self.params)
+        self.single_observation_space = spaces.Box(-bound, bound, (d,), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.max_episode_steps = self.env.config.max_steps
+        env, params, b = self.env, self.params, self.num_envs
+
+        def reset(key, episodes):
+            key, sub = jax.random.split(key)
+            keys = jax.random.split(sub, b)
+            obs, states = jax.vmap(env.reset, in_axes=(0, None, 0))(keys, params, episodes)
+            return (key, states), obs
+
+        def step(carry, actions):
+            key, states = carry
+            key, keys = _split_step_keys(key, b)
+            obs, states, reward, term, trunc, info = env.step_batch(keys, states, actions, params)
+            return (key, states), _pack(obs, reward, term, trunc, info, (info["final_observation"],))
+
+        self._reset = jax.jit(reset, device=self.device)
+        self._step = jax.jit(step, device=self.device)
+        self._carry = None
+        self._episode = 0
+        self._last_deltas = None
+        self._scopes = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Reset every instance. ``seed`` reseeds ``np_random`` (and restarts the episode counter);
+        ``options={"episode": k}`` starts every instance as its k-th episode. Returns (obs, infos)."""
+        super().reset(seed=seed)
+        if seed is not None:
+            self._episode = 0
+        if options:
+            unknown = set(options) - {"episode"}
+            if unknown:
+                raise ValueError(f"reset options accept only 'episode', got {sorted(unknown)}")
+            episode = options["episode"]
+            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
+                raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
+            self._episode = int(episode)
+        key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
+        if self.device is not None:
+            key = jax.device_put(key, self.device)
+        episodes = np.full(self.num_envs, self._episode, np.int32)
+        self._carry, obs = self._reset(key, episodes)
+        self._episode += 1
+        self._last_deltas = None
+        return np.asarray(obs), {}
+
+    def step(self, actions):
+        """Step every instance: returns (obs (B, D), rewards (B,) float64, terminations (B,),
+        truncations (B,), infos)."""
+        if self._carry is None:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions, np.float32)
+        if actions.shape != (self.num_envs, self._n):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {self._n}), got {actions.shape}")
+        self._carry, packed = self._step(self._carry, actions)
+        u = _Unpacked(np.asarray(packed), self._d, self._n)
+        ones = np.ones(self.num_envs, bool)
+        infos = {
+            "power": u.power.copy(), "_power": ones,
+            "normalized_power": u.normalized_power.copy(), "_normalized_power": ones,
+            "deltas_wl": u.deltas_wl.copy(), "_deltas_wl": ones,
+            "action_nonfinite": u.action_nonfinite.copy(), "_action_nonfinite": ones,
+        }
+        done = u.terminated | u.truncated
+        if done.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(done):
+                final_obs[i] = u.extra[i].copy()
+            infos["final_obs"], infos["_final_obs"] = final_obs, done
+            infos["final_info"] = {k: (np.where(done.reshape(-1, *[1] * (v.ndim - 1)), v, 0) if not k.startswith("_")
+                                       else done.copy()) for k, v in infos.items() if k not in ("final_obs", "_final_obs")}
+            infos["_final_info"] = done
+        self._last_deltas = infos["deltas_wl"]
+        return u.obs.copy(), u.reward.astype(np.float64), u.terminated.copy(), u.truncated.copy(), infos
+
+    def render(self):
+        """``"rgb_array"``: a tuple of (H, W, 3) uint8 oscilloscope frames, one per instance (slow
+        for large batches: about 20 ms per frame)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        if self._carry is None:
+            raise RuntimeError("call reset() before render()")
+        from ops_jax import render as _render
+
+        if self._scopes is None:
+            self._scopes = _render.Oscilloscope(self._n, detector=self.env.config.detector)
+        deltas = np.asarray(self._carry[1].deltas)
+        steps = np.asarray(self._carry[1].t)
+        return tuple(self._scopes.frame(deltas[i], step=int(steps[i])) for i in range(self.num_envs))
+
+    def close_extras(self, **kwargs):
+        if self._scopes is not None:
+            self._scopes.close()
+            self._scopes = None

@@ -1,0 +1,437 @@
+"""Pictures of OPS: oscilloscope frames, animated episodes and the objective landscape.
+
+All pictures use the exact field model (``physics.measure(model="field")``): intensity I(t) on the
+0.5 ps grid, normalised to the peak of the ideal stacked pulse (``physics.peak_intensity``), the
+2^N - 1 oscilloscope samples marked, and P / P_max of that measurement. matplotlib (Agg canvas,
+no display needed) and Pillow are imported here only.
+
+Command line (``python -m ops_jax.render [episode|frame|landscape] ...``; default ``episode``)::
+
+    # animated GIF of a controlled episode (policy: zero | random | spgd | a checkpoint folder)
+    python -m ops_jax.render --stages 5 --mode hard --policy zero --steps 100 --out episode.gif
+    # one oscilloscope frame (PNG) after --steps steps of the policy
+    python -m ops_jax.render frame --stages 5 --mode hard --policy random --steps 0 --out scope.png
+    # P/Pmax along one stage's delay (one --stage: line plot; paper Fig. 2a is N=2, stage 1) ...
+    python -m ops_jax.render landscape --stages 2 --stage 1 --out landscape_1d.png
+    # ... or over two stages' delays (two --stage values: heat map, paper Fig. 2b)
+    python -m ops_jax.render landscape --stages 2 --stage 1 2 --out landscape_2d.png
+
+Stages are numbered from 1; landscape offsets span ``[-span, span]`` wl (default 1) with the other
+stages at their optimal lengths. Episodes start as the 10th reset (hard mode's drift fully on),
+like ``agents.evaluate``. ``--policy PATH`` loads an ``agents.save`` checkpoint and runs on the
+checkpoint's own environment configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import sys
+import warnings
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ops_jax import physics
+from ops_jax.env import make
+
+DEFAULT_FIGSIZE = (6.4, 3.4)  # inches
+DEFAULT_DPI = 100
+_NON_INTERACTIVE = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template", "module://matplotlib_inline.backend_inline"}
+
+
+@functools.lru_cache(maxsize=None)
+def _measure_fn(stages: int, detector: str):
+    """Jitted field measurement of a batch of offsets (B, N) -> (P / P_max (B,), I / I_peak (B, M))."""
+    p_max = physics.p_max(stages, detector)
+    peak = physics.peak_intensity(stages)
+
+    @jax.jit
+    def fn(deltas):
+        m = physics.measure(deltas, stages=stages, model="field", detector=detector)
+        return m.power / p_max, m.intensity / peak
+
+    return fn
+
+
+def measure_frames(deltas_wl, stages: int, detector: str = "total"):
+    """Exact measurements of offsets ``deltas_wl`` (T, N) wl: (P / P_max (T,), I / I_peak (T, M))."""
+    physics.check_stages(stages)
+    physics._check_choice("detector", detector, physics.DETECTORS)
+    x = np.asarray(deltas_wl, np.float32)
+    if x.ndim != 2 or x.shape[1] != stages:
+        raise ValueError(f"deltas_wl must have shape (T, {stages}), got {x.shape}")
+    p, intensity = _measure_fn(stages, detector)(x)
+    return np.asarray(p), np.asarray(intensity)
+
+
+def _figure(figsize, dpi):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _rgb(fig) -> np.ndarray:
+    fig.canvas.draw()
+    return np.array(fig.canvas.buffer_rgba())[..., :3]
+
+
+class Oscilloscope:
+    """Reusable oscilloscope plot of an N-stage output: ``frame(deltas_wl (N,), step)`` -> (H, W, 3)
+    uint8 RGB. The x axis is time in ps over the 2^N x 20 ps window, the y axis I(t) / I_peak."""
+
+    def __init__(self, stages: int, detector: str = "total", figsize=DEFAULT_FIGSIZE, dpi: int = DEFAULT_DPI):
+        self.stages = physics.check_stages(stages)
+        self.detector = physics._check_choice("detector", detector, physics.DETECTORS)
+        g = physics.grid(stages)
+        self.t = g.t
+        self.sample_idx = (np.arange(1, 2**stages) * physics.POINTS_PER_PERIOD)
+        self.fig = _figure(figsize, dpi)
+        ax = self.fig.add_subplot()
+        (self.line,) = ax.plot(self.t, np.zeros_like(self.t), color="tab:blue", lw=1.2, label="I(t)")
+        (self.dots,) = ax.plot(self.t[self.sample_idx], np.zeros(self.sample_idx.size), "o", ms=3.5,
+                               color="tab:red", label="oscilloscope samples")
+        ax.set_xlim(self.t[0], self.t[-1])
+        ax.set_ylim(-0.02, 1.1)
+        ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
+        ax.set_xlabel("time (ps)")
+        ax.set_ylabel("intensity / ideal stacked peak")
+        ax.legend(loc="upper left", fontsize=8, frameon=False)
+        ax.grid(alpha=0.3)
+        self.title = ax.set_title(" ")
+        self.fig.tight_layout()
+
+    def draw(self, intensity, normalized_power: float, step=None) -> np.ndarray:
+        """Draw a precomputed normalised intensity (M,) and P / P_max; returns the RGB frame."""
+        self.line.set_ydata(intensity)
+        self.dots.set_ydata(np.asarray(intensity)[self.sample_idx])
+        head = f"N = {self.stages}" + ("" if step is None else f",  step {step}")
+        self.title.set_text(f"{head},  P/Pmax = {normalized_power:.3f}")
+        return _rgb(self.fig)
+
+    def frame(self, deltas_wl, step=None) -> np.ndarray:
+        """The frame for offsets ``deltas_wl`` (N,) wl (exact field model)."""
+        p, intensity = measure_frames(np.reshape(deltas_wl, (1, self.stages)), self.stages, self.detector)
+        return self.draw(intensity[0], float(p[0]), step)
+
+    def frames(self, deltas_wl, steps=None) -> list:
+        """Frames for a sequence of offsets (T, N), measured in one batched call."""
+        p, intensity = measure_frames(deltas_wl, self.stages, self.detector)
+        steps = range(len(p)) if steps is None else steps
+        return [self.draw(i, float(q), s) for i, q, s in zip(intensity, p, steps)]
+
+    def close(self):
+        self.fig.clear()
+
+
+def oscilloscope_frame(deltas_wl, stages: int, *, step=None, detector: str = "total") -> np.ndarray:
+    """One (H, W, 3) uint8 oscilloscope frame for offsets ``deltas_wl`` (N,) wl."""
+    return Oscilloscope(stages, detector).frame(deltas_wl, step)
+
+
+_human = {}
+
+
+def _headless() -> bool:
+    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
+    """Show an RGB frame in a matplotlib window (``render_mode="human"``). On a machine without a
+    display or with a non-interactive backend it warns once and returns False."""
+    if not _headless():
+        import matplotlib.pyplot as plt
+
+        if plt.get_backend().lower() not in _NON_INTERACTIVE:
+            if "fig" not in _human or not plt.fignum_exists(_human["fig"].number):
+                _human["fig"], ax = plt.subplots(num=title)
+                ax.set_axis_off()
+                _human["im"] = ax.imshow(frame)
+                _human["fig"].tight_layout()
+                plt.show(block=False)
+            _human["im"].set_data(frame)
+            plt.pause(0.001)
+            return True
+    if not _human.get("warned"):
+        warnings.warn("render_mode='human': no display or interactive matplotlib backend; frames are not shown "
+                      "(use render_mode='rgb_array')", RuntimeWarning, stacklevel=3)
+        _human["warned"] = True
+    return False
+
+
+# -- episodes ---------------------------------------------------------------------------------
+
+class Episode(NamedTuple):
+    """deltas_wl (T + 1, N) after reset and after each step; normalized_power (T + 1,) exact."""
+
+    deltas_wl: np.ndarray
+    normalized_power: np.ndarray
+    env_config: dict
+
+
+def _simple_policy(kind: str):
+    from agents.base import Policy
+
+    def act(params, carry, obs, key, probe):
+        n = params["stages"]
+        shape = (obs.shape[0], n)
+        if kind == "zero":
+            return jnp.zeros(shape), carry
+        return jax.random.uniform(key, shape, minval=-1.0, maxval=1.0), carry
+
+    return Policy(lambda key, obs: jnp.zeros(()), act)
+
+
+def _policy_contract():
+    try:
+        from agents.base import Policy
+    except ImportError:
+        Policy = None
+    return Policy
+
+
+def get_policy(name: str, env_config: dict, seed: int = 0):
+    """(Policy, params, env_config) for ``name``: "zero", "random", "spgd" (``agents.train``) or a
+    checkpoint folder (``agents.load``; its own env_config is used)."""
+    if name in ("zero", "random"):
+        return _builtin_policy(name, env_config["stages"]), None, env_config
+    try:
+        import agents
+    except ImportError as exc:
+        raise RuntimeError(f"--policy {name!r} needs the agents package ({exc}); use zero or random") from exc
+    if name in agents.ALGOS:
+        try:
+            result = agents.train(name, env_config, seed=seed)
+        except (ImportError, AttributeError) as exc:
+            raise RuntimeError(f"--policy {name!r}: agents.{name} is not available ({exc})") from exc
+        return result.policy(), result.params, env_config
+    path = Path(name)
+    if not path.exists():
+        raise ValueError(f"policy must be zero, random, one of {sorted(agents.ALGOS)} or a checkpoint folder; "
+                         f"{name!r} is none of these")
+    result = agents.load(path)
+    return result.policy(), result.params, dict(result.env_config)
+
+
+class _Builtin(NamedTuple):
+    init: object
+    act: object
+
+
+def _builtin_policy(kind: str, stages: int):
+    """Zero or uniform random actions, following the agents.base Policy contract."""
+
+    def init(key, obs):
+        return jnp.zeros(())
+
+    def act(params, carry, obs, key, probe):
+        shape = (obs.shape[0], stages)
+        if kind == "zero":
+            return jnp.zeros(shape), carry
+        return jax.random.uniform(key, shape, minval=-1.0, maxval=1.0), carry
+
+    return _Builtin(init, act)
+
+
+def run_episode(env_config: dict, policy, params=None, *, steps: int | None = None, seed: int = 0,
+                episode: int = 10) -> Episode:
+    """Run one episode of ``policy`` (agents.base contract, batch of 1, probes allowed) without
+    auto-reset in one jitted scan; returns the offsets after every step and the exact P / P_max."""
+    env, env_params = make(**env_config)
+    steps = int(env.config.max_steps if steps is None else steps)
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+
+    @jax.jit
+    def run(params, key):
+        k_reset, k_init, k_run = jax.random.split(key, 3)
+        obs, state = env.reset(k_reset, env_params, episode)
+        carry = policy.init(k_init, obs[None])
+
+        def body(c, t):
+            obs, state, carry = c
+            k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
+            probe = lambda offsets: env.probe(state, offsets[0], env_params)[None]
+            action, carry = policy.act(params, carry, obs[None], k_act, probe)
+            obs, state, *_ = env.step_env(k_env, state, action[0], env_params)
+            return (obs, state, carry), state.deltas
+
+        _, deltas = jax.lax.scan(body, (obs, state, carry), jnp.arange(steps))
+        return jnp.concatenate([state.deltas[None], deltas])
+
+    deltas = np.asarray(run(params, jax.random.key(seed)))
+    p, _ = measure_frames(deltas, env.config.stages, env.config.detector)
+    return Episode(deltas, p, dict(env_config))
+
+
+def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: int = 80) -> list:
+    """Oscilloscope frames of every ``every``-th step of an episode (the last step always included)."""
+    from tqdm import tqdm
+
+    env, _ = make(**ep.env_config)
+    idx = list(range(0, len(ep.deltas_wl), every))
+    if idx[-1] != len(ep.deltas_wl) - 1:
+        idx.append(len(ep.deltas_wl) - 1)
+    scope = Oscilloscope(env.config.stages, env.config.detector, figsize=figsize, dpi=dpi)
+    p, intensity = measure_frames(ep.deltas_wl[idx], env.config.stages, env.config.detector)
+    frames = [scope.draw(intensity[j], float(p[j]), i) for j, i in enumerate(tqdm(idx, desc="frames", leave=False))]
+    scope.close()
+    return frames
+
+
+def write_gif(frames, path, fps: float = 10.0) -> Path:
+    """Write RGB frames as an animated GIF (Pillow, one shared adaptive palette, looping)."""
+    from PIL import Image
+
+    if len(frames) < 1:
+        raise ValueError("frames must hold at least one frame")
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    images = [Image.fromarray(np.asarray(f, np.uint8)) for f in frames]
+    palette = images[len(images) // 2].quantize(colors=64, method=Image.Quantize.MEDIANCUT)
+    images = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
+                   optimize=True)
+    return path
+
+
+# -- objective landscape -----------------------------------------------------------------------
+
+def _check_stage(stage, stages):
+    if isinstance(stage, bool) or not isinstance(stage, (int, np.integer)) or not 1 <= stage <= stages:
+        raise ValueError(f"stage must be an integer in [1, {stages}] (1-based), got {stage!r}")
+    return int(stage) - 1
+
+
+@functools.lru_cache(maxsize=None)
+def _landscape_fn(stages: int, detector: str):
+    p_max = physics.p_max(stages, detector)
+    return jax.jit(lambda x: physics.measure(x, stages=stages, model="field", detector=detector).power / p_max)
+
+
+def landscape(stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str = "total") -> np.ndarray:
+    """P / P_max with the 1-based stages ``stage_ids`` (one or two) moved by ``offsets_wl`` (M,) wl
+    from ``base_wl`` (N,) (default: the optimum), computed in one batched field-model call.
+    One stage: shape (M,); two stages (a, b): shape (M, M), row i = offset i of stage b."""
+    stages = physics.check_stages(stages)
+    ids = [_check_stage(s, stages) for s in np.atleast_1d(stage_ids).tolist()]
+    if len(ids) not in (1, 2) or len(set(ids)) != len(ids):
+        raise ValueError(f"stage_ids must be one stage or two different stages, got {stage_ids!r}")
+    x = np.asarray(offsets_wl, np.float32)
+    if x.ndim != 1 or x.size < 1 or not np.all(np.isfinite(x)):
+        raise ValueError("offsets_wl must be a non-empty 1-D array of finite offsets (wl)")
+    base = np.zeros(stages, np.float32) if base_wl is None else np.asarray(base_wl, np.float32)
+    if base.shape != (stages,):
+        raise ValueError(f"base_wl must have shape ({stages},), got {base.shape}")
+    if len(ids) == 1:
+        deltas = np.tile(base, (x.size, 1))
+        deltas[:, ids[0]] += x
+    else:
+        xa, xb = np.meshgrid(x, x)  # (M, M): column = stage a offset, row = stage b offset
+        deltas = np.tile(base, (x.size**2, 1))
+        deltas[:, ids[0]] += xa.ravel()
+        deltas[:, ids[1]] += xb.ravel()
+    p = np.asarray(_landscape_fn(stages, detector)(deltas))
+    return p if len(ids) == 1 else p.reshape(x.size, x.size)
+
+
+def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 401, detector: str = "total",
+                   figsize=(5.6, 3.6), dpi: int = 120):
+    """Figure of the landscape: a line plot (one stage) or a heat map (two stages)."""
+    if not (np.isfinite(span) and span > 0):
+        raise ValueError(f"span must be > 0 (wl), got {span}")
+    if isinstance(points, bool) or not isinstance(points, (int, np.integer)) or points < 2:
+        raise ValueError(f"points must be an integer >= 2, got {points!r}")
+    ids = np.atleast_1d(stage_ids).tolist()
+    x = np.linspace(-span, span, points)
+    p = landscape(stages, ids, x, detector=detector)
+    fig = _figure(figsize if len(ids) == 1 else (figsize[0], figsize[0] * 0.82), dpi)
+    ax = fig.add_subplot()
+    if len(ids) == 1:
+        ax.plot(x, p, color="tab:blue", lw=1.4)
+        ax.set_xlabel(f"stage {ids[0]} delay offset (wavelengths, 1 wl = 1030 nm)")
+        ax.set_ylabel("P / Pmax")
+        ax.set_ylim(0, 1.05)
+        ax.set_xlim(-span, span)
+        ax.grid(alpha=0.3)
+        ax.set_title(f"Objective along one delay (N = {stages}, other stages optimal)", fontsize=10)
+    else:
+        im = ax.imshow(p, origin="lower", extent=(-span, span, -span, span), cmap="viridis", vmin=0, vmax=1,
+                       aspect="equal", interpolation="bilinear")
+        ax.set_xlabel(f"stage {ids[0]} delay offset (wl)")
+        ax.set_ylabel(f"stage {ids[1]} delay offset (wl)")
+        fig.colorbar(im, ax=ax, label="P / Pmax", shrink=0.9)
+        ax.set_title(f"Objective over two delays (N = {stages})", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+# -- command line ------------------------------------------------------------------------------
+
+def _parser():
+    ap = argparse.ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("command", nargs="?", default="episode", choices=("episode", "frame", "landscape"))
+    ap.add_argument("--stages", type=int, default=5, help="number of stages N")
+    ap.add_argument("--mode", default="hard", help="easy | medium | hard | custom")
+    ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
+    ap.add_argument("--policy", default="zero", help="zero | random | spgd (or another agents algo) | checkpoint folder")
+    ap.add_argument("--steps", type=int, default=None, help="control steps (episode: max_steps; frame: 0)")
+    ap.add_argument("--every", type=int, default=1, help="GIF: keep every k-th step")
+    ap.add_argument("--fps", type=float, default=10.0, help="GIF frames per second")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--stage", type=int, nargs="+", default=[1], help="landscape: 1 or 2 stages (1-based)")
+    ap.add_argument("--span", type=float, default=1.0, help="landscape: offsets in [-span, span] wl")
+    ap.add_argument("--points", type=int, default=None, help="landscape: grid points per axis (401 / 201)")
+    ap.add_argument("--dpi", type=int, default=None)
+    ap.add_argument("--out", required=True, help="output file (.gif for episode, .png otherwise)")
+    return ap
+
+
+def main(argv=None) -> Path:
+    args = _parser().parse_args(argv)
+    out = Path(args.out)
+    if args.command == "landscape":
+        points = args.points or (401 if len(args.stage) == 1 else 201)
+        fig = plot_landscape(args.stages, args.stage, span=args.span, points=points, detector=args.detector,
+                             dpi=args.dpi or 120)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out)
+        print(f"wrote {out}")
+        return out
+    env_config = dict(stages=args.stages, mode=args.mode, detector=args.detector)
+    policy, params, env_config = get_policy(args.policy, env_config, args.seed)
+    if env_config.get("stages", 5) != args.stages:
+        print(f"note: the checkpoint's env_config {env_config} is used", file=sys.stderr)
+    steps = args.steps if args.steps is not None else (None if args.command == "episode" else 0)
+    ep = run_episode(env_config, policy, params, steps=steps, seed=args.seed)
+    if args.command == "frame":
+        env, _ = make(**env_config)
+        fig_dpi = args.dpi or 120
+        scope = Oscilloscope(env.config.stages, env.config.detector, dpi=fig_dpi)
+        frame = scope.draw(measure_frames(ep.deltas_wl[-1:], env.config.stages, env.config.detector)[1][0],
+                           float(ep.normalized_power[-1]), len(ep.deltas_wl) - 1)
+        from PIL import Image
+
+        out.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(frame).save(out)
+    else:
+        if args.every < 1:
+            raise ValueError(f"--every must be >= 1, got {args.every}")
+        frames = episode_frames(ep, every=args.every, dpi=args.dpi or 80)
+        write_gif(frames, out, fps=args.fps)
+    print(f"wrote {out}  (final P/Pmax = {ep.normalized_power[-1]:.3f})")
+    return out
+
+
+if __name__ == "__main__":
+    main()

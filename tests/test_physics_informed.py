@@ -1,0 +1,50 @@
+"""Physics-informed controller: beats a threshold fast, ignores the length channel unless asked,
+deterministic, one measurement per step, validated hyperparameters."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agents
+import ops_jax
+from agents import physics_informed as pi
+
+ENV = {"stages": 3, "mode": "hard", "model": "phasor"}
+
+
+def test_reaches_high_power_quickly_without_probes():
+    res = agents.evaluate(pi.make_policy(ENV, {"starts": 8, "iters": 6}), ENV, episodes=16, seed=11, steps=40)
+    assert res.summary["measurements_per_step"] == 1
+    assert res.summary["final_mean"] > 0.98
+    assert res.summary["steps_to_0p9_median"] <= 30
+
+
+def test_length_channel_is_ignored_by_default():
+    env, params = ops_jax.make(**ENV)
+    obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 4), params)
+    garbled = obs.at[:, 2**3:].set(0.7)  # lengths replaced by nonsense
+    for hyper, same in (({}, True), ({"use_lengths": True, "lengths_only": True}, False)):
+        pol = pi.make_policy(ENV, hyper)
+        key = jax.random.key(1)
+        a, _ = pol.act(None, pol.init(key, obs), obs, key, None)
+        b, _ = pol.act(None, pol.init(key, garbled), garbled, key, None)
+        assert np.allclose(a, b) == same
+        assert jnp.all(jnp.abs(a) <= 1) and float(jnp.abs(a[:, -1]).max()) == 0.0  # phase-blind last stage
+
+
+def test_same_seed_same_result():
+    a = agents.train("physics", {**ENV, "max_steps": 20}, seed=2, starts=4, iters=4)
+    b = agents.train("physics", {**ENV, "max_steps": 20}, seed=2, starts=4, iters=4)
+    np.testing.assert_array_equal(a.curve["normalized_power"], b.curve["normalized_power"])
+    assert a.curve["normalized_power"][-1] > a.curve["normalized_power"][0]
+
+
+@pytest.mark.parametrize("hyper, word", [
+    ({"starts": -1}, "starts"), ({"iters": 0}, "iters"), ({"gain": -0.5}, "gain"),
+    ({"use_lengths": "yes"}, "use_lengths"), ({"damping": float("nan")}, "damping"), ({"foo": 1}, "foo"),
+    ({"starts": 0}, "starts"),
+])
+def test_bad_hyperparameters_raise(hyper, word):
+    with pytest.raises(ValueError, match=word):
+        pi.make_policy(ENV, hyper)
