@@ -32,3 +32,15 @@ __all__ = [
     "physics",
     "rollout",
 ]
+
+
+def _register_gymnasium() -> None:
+    """Register "ops_jax/OPS-v0" with Gymnasium (a light dependency; brax/matplotlib not imported)."""
+    try:
+        from ops_jax.gym_env import register
+    except ImportError:  # gymnasium not installed
+        return
+    register()
+
+
+_register_gymnasium()

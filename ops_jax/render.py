@@ -176,27 +176,6 @@ class Episode(NamedTuple):
     env_config: dict
 
 
-def _simple_policy(kind: str):
-    from agents.base import Policy
-
-    def act(params, carry, obs, key, probe):
-        n = params["stages"]
-        shape = (obs.shape[0], n)
-        if kind == "zero":
-            return jnp.zeros(shape), carry
-        return jax.random.uniform(key, shape, minval=-1.0, maxval=1.0), carry
-
-    return Policy(lambda key, obs: jnp.zeros(()), act)
-
-
-def _policy_contract():
-    try:
-        from agents.base import Policy
-    except ImportError:
-        Policy = None
-    return Policy
-
-
 def get_policy(name: str, env_config: dict, seed: int = 0):
     """(Policy, params, env_config) for ``name``: "zero", "random", "spgd" (``agents.train``) or a
     checkpoint folder (``agents.load``; its own env_config is used)."""
