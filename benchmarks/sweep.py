@@ -73,6 +73,7 @@ PRESETS = {
     ),
 }
 TEST_SEED_OFFSET = 10_000
+LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperparameter config
 
 
 class Sweep:
@@ -89,8 +90,9 @@ class Sweep:
         """Train (or reuse) one controller, evaluate it in its training and testing environment."""
         import agents
 
+        hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
         config = dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
-                      hyper={"config": self.p["config"]}, episodes=self.p["episodes"])
+                      hyper=hyper, episodes=self.p["episodes"])
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
         def compute():

@@ -14,9 +14,11 @@ Command line (``python -m ops_jax.render [episode|frame|landscape] ...``; defaul
     # P/Pmax along one stage's delay (one --stage: line plot; paper Fig. 2a is N=2, stage 1) ...
     python -m ops_jax.render landscape --stages 2 --stage 1 --out landscape_1d.png
     # ... or over two stages' delays (two --stage values: heat map, paper Fig. 2b)
-    python -m ops_jax.render landscape --stages 2 --stage 1 2 --out landscape_2d.png
+    python -m ops_jax.render landscape --stages 3 --stage 1 2 --out landscape_2d.png
 
-Stages are numbered from 1; landscape offsets span ``[-span, span]`` wl (default 1) with the other
+With the default "total" detector the LAST stage's carrier phase is invisible (physics.md section
+4): a heat map over stages 1 and 2 at N = 2 is flat along stage 2, so the README uses N = 3 (or
+``--detector polariser``). Stages are numbered from 1; landscape offsets span ``[-span, span]`` wl (default 1) with the other
 stages at their optimal lengths. Episodes start as the 10th reset (hard mode's drift fully on),
 like ``agents.evaluate``. ``--policy PATH`` loads an ``agents.save`` checkpoint and runs on the
 checkpoint's own environment configuration.
@@ -26,9 +28,9 @@ from __future__ import annotations
 
 import argparse
 import functools
+import logging
 import os
 import sys
-import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -145,7 +147,8 @@ def _headless() -> bool:
 
 def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
     """Show an RGB frame in a matplotlib window (``render_mode="human"``). On a machine without a
-    display or with a non-interactive backend it warns once and returns False."""
+    display or with a non-interactive backend it logs one message (``logging``, not a warning, so
+    warnings-as-errors test suites pass) and returns False."""
     if not _headless():
         import matplotlib.pyplot as plt
 
@@ -160,8 +163,9 @@ def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
             plt.pause(0.001)
             return True
     if not _human.get("warned"):
-        warnings.warn("render_mode='human': no display or interactive matplotlib backend; frames are not shown "
-                      "(use render_mode='rgb_array')", RuntimeWarning, stacklevel=3)
+        logging.getLogger("ops_jax").warning(
+            "render_mode='human': no display or interactive matplotlib backend; frames are not shown "
+            "(use render_mode='rgb_array')")
         _human["warned"] = True
     return False
 
@@ -323,6 +327,15 @@ def landscape(stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str
     return p if len(ids) == 1 else p.reshape(x.size, x.size)
 
 
+def matplotlib_ticks(span: float, max_ticks: int = 5) -> np.ndarray:
+    """Symmetric ticks on [-span, span] at a multiple of 0.25 wl (at most ``max_ticks``)."""
+    step = 0.25
+    while 2 * span / step + 1 > max_ticks:
+        step *= 2
+    k = np.floor(span / step)
+    return np.arange(-k, k + 1) * step
+
+
 def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 401, detector: str = "total",
                    figsize=(5.6, 3.6), dpi: int = 120):
     """Figure of the landscape: a line plot (one stage) or a heat map (two stages)."""
@@ -342,14 +355,18 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
         ax.set_ylim(0, 1.05)
         ax.set_xlim(-span, span)
         ax.grid(alpha=0.3)
-        ax.set_title(f"Objective along one delay (N = {stages}, other stages optimal)", fontsize=10)
+        ax.set_title(f"P/Pmax along stage {ids[0]}'s delay (N = {stages}, other stages optimal)", fontsize=10)
     else:
         im = ax.imshow(p, origin="lower", extent=(-span, span, -span, span), cmap="viridis", vmin=0, vmax=1,
                        aspect="equal", interpolation="bilinear")
         ax.set_xlabel(f"stage {ids[0]} delay offset (wl)")
         ax.set_ylabel(f"stage {ids[1]} delay offset (wl)")
+        ticks = matplotlib_ticks(span)
+        ax.set_xticks(ticks)
+        ax.set_yticks(ticks)
         fig.colorbar(im, ax=ax, label="P / Pmax", shrink=0.9)
-        ax.set_title(f"Objective over two delays (N = {stages})", fontsize=10)
+        rest = "" if stages == 2 else ", other stages optimal"
+        ax.set_title(f"P/Pmax over stages {ids[0]} and {ids[1]} (N = {stages}{rest})", fontsize=10)
     fig.tight_layout()
     return fig
 
