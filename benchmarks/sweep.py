@@ -53,11 +53,12 @@ PAPER_TABLE2 = {  # algo -> (sim TPS, opt TPS, convergence step, training s, inf
 
 # Training budgets (environment steps) per preset and algorithm; hyper config per preset.
 PRESETS = {
-    "quick": dict(
-        seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=16,
-        budgets={"spgd": 0, "physics": 0, "ppo": 60_000, "sac": 6_000, "td3": 6_000},
-        stage_range=(2, 3), stage_modes=("easy", "hard"), stage_algos=("spgd", "td3"), stage_seeds=1,
-        feedback_ks=(1, 20, 100),
+    "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
+        seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
+        budgets={"spgd": 0, "physics": 0, "ppo": 40_000, "sac": 3_000, "td3": 3_000},
+        hyper={"sac": {"min_replay_size": 1024}, "physics": {"starts": 4, "iters": 4}},
+        stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
+        feedback_ks=(1, 100), aux_seeds=1,
     ),
     "default": dict(
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=50,
@@ -84,6 +85,7 @@ class Sweep:
         self.cells = CellStore(out / "cells", log)
         self.ckpt_dir = out / "checkpoints"
         self.timing = {}
+        self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- one trained controller ---------------------------------------------------------------
     def trained(self, algo: str, env_config: dict, seed: int, label: str) -> dict:
@@ -91,6 +93,7 @@ class Sweep:
         import agents
 
         hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
+        hyper.update(self.p.get("hyper", {}).get(algo, {}))
         config = dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
                       hyper=hyper, episodes=self.p["episodes"])
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
@@ -150,9 +153,9 @@ class Sweep:
         if "stages" in sections:
             total += nst
         if "transfer" in sections:
-            total += len(p["algos"]) * p["seeds"] * len(MODES) * len(MODES)
+            total += len(p["algos"]) * self.aux_seeds * len(MODES) * len(MODES)
         if "feedback" in sections:
-            total += len(p["algos"]) * p["seeds"] * len(p["feedback_ks"])
+            total += len(p["algos"]) * self.aux_seeds * len(p["feedback_ks"])
         return total
 
     def run(self, sections):
@@ -200,6 +203,8 @@ class Sweep:
     def transfer(self, runs, bar):
         res = {}
         for (train_mode, algo, seed), record in runs.items():
+            if seed >= self.aux_seeds:
+                continue
             for test_mode in MODES:
                 bar.set_description(f"transfer {algo} {train_mode}->{test_mode} seed {seed}")
                 res[train_mode, test_mode, algo, seed] = self.evaluated(
@@ -211,7 +216,7 @@ class Sweep:
     def feedback(self, runs, bar):
         res = {}
         for (mode, algo, seed), record in runs.items():
-            if mode != "hard":
+            if mode != "hard" or seed >= self.aux_seeds:
                 continue
             for k in self.p["feedback_ks"]:
                 bar.set_description(f"feedback {algo} k={k} seed {seed}")

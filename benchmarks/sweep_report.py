@@ -216,8 +216,8 @@ def transfer(out: Path, res: dict, p: dict):
     fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
     lines = ["# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax", ""]
     for ax, algo in zip(np.atleast_1d(axes), algos):
-        m = np.array([[np.mean([np.mean(res[a, b, algo, s]["final"]) for s in range(p["seeds"])]) for b in MODES]
-                      for a in MODES])
+        seeds = sorted({k[3] for k in res})
+        m = np.array([[np.mean([np.mean(res[a, b, algo, s]["final"]) for s in seeds]) for b in MODES] for a in MODES])
         im = ax.imshow(m, vmin=0, vmax=1, cmap="viridis")
         for i in range(3):
             for j in range(3):
@@ -241,9 +241,10 @@ def feedback(out: Path, res: dict, p: dict):
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     lines = ["# Feedback delay: trained at k = 1 (hard), tested at k", "",
              "| algo | " + " | ".join(f"k={k} final / mean" for k in ks) + " |", "|" + "---|" * (len(ks) + 1)]
+    seeds = sorted({key[2] for key in res})
     for algo in p["algos"]:
-        finals = [np.mean([np.mean(res[k, algo, s]["final"]) for s in range(p["seeds"])]) for k in ks]
-        cum = [np.mean([np.mean(res[k, algo, s]["mean_curve"]) for s in range(p["seeds"])]) for k in ks]
+        finals = [np.mean([np.mean(res[k, algo, s]["final"]) for s in seeds]) for k in ks]
+        cum = [np.mean([np.mean(res[k, algo, s]["mean_curve"]) for s in seeds]) for k in ks]
         axes[0].plot(ks, finals, marker="o", label=NAMES[algo])
         axes[1].plot(ks, cum, marker="o", label=NAMES[algo])
         lines.append(f"| {NAMES[algo]} | " + " | ".join(f"{f:.3f} / {c:.3f}" for f, c in zip(finals, cum)) + " |")
