@@ -119,7 +119,7 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, env_params = ops_jax.make(**env_config)
     steps = int(steps or env.config.max_steps)
-    run, probes = _evaluator(env, policy, steps, int(drift_episode))
+    run, probes = evaluator(env, policy, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
     jax.block_until_ready(run(params, env_params, key, ids))  # compile and warm up
@@ -161,7 +161,9 @@ def episode_ids(episodes: int):
     return ids
 
 
-def _evaluator(env, policy: Policy, steps: int, drift_episode: int):
+def evaluator(env, policy: Policy, steps: int, drift_episode: int):
+    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted evaluation scan returning
+    P/Pmax and terminated flags (steps, episodes); ``probes[0]`` counts probe calls per step once traced."""
     probes = [0]
     axes_params = None
 

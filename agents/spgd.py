@@ -127,13 +127,13 @@ def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episod
 
     names = sorted(grid)
     combos = [dict(zip(names, vals)) for vals in itertools.product(*(grid[k] for k in names))]
-    from agents.base import _evaluator, episode_ids
+    from agents.base import evaluator, episode_ids
 
     runs = {}
     for m in modes:
         cfg = {"stages": stages, "mode": m, "model": "phasor"}
         env, env_params = ops_jax.make(**cfg)
-        runs[m] = (_evaluator(env, make_policy(cfg), env.config.max_steps, 10)[0], env_params)
+        runs[m] = (evaluator(env, make_policy(cfg), env.config.max_steps, 10)[0], env_params)
     ids, key = episode_ids(episodes), jax.random.key(seed)
     rows = []
     for h in tqdm(combos, desc="spgd grid"):

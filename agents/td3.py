@@ -312,7 +312,7 @@ def _cached_build(env_config: dict, h: dict) -> dict:
     if key not in _BUILDS:
         env, env_params = ops_jax.make(**cfg)
         fns = _build(env, env_params, h)
-        evaluate_fn, _ = base._evaluator(env, make_policy(env_config, h), env.config.max_steps, 10)
+        evaluate_fn, _ = base.evaluator(env, make_policy(env_config, h), env.config.max_steps, 10)
         compiled = {}
 
         def get_compiled(name, *args):

@@ -56,15 +56,17 @@ PRESETS = {
     "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
         seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
         budgets={"spgd": 0, "physics": 0, "ppo": 40_000, "sac": 3_000, "td3": 3_000},
-        hyper={"sac": {"min_replay_size": 1024}, "physics": {"starts": 4, "iters": 4}},
+        hyper={"sac": {"min_replay_size": 1024}, "td3": {"learning_starts": 1024, "eval_every": 1000},
+               "physics": {"starts": 4, "iters": 4}},
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1,
     ),
-    "default": dict(
-        seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=50,
-        budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 60_000, "td3": 60_000},
-        stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3"), stage_seeds=2,
-        feedback_ks=(1, 20, 40, 60, 80, 100),
+    "default": dict(  # budgets sized for ~30 min on 2 CPU cores (see README for a measured run)
+        seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
+        budgets={"spgd": 0, "physics": 0, "ppo": 400_000, "sac": 12_000, "td3": 40_000},
+        hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000}},
+        stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
+        feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2,
     ),
     "paper": dict(
         seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,

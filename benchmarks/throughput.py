@@ -90,7 +90,7 @@ def main(argv=None):
     ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
     ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
     args = ap.parse_args(argv)
 
@@ -117,6 +117,19 @@ def main(argv=None):
         t = {m: measure_only(n, m, 1024, args.repeats) for m in args.models}
         physics_rows.append(dict(stages=n, **{f"{m}_us": 1e6 * v for m, v in t.items()}))
         print(f"{n:>2} " + " ".join(f"{1e6 * t[m]:>8.2f}" for m in args.models))
+    from ops_jax.gym_env import step_cost
+
+    gym_rows = []
+    ref5 = ref.get("5", {}).get("step_median_s")
+    print("\nGymnasium adapters, N = 5, hard (single: ms per step; vector: env-steps/s)")
+    for model in args.models:
+        single = step_cost(5, model)
+        vector = step_cost(5, model, num_envs=1024, number=20)
+        gym_rows.append(dict(model=model, single_ms=1e3 * single["seconds_per_call"],
+                             vector_1024_steps_per_s=vector["env_steps_per_second"]))
+        ratio = f", {ref5 / single['seconds_per_call']:.0f}x faster than the reference's {1e3 * ref5:.1f} ms" if ref5 else ""
+        print(f"{model:7} single {1e3 * single['seconds_per_call']:.3f} ms{ratio}; "
+              f"vector(1024) {vector['env_steps_per_second']:,.0f} env-steps/s")
     meta = dict(
         jax=jax.__version__,
         backend=jax.default_backend(),
@@ -126,7 +139,7 @@ def main(argv=None):
         scan_steps=SCAN_STEPS,
         repeats=args.repeats,
     )
-    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows))
+    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows, gymnasium=gym_rows))
     print(f"wrote {args.out}")
     return rows
 

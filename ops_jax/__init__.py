@@ -36,10 +36,8 @@ __all__ = [
 
 def _register_gymnasium() -> None:
     """Register "ops_jax/OPS-v0" with Gymnasium (a light dependency; brax/matplotlib not imported)."""
-    try:
-        from ops_jax.gym_env import register
-    except ImportError:  # gymnasium not installed
-        return
+    from ops_jax.gym_env import register
+
     register()
 
 

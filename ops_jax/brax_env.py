@@ -89,7 +89,7 @@ class OPSBraxEnv(Env):
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control step (action (N,) in [-1, 1], 0.01 wl per unit by default)."""
-        self.ops_env._check_action(action)
+        self.ops_env.check_action(action)
         rng, k_step, k_next = jax.random.split(state.info["rng"], 3)
         obs, s, reward, terminated, truncated, info = self.ops_env.step_env(
             k_step, state.pipeline_state, action, self.params)
@@ -100,7 +100,7 @@ class OPSBraxEnv(Env):
         new_info["time_out"] = truncated.astype(jnp.float32)
         if "first_obs" in new_info or "first_pipeline_state" in new_info:
             # The next episode's fresh start (episode counter + 1): what AutoResetWrapper restores.
-            first_obs, first_s = self.ops_env._auto_reset_one(k_next, s, self.params)
+            first_obs, first_s = self.ops_env.next_episode(k_next, s, self.params)
             new_info["first_obs"] = first_obs
             new_info["first_pipeline_state"] = first_s
         metrics = dict(state.metrics)  # wrappers may have added keys (EvalWrapper: "reward")

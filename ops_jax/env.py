@@ -216,7 +216,8 @@ class OPSEnv:
         state = self._reset_state(k_state, params, episode, -1.0)
         return self._observe_reset(k_obs, state, params)
 
-    def _check_action(self, action):
+    def check_action(self, action):
+        """Raise ValueError unless ``action`` has trailing shape (N,) (checked at trace time)."""
         n = self.config.stages
         if jnp.shape(action)[-1:] != (n,):
             raise ValueError(f"action must have shape ({n},) for stages={n}, got {jnp.shape(action)}")
@@ -251,7 +252,7 @@ class OPSEnv:
         reward = self._reward(m.power, state.p_init).astype(jnp.float32)
         return frames.reshape(-1), state, reward, terminated, truncated, info
 
-    def _auto_reset_one(self, key, state, params):
+    def next_episode(self, key, state, params):
         """The next episode's (obs, state) after ``state`` (episode count and p_init carried)."""
         new = self._reset_state(key, params, state.episode + 1, state.p_init)
         return self._observe_reset(jax.random.fold_in(key, 1), new, params)
@@ -264,14 +265,14 @@ class OPSEnv:
         """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
         info); when the episode ends, obs and state are the next episode's first and
         ``info["final_observation"]`` is the last observation of the finished one."""
-        self._check_action(action)
+        self.check_action(action)
         k_step, k_reset = jax.random.split(key)
         obs, state, reward, terminated, truncated, info = self.step_env(k_step, state, action, params)
         done = terminated | truncated
         info["final_observation"] = obs
         new_obs, new_state = jax.lax.cond(
             done,
-            lambda: self._auto_reset_one(k_reset, state, params),
+            lambda: self.next_episode(k_reset, state, params),
             lambda: (obs, state),
         )
         return new_obs, new_state, reward, terminated, truncated, info
@@ -289,7 +290,7 @@ class OPSEnv:
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
         """Step a batch (B instances, one key each). Same result per instance as ``step``; the
         reset branch is computed only on steps where some instance finishes."""
-        self._check_action(actions)
+        self.check_action(actions)
         axes = self._params_axes(params)
         split = jax.vmap(jax.random.split)(keys)
         k_step, k_reset = split[:, 0], split[:, 1]
@@ -299,7 +300,7 @@ class OPSEnv:
         info["final_observation"] = obs
 
         def reset_some():
-            new_obs, new_states = jax.vmap(self._auto_reset_one, in_axes=(0, 0, axes))(
+            new_obs, new_states = jax.vmap(self.next_episode, in_axes=(0, 0, axes))(
                 k_reset, states, params)
             sel = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)
             return sel(new_obs, obs), jax.tree.map(sel, new_states, states)

@@ -10,7 +10,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 from scipy.stats import ttest_ind
 
 from benchmarks.cells import CellStore
