@@ -29,6 +29,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+# XLA's C++ log lines (e.g. a warning for every program loaded from the persistent compilation
+# cache) would drown the progress bar; keep errors only unless the user chose a level.
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+
 from benchmarks.cells import CellStore, config_hash
 
 MODES = ("easy", "medium", "hard")
@@ -55,8 +59,10 @@ PAPER_TABLE2 = {  # algo -> (sim TPS, opt TPS, convergence step, training s, inf
 PRESETS = {
     "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
         seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
-        budgets={"spgd": 0, "physics": 0, "ppo": 40_000, "sac": 3_000, "td3": 3_000},
-        hyper={"sac": {"min_replay_size": 1024}, "td3": {"learning_starts": 1024, "eval_every": 1000},
+        budgets={"spgd": 0, "physics": 0, "ppo": 32_768, "sac": 3_000, "td3": 3_000},
+        hyper={"ppo": {"num_evals": 2, "num_eval_envs": 16},
+               "sac": {"min_replay_size": 1024, "num_evals": 2, "num_eval_envs": 16},
+               "td3": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
                "physics": {"starts": 4, "iters": 4}},
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1,

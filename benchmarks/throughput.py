@@ -97,20 +97,18 @@ def main(argv=None):
     ref = load_reference_timing()
     rows = []
     combos = [(m, n, b) for m in args.models for n in args.stages for b in args.batch]
-    for model, n, b in tqdm(combos, desc="throughput", unit="cfg"):
+    header = f"{'model':7} {'N':>2} {'batch':>6} {'env-steps/s':>13} {'us/step':>9} {'compile s':>9} {'x reference':>12}"
+    bar = tqdm(combos, desc="throughput", unit="cfg")
+    bar.write(header + "\n" + "-" * len(header))
+    for model, n, b in bar:
         row = measure(n, model, b, args.repeats)
         ref_step = ref.get(str(n), {}).get("step_median_s")
         row["reference_steps_per_s"] = 1 / ref_step if ref_step else None
         row["speedup_vs_reference"] = row["steps_per_s"] * ref_step if ref_step else None
         rows.append(row)
-
-    header = f"{'model':7} {'N':>2} {'batch':>6} {'env-steps/s':>13} {'us/step':>9} {'compile s':>9} {'x reference':>12}"
-    print(header)
-    print("-" * len(header))
-    for r in rows:
-        sp = f"{r['speedup_vs_reference']:.0f}" if r["speedup_vs_reference"] else "-"
-        print(f"{r['model']:7} {r['stages']:>2} {r['batch']:>6} {r['steps_per_s']:>13,.0f} "
-              f"{r['us_per_step_per_instance']:>9.3f} {r['compile_s']:>9.2f} {sp:>12}")
+        sp = f"{row['speedup_vs_reference']:.0f}" if row["speedup_vs_reference"] else "-"
+        bar.write(f"{model:7} {n:>2} {b:>6} {row['steps_per_s']:>13,.0f} "
+                  f"{row['us_per_step_per_instance']:>9.3f} {row['compile_s']:>9.2f} {sp:>12}")
     physics_rows = []
     print(f"\nphysics.measure alone, batch 1024 (us per instance)\n{'N':>2} " + " ".join(f"{m:>8}" for m in args.models))
     for n in args.stages:

@@ -11,7 +11,10 @@ State layout (one instance; brax's ``VmapWrapper`` batches it):
   (P/Pmax on the step that ends the episode, else 0: its episode sum, which brax's evaluator
   reports as ``eval/episode_final_normalized_power``, is the final P/Pmax);
 - ``info``: ``rng`` (this instance's PRNG key, advanced every step), ``time_out`` (1.0 on a
-  time-limit end, for PPO's ``bootstrap_on_timeout``).
+  time-limit end, for PPO's ``bootstrap_on_timeout``), ``env_params`` (the ``ops_jax.EnvParams``,
+  set by ``reset`` and read by ``step``: the step program then holds no mode-specific constants,
+  so a trainer's compiled programs are shared by easy, medium and hard through JAX's persistent
+  compilation cache).
 
 Fresh starts under brax's training wrappers. ``AutoResetWrapper`` replaces a finished slot's
 ``pipeline_state`` / ``obs`` by ``info["first_pipeline_state"]`` / ``info["first_obs"]``, cached
@@ -84,15 +87,16 @@ class OPSBraxEnv(Env):
         npow = self.ops_env.probe(s, jnp.zeros(self.action_size, jnp.float32), self.params)
         zero = jnp.zeros((), jnp.float32)
         metrics = {"normalized_power": npow.astype(jnp.float32), "final_normalized_power": zero}
-        info = {"rng": k_rng, "time_out": zero}
+        info = {"rng": k_rng, "time_out": zero, "env_params": jax.tree.map(jnp.asarray, self.params)}
         return State(pipeline_state=s, obs=obs, reward=zero, done=zero, metrics=metrics, info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control step (action (N,) in [-1, 1], 0.01 wl per unit by default)."""
         self.ops_env.check_action(action)
         rng, k_step, k_next = jax.random.split(state.info["rng"], 3)
+        params = state.info["env_params"]
         obs, s, reward, terminated, truncated, info = self.ops_env.step_env(
-            k_step, state.pipeline_state, action, self.params)
+            k_step, state.pipeline_state, action, params)
         done = (terminated | truncated).astype(jnp.float32)
         npow = info["normalized_power"].astype(jnp.float32)
         new_info = dict(state.info)
@@ -100,7 +104,7 @@ class OPSBraxEnv(Env):
         new_info["time_out"] = truncated.astype(jnp.float32)
         if "first_obs" in new_info or "first_pipeline_state" in new_info:
             # The next episode's fresh start (episode counter + 1): what AutoResetWrapper restores.
-            first_obs, first_s = self.ops_env.next_episode(k_next, s, self.params)
+            first_obs, first_s = self.ops_env.next_episode(k_next, s, params)
             new_info["first_obs"] = first_obs
             new_info["first_pipeline_state"] = first_s
         metrics = dict(state.metrics)  # wrappers may have added keys (EvalWrapper: "reward")
