@@ -43,7 +43,8 @@ def _check(result, baseline, margin, tmp_path):
 
 def test_ppo_learns_small(baseline, tmp_path):
     r = agents.train("ppo", ENV, seed=0, total_steps=20_000, num_envs=64, batch_size=64, num_minibatches=4,
-                     unroll_length=8, num_updates_per_batch=2, **SMALL)
+                     unroll_length=8, num_updates_per_batch=2, learning_rate=1e-3, discounting=0.95,
+                     entropy_cost=1e-3, init_noise_std=1.0, **SMALL)
     _check(r, baseline, 0.1, tmp_path)
 
 
