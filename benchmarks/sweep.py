@@ -29,10 +29,6 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-# XLA's C++ log lines (e.g. a warning for every program loaded from the persistent compilation
-# cache) would drown the progress bar; keep errors only unless the user chose a level.
-os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-
 from benchmarks.cells import CellStore, config_hash
 
 MODES = ("easy", "medium", "hard")
@@ -283,6 +279,9 @@ def main(argv=None):
     out = args.out or Path("results") / preset["name"]
     out.mkdir(parents=True, exist_ok=True)
     sections = args.only or list(SECTIONS)
+    # Before jax is first imported (enable_compilation_cache): XLA's C++ log lines, e.g. one error
+    # line per program loaded from the persistent cache, would drown the progress bar.
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     enable_compilation_cache()
     sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
     sweep.run(sections)
