@@ -22,6 +22,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -119,7 +120,7 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, env_params = ops_jax.make(**env_config)
     steps = int(steps or env.config.max_steps)
-    run, probes = evaluator(env, policy, steps, int(drift_episode))
+    run, probes = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
     jax.block_until_ready(run(params, env_params, key, ids))  # compile and warm up
@@ -159,6 +160,29 @@ def episode_ids(episodes: int):
         mesh = jax.sharding.Mesh(np.array(devices), ("episodes",))
         ids = jax.device_put(ids, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("episodes")))
     return ids
+
+
+_EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()
+_EVALUATORS_MAX = 64
+
+
+def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: int):
+    """``evaluator`` memoised, so repeated evaluations (seeds, testing environments, other modes
+    with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
+    what its policy is built from (algorithm, training configuration, hyperparameters), a policy
+    by identity; the environment by its static ``EnvConfig`` (its parameters are arguments)."""
+    if isinstance(source, TrainResult):
+        ident = ("result", source.algo, json.dumps(source.env_config, sort_keys=True, default=str),
+                 json.dumps(source.hyper, sort_keys=True, default=str))
+    else:
+        ident = ("policy", policy)
+    key = (ident, env.config, steps, drift_episode)
+    if key not in _EVALUATORS:
+        _EVALUATORS[key] = evaluator(env, policy, steps, drift_episode)
+        if len(_EVALUATORS) > _EVALUATORS_MAX:
+            _EVALUATORS.popitem(last=False)
+    _EVALUATORS.move_to_end(key)
+    return _EVALUATORS[key]
 
 
 def evaluator(env, policy: Policy, steps: int, drift_episode: int):

@@ -110,14 +110,13 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, **
     t0 = time.perf_counter()
     env_config = check_env_config(env_config)
     h = check_hyper(hyper)
-    params = gains(h)
-    policy = make_policy(env_config, h)
-    res = evaluate((policy, params), env_config, episodes=32, seed=int(seed))
-    npow = res.normalized_power.mean(0)
-    curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
+    result = TrainResult("spgd", env_config, h, {k: np.asarray(v) for k, v in gains(h).items()}, {}, {}, int(seed))
+    # Evaluated as a TrainResult: later evaluations of it reuse this compiled program.
+    npow = evaluate(result, env_config, episodes=32, seed=int(seed)).normalized_power.mean(0)
+    result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
     total = time.perf_counter() - t0
-    return TrainResult("spgd", env_config, h, {k: np.asarray(v) for k, v in params.items()}, curve,
-                       {"simulation": total, "optimisation": 0.0, "total": total}, int(seed))
+    result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
+    return result
 
 
 def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episodes: int = 64, seed: int = 1000):

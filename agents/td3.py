@@ -187,9 +187,10 @@ class TrainState(NamedTuple):
     obs: jax.Array
     key: jax.Array
     updates: jax.Array  # gradient steps so far
+    env_params: Any  # an argument, not a constant: one program serves every mode
 
 
-def _build(env, env_params, h):
+def _build(env, h):
     import optax
     from brax.training.replay_buffers import UniformSamplingQueue
 
@@ -212,7 +213,7 @@ def _build(env, env_params, h):
         k_act, k_env = jax.random.split(key)
         action = explore(ts, k_act, ts.obs, random)
         obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
-                                                               action, env_params)
+                                                               action, ts.env_params)
         tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
                   next_obs=info["final_observation"])
         return ts._replace(env_state=env_state, obs=obs2), tr
@@ -274,7 +275,7 @@ def _build(env, env_params, h):
         ts, _ = jax.lax.scan(lambda ts, _: collect(ts, True), ts, None, length=length)
         return ts
 
-    def init(key):
+    def init(key, env_params):
         k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
         dummy_obs, dummy_act = jnp.zeros((1, d)), jnp.zeros((1, n))
         ap = actor.init(k_a, dummy_obs)
@@ -282,7 +283,7 @@ def _build(env, env_params, h):
         obs, env_state = env.reset_batch(jax.random.split(k_env, b), env_params)
         return TrainState(ap, cp, ap, cp, actor_tx.init(ap), critic_tx.init(cp),
                           {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buffer.init(k_buf), env_state, obs, k_run,
-                          jnp.int32(0))
+                          jnp.int32(0), env_params)
 
     def fit_norm(ts):
         """Freeze the observation statistics from the buffer's warm-up data (std floored at 1e-2)."""
@@ -305,13 +306,12 @@ _BUILDS: dict = {}
 
 
 def _cached_build(env_config: dict, h: dict) -> dict:
-    """Jitted training functions, built once per (env config, hyperparameters) in this process, so
-    that a second ``train`` call with the same setting does not recompile."""
-    cfg = train_env_config(env_config)
-    key = (repr(sorted(cfg.items())), repr([(k, h[k]) for k in _BUILD_KEYS]))
+    """Jitted training functions, built once per (static env config, hyperparameters) in this
+    process, so that another seed or mode (its ``EnvParams`` are arguments) does not recompile."""
+    env, env_params = ops_jax.make(**train_env_config(env_config))
+    key = (env.config, repr([(k, h[k]) for k in _BUILD_KEYS]))
     if key not in _BUILDS:
-        env, env_params = ops_jax.make(**cfg)
-        fns = _build(env, env_params, h)
+        fns = _build(env, h)
         evaluate_fn, _ = base.evaluator(env, make_policy(env_config, h), env.config.max_steps, 10)
         compiled = {}
 
@@ -327,9 +327,9 @@ def _cached_build(env_config: dict, h: dict) -> dict:
                 compiled[name, length] = fns[name].lower(ts, length).compile()
             return compiled[name, length]
 
-        fns.update(env_params=env_params, evaluate=evaluate_fn, compiled=get_compiled)
+        fns.update(evaluate=evaluate_fn, compiled=get_compiled)
         _BUILDS[key] = fns
-    return _BUILDS[key]
+    return _BUILDS[key], env_params
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
@@ -347,8 +347,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
         if isinstance(total_steps, bool) or not isinstance(total_steps, (int, np.integer)) or total_steps < 0:
             raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
         h["total_steps"] = int(total_steps)
-    fns = _cached_build(env_config, h)
-    env_params = fns["env_params"]
+    fns, env_params = _cached_build(env_config, h)
     eval_ids = jnp.arange(h["eval_episodes"])
 
     per_iter = h["num_envs"] * h["unroll"]
@@ -361,7 +360,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
     timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
     key = jax.random.key(seed)
     k_init, k_eval = jax.random.split(key)
-    ts = fns["init"](k_init)
+    ts = fns["init"](k_init, env_params)
     t0 = time.perf_counter()
     warmup = fns["compiled"]("warmup", ts, warm_iters)
     t1 = time.perf_counter()
