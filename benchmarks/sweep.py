@@ -56,8 +56,9 @@ PRESETS = {
     "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
         seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
         budgets={"spgd": 0, "physics": 0, "ppo": 32_768, "sac": 3_000, "td3": 3_000},
-        hyper={"ppo": {"num_evals": 2, "num_eval_envs": 16},
-               "sac": {"min_replay_size": 1024, "num_evals": 2, "num_eval_envs": 16},
+        hyper={"ppo": {"num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64], "num_updates_per_batch": 2},
+               "sac": {"min_replay_size": 1024, "num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64],
+                       "grad_updates_per_step": 4, "batch_size": 256},
                "td3": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
                "physics": {"starts": 4, "iters": 4}},
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
