@@ -1,6 +1,7 @@
 """The shared agents API: evaluate (probes counted, deterministic, device-count independent),
 checkpoints (round trip, missing, corrupt), bad input."""
 
+import json
 import os
 import subprocess
 import sys
@@ -88,3 +89,22 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
 def test_bad_input(call, exc, words):
     with pytest.raises(exc, match=words):
         call()
+
+
+def test_evaluate_compiles_once_per_policy_and_static_config():
+    """Seeds, testing environments and other modes with the same static configuration reuse one
+    compiled evaluation program; another static configuration (feedback_k) gets its own."""
+    from agents import base
+
+    env = {"stages": 3, "mode": "easy", "model": "phasor"}
+    result = agents.train("spgd", env, seed=0)  # evaluates itself once (32 episodes)
+    before = len(base._EVALUATORS)
+    for mode, seed in (("easy", 1), ("easy", 2), ("hard", 1), ("medium", 3)):
+        agents.evaluate(result, {**env, "mode": mode}, episodes=32, seed=seed, steps=200)
+    assert len(base._EVALUATORS) == before
+    ident = ("result", "spgd", json.dumps(result.env_config, sort_keys=True, default=str),
+             json.dumps(result.hyper, sort_keys=True, default=str))
+    (run, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
+    assert run._cache_size() == 1  # 32 episodes of 200 steps throughout: one trace, one compile
+    agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
+    assert len(base._EVALUATORS) == before + 1
