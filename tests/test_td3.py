@@ -45,6 +45,15 @@ def test_same_seed_same_result(trained):
     jax.tree.map(np.testing.assert_array_equal, trained.params, again.params)
 
 
+def test_modes_share_one_build(trained):
+    """Another mode reuses the compiled training programs (EnvParams are arguments) and still
+    trains on its own dynamics."""
+    builds = len(td3._BUILDS)
+    hard = agents.train("td3", {**ENV, "mode": "hard"}, seed=3, total_steps=STEPS, **HYPER)
+    assert len(td3._BUILDS) == builds
+    assert not np.array_equal(hard.curve["normalized_power"], trained.curve["normalized_power"])
+
+
 def test_checkpoint_round_trip_identical_actions(trained, tmp_path):
     agents.save(tmp_path / "ckpt", trained)
     loaded = agents.load(tmp_path / "ckpt")
