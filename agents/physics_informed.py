@@ -41,7 +41,6 @@ one instance, ~1.1 ms (N = 5) and ~4.6 ms (N = 7) per control step on the loaded
 
 from __future__ import annotations
 
-import time
 
 import jax
 import jax.numpy as jnp
@@ -49,7 +48,7 @@ import numpy as np
 
 import ops_jax
 from ops_jax import physics
-from agents.base import Policy, TrainResult, check_env_config, evaluate
+from agents.base import Policy, TrainResult, check_env_config, evaluated_result
 
 DEFAULTS = dict(starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
                 lengths_only=False)
@@ -175,12 +174,6 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
     """Nothing to learn (the model is the simulator): validates, and records a short evaluation
     (32 episodes, seed ``seed``) as the curve. ``total_steps`` is ignored."""
-    t0 = time.perf_counter()
     env_config = check_env_config(env_config)
     h = check_hyper(hyper)
-    result = TrainResult("physics", env_config, h, {}, {}, {}, int(seed))
-    npow = evaluate(result, env_config, episodes=32, seed=int(seed)).normalized_power.mean(0)  # shares
-    total = time.perf_counter() - t0  # its compiled program with later evaluations of the result
-    result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
-    result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
-    return result
+    return evaluated_result("physics", env_config, h, {}, seed)

@@ -34,14 +34,13 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from agents.base import Policy, TrainResult, check_env_config, evaluate
+from agents.base import Policy, TrainResult, check_env_config, evaluated_result
 
 DEFAULTS = dict(delta=0.01, delta0=0.08, anneal=40.0, kp=16.0, ki=0.0, kd=0.0, leak=0.9)
 _RANGES = dict(delta=(1e-6, 0.25), delta0=(1e-6, 0.25), anneal=(0.0, 1e6), kp=(0.0, 1e6), ki=(0.0, 1e6),
@@ -107,16 +106,9 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
     """No learning: the gains are ``hyper`` (defaults: the searched ``DEFAULTS``). The curve is a
     short evaluation (32 episodes, seed ``seed``); ``total_steps`` is ignored (0 env steps used)."""
-    t0 = time.perf_counter()
     env_config = check_env_config(env_config)
     h = check_hyper(hyper)
-    result = TrainResult("spgd", env_config, h, {k: np.asarray(v) for k, v in gains(h).items()}, {}, {}, int(seed))
-    # Evaluated as a TrainResult: later evaluations of it reuse this compiled program.
-    npow = evaluate(result, env_config, episodes=32, seed=int(seed)).normalized_power.mean(0)
-    result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
-    total = time.perf_counter() - t0
-    result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
-    return result
+    return evaluated_result("spgd", env_config, h, {k: np.asarray(v) for k, v in gains(h).items()}, seed)
 
 
 def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episodes: int = 64, seed: int = 1000):
