@@ -98,6 +98,17 @@ def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None
     return module.train(env_config, seed=seed, total_steps=total_steps, **hyper)
 
 
+def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
+    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it (TD3:
+    see ``agents.td3.train_seeds``), else one call per seed."""
+    module = algo_module(algo)
+    env_config = check_env_config(env_config)
+    seeds = list(seeds)
+    if hasattr(module, "train_seeds"):
+        return module.train_seeds(env_config, seeds=seeds, total_steps=total_steps, **hyper)
+    return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
+
+
 def evaluated_result(algo: str, env_config: dict, hyper: dict, params, seed: int, episodes: int = 32) -> TrainResult:
     """The TrainResult of a controller with nothing to train (SPGD, physics-informed): its curve is
     a short evaluation (``episodes`` episodes, seed ``seed``), P/Pmax per control step. Evaluated as

@@ -34,8 +34,9 @@ class CellStore:
         safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", label)
         return self.folder / f"{safe}-{config_hash(config)}.json"
 
-    def load(self, label: str, config: dict):
-        """The stored result, or None when absent, corrupt or for another configuration."""
+    def load(self, label: str, config: dict, quiet: bool = False):
+        """The stored result, or None when absent, corrupt or for another configuration (reported
+        unless ``quiet``)."""
         path = self.path(label, config)
         if not path.exists():
             return None
@@ -45,7 +46,8 @@ class CellStore:
                 raise ValueError("stored configuration differs")
             return data["result"]
         except (ValueError, KeyError, TypeError) as exc:
-            self.log(f"cell {path.name} is unreadable ({exc}); recomputing")
+            if not quiet:
+                self.log(f"cell {path.name} is unreadable ({exc}); recomputing")
             return None
 
     def get(self, label: str, config: dict, compute: Callable[[], dict]) -> dict:

@@ -25,6 +25,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -92,26 +93,35 @@ class Sweep:
         self.timing = {}
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
-    # -- one trained controller ---------------------------------------------------------------
-    def trained(self, algo: str, env_config: dict, seed: int, label: str) -> dict:
-        """Train (or reuse) one controller, evaluate it in its training and testing environment."""
-        import agents
-
+    # -- trained controllers --------------------------------------------------------------------
+    def _train_config(self, algo: str, env_config: dict, seed: int) -> dict:
         hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
-        config = dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
-                      hyper=hyper, episodes=self.p["episodes"])
+        return dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
+                    hyper=hyper, episodes=self.p["episodes"])
+
+    def _finished(self, label: str, config: dict) -> bool:
+        record = self.cells.load(label, config, quiet=True)
+        return record is not None and (self.out / record["checkpoint"]).exists()
+
+    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None) -> dict:
+        """Train (or reuse) one controller, evaluate it in its training and testing environment.
+        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call)."""
+        import agents
+
+        config = self._train_config(algo, env_config, seed)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
         def compute():
-            result = agents.train(algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"])
-            agents.save(ckpt, result)
-            ev_train = agents.evaluate(result, env_config, episodes=config["episodes"], seed=seed)
-            ev_test = agents.evaluate(result, env_config, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
+            trained = result if result is not None else agents.train(
+                algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"])
+            agents.save(ckpt, trained)
+            ev_train = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed)
+            ev_test = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
             return dict(
                 checkpoint=str(ckpt.relative_to(self.out)),
-                curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
-                wall_time=result.wall_time,
+                curve={k: np.asarray(v).tolist() for k, v in trained.curve.items()},
+                wall_time=trained.wall_time,
                 train_env=_eval_record(ev_train),
                 test_env=_eval_record(ev_test),
             )
@@ -121,6 +131,26 @@ class Sweep:
             self.cells.path(label, config).unlink()
             record = self.cells.get(label, config, compute)
         return record
+
+    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar) -> dict:
+        """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
+        train in one call first, then each seed's cell is written as it is evaluated."""
+        import agents
+
+        results = {}
+        if hasattr(agents.base.algo_module(algo), "train_seeds"):
+            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s))]
+            if len(todo) > 1:
+                bar.set_description(f"{label(todo[0]).rsplit('-s', 1)[0]} seeds {todo} (one vmapped call)")
+                config = self._train_config(algo, env_config, todo[0])
+                results = dict(zip(todo, agents.train_seeds(algo, env_config, seeds=todo, total_steps=config["steps"],
+                                                            **config["hyper"])))
+        records = {}
+        for seed in seeds:
+            bar.set_description(f"{label(seed)}")
+            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed))
+            bar.update()
+        return records
 
     def policy(self, record: dict):
         import agents
@@ -139,11 +169,9 @@ class Sweep:
         runs = {}
         for mode in MODES:
             for algo in self.p["algos"]:
-                for seed in range(self.p["seeds"]):
-                    bar.set_description(f"table1 {mode} {algo} seed {seed}")
-                    runs[mode, algo, seed] = self.trained(algo, {"stages": 5, "mode": mode}, seed,
-                                                          f"table1-{mode}-{algo}-s{seed}")
-                    bar.update()
+                records = self.trained_seeds(algo, {"stages": 5, "mode": mode}, range(self.p["seeds"]),
+                                             lambda s: f"table1-{mode}-{algo}-s{s}", bar)
+                runs.update({(mode, algo, seed): r for seed, r in records.items()})
         return runs
 
     # -- sections -----------------------------------------------------------------------------
@@ -198,11 +226,9 @@ class Sweep:
         for n in range(lo, hi + 1):
             for mode in self.p["stage_modes"]:
                 for algo in self.p["stage_algos"]:
-                    for seed in range(self.p["stage_seeds"]):
-                        bar.set_description(f"stages N={n} {mode} {algo} seed {seed}")
-                        res[n, mode, algo, seed] = self.trained(algo, {"stages": n, "mode": mode}, seed,
-                                                                f"stages-N{n}-{mode}-{algo}-s{seed}")
-                        bar.update()
+                    records = self.trained_seeds(algo, {"stages": n, "mode": mode}, range(self.p["stage_seeds"]),
+                                                 lambda s: f"stages-N{n}-{mode}-{algo}-s{s}", bar)
+                    res.update({(n, mode, algo, seed): r for seed, r in records.items()})
         return res
 
     def transfer(self, runs, bar):

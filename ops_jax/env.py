@@ -169,7 +169,8 @@ class OPSEnv:
         drift = noise.piecewise_linear(state.knots[0], state.knots[1], state.t, params.drift_segment)
         return state.mu_episode + drift
 
-    def _frame(self, key, m, deltas, mu, params):
+    def _frame(self, z, m, deltas, mu, params):
+        """The observation frame; ``z`` (frame_size,) standard normals for the observation noise."""
         parts = [
             (2 * m.power / self.p_max - 1)[None],
             2 * m.samples / self.peak - 1,
@@ -178,33 +179,33 @@ class OPSEnv:
         if self.config.include_noise:
             parts.append(mu / noise.REFERENCE_SIGMA_WL)
         frame = jnp.concatenate(parts).astype(jnp.float32)
-        return frame + params.obs_noise * jax.random.normal(key, frame.shape)
+        return frame + params.obs_noise * z
 
     def _reward(self, power, p_init):
         if self.config.reward == "paper":
             return -((power - self.p_max) ** 2) / (self.p_orig - self.p_max) ** 2
         return 1 - (power - self.p_max) ** 2 / (self.p_max * p_init) / self.config.stages
 
-    def _reset_state(self, key, params, episode, p_init):
-        """New episode state (offsets, drift) without measuring; p_init < 0 means 'take P now'."""
+    def _reset_draws(self, key):
         n = self.config.stages
-        k_drift, k_init, k_knot0, k_knot1 = jax.random.split(key, 4)
-        r = noise.episode_drift(k_drift, episode, params.drift_cap, params.drift_ramp)
-        deltas = noise.initial_offsets(k_init, r * params.init_spread, params.init_spread, n)
-        knots = jnp.stack(
-            [
-                noise.drift_knot(k_knot0, params.drift_amplitude, n),
-                noise.drift_knot(k_knot1, params.drift_amplitude, n),
-            ]
-        )
+        return noise.draws(key, normal={"init": (n,), "obs": (self.frame_size,)},
+                           uniform={"drift": (), "knots": (2, n)})
+
+    def _reset_state(self, d, params, episode, p_init):
+        """New episode state (offsets, drift) from ``_reset_draws`` ``d``, without measuring;
+        p_init < 0 means 'take P now'."""
+        n = self.config.stages
+        r = noise.episode_drift(d["drift"], episode, params.drift_cap, params.drift_ramp)
+        deltas = noise.initial_offsets(d["init"], r * params.init_spread, params.init_spread)
+        knots = noise.drift_knot(d["knots"], params.drift_amplitude)
         mu_episode = jnp.full((n,), r * params.step_sigma)
         frames = jnp.zeros((self.config.frame_stack, self.frame_size), jnp.float32)
         return EnvState(deltas, mu_episode, knots, jnp.int32(0), jnp.asarray(episode, jnp.int32),
                         jnp.asarray(p_init, jnp.float32), frames)
 
-    def _observe_reset(self, key, state, params):
+    def _observe_reset(self, z, state, params):
         m = self._measure(state.deltas)
-        frame = self._frame(key, m, state.deltas, self._mu(state, params), params)
+        frame = self._frame(z, m, state.deltas, self._mu(state, params), params)
         frames = jnp.broadcast_to(frame, state.frames.shape)
         p_init = jnp.where(state.p_init < 0, m.power, state.p_init).astype(jnp.float32)
         return frames.reshape(-1), dataclasses.replace(state, frames=frames, p_init=p_init)
@@ -212,9 +213,9 @@ class OPSEnv:
     def reset(self, key, params: EnvParams, episode=0):
         """Start an episode: returns (obs, state). ``episode`` counts earlier resets (0: the first);
         it scales the hard-mode drift, so evaluation can start with the drift fully on."""
-        k_state, k_obs = jax.random.split(key)
-        state = self._reset_state(k_state, params, episode, -1.0)
-        return self._observe_reset(k_obs, state, params)
+        d = self._reset_draws(key)
+        state = self._reset_state(d, params, episode, -1.0)
+        return self._observe_reset(d["obs"], state, params)
 
     def check_action(self, action):
         """Raise ValueError unless ``action`` has trailing shape (N,) (checked at trace time)."""
@@ -225,20 +226,21 @@ class OPSEnv:
     def step_env(self, key, state: EnvState, action, params: EnvParams):
         """One control period without auto-reset: free run, action, measurement."""
         c = self.config
-        k_noise, k_obs, k_knot = jax.random.split(key, 3)
+        d = noise.draws(key, normal={"run": (c.feedback_k, c.stages), "obs": (self.frame_size,)},
+                        uniform={"knot": (c.stages,)})
         action = jnp.asarray(action, jnp.float32)
         finite = jnp.isfinite(action)
         action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
         mu = self._mu(state, params)
-        deltas = state.deltas + noise.free_run(k_noise, mu, params.step_sigma, c.feedback_k)
+        deltas = state.deltas + noise.free_run(d["run"], mu, params.step_sigma)
         deltas = deltas + action * params.action_scale
         t = state.t + 1
         # Advance the piecewise-linear drift to the next segment when one ends.
-        new_knot = noise.drift_knot(k_knot, params.drift_amplitude, c.stages)
+        new_knot = noise.drift_knot(d["knot"], params.drift_amplitude)
         seg_end = (t % params.drift_segment) == 0
         knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
         m = self._measure(deltas)
-        frame = self._frame(k_obs, m, deltas, mu, params)
+        frame = self._frame(d["obs"], m, deltas, mu, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
         state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames)
         terminated = jnp.any(jnp.abs(deltas) > params.window)
@@ -254,8 +256,9 @@ class OPSEnv:
 
     def next_episode(self, key, state, params):
         """The next episode's (obs, state) after ``state`` (episode count and p_init carried)."""
-        new = self._reset_state(key, params, state.episode + 1, state.p_init)
-        return self._observe_reset(jax.random.fold_in(key, 1), new, params)
+        d = self._reset_draws(key)
+        new = self._reset_state(d, params, state.episode + 1, state.p_init)
+        return self._observe_reset(d["obs"], new, params)
 
     @staticmethod
     def _params_axes(params):

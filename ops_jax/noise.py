@@ -1,45 +1,76 @@
 """Noise processes of the OPS control loop (physics.md section 5). Lengths in wavelengths (wl).
 
-All functions are pure and keyed; shapes follow the stage count N of ``mu`` / ``shape``.
+All functions are pure. ``draws`` turns one key into every standard draw a control step (or a
+reset) needs, from a single ``jax.random.bits`` call: one threefry hash per pair of 32-bit words
+instead of one per ``split`` / ``normal`` / ``uniform`` call, which shortens both the compiled
+program and the step. The processes then map standard draws to lengths: ``z`` are standard
+normals, ``u`` uniforms on [-1, 1).
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 # The reference's free-running noise std (wl); observation entry e is mu_t in these units.
 REFERENCE_SIGMA_WL = 5e-4
 
-
-def clipped_normal(key, loc, scale, width, shape):
-    """Normal(loc, scale) clipped to loc +- width * scale."""
-    z = jnp.clip(jax.random.normal(key, shape), -width, width)
-    return loc + scale * z
+_ONE_BITS = np.uint32(0x3F800000)  # float32 1.0
+_LOW = np.nextafter(np.float32(-1.0), np.float32(0.0))
 
 
-def free_run(key, mu, sigma, feedback_k: int):
+def _unit(bits):
+    """float32 in [0, 1) from the top 23 bits (as ``jax.random.uniform``)."""
+    return jax.lax.bitcast_convert_type((bits >> np.uint32(9)) | _ONE_BITS, jnp.float32) - 1.0
+
+
+def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> dict:
+    """Standard draws from one key: ``normal`` {name: shape} -> N(0, 1) float32 (inverse-erf of a
+    uniform, as ``jax.random.normal``); ``uniform`` {name: shape} -> U[-1, 1) float32."""
+    specs = [(name, tuple(shape), "normal") for name, shape in (normal or {}).items()]
+    specs += [(name, tuple(shape), "uniform") for name, shape in (uniform or {}).items()]
+    sizes = [int(np.prod(shape)) for _, shape, _ in specs]
+    bits = jax.random.bits(key, (max(1, sum(sizes)),), jnp.uint32)
+    out, start = {}, 0
+    for (name, shape, kind), size in zip(specs, sizes):
+        u = _unit(bits[start:start + size]).reshape(shape)
+        if kind == "normal":
+            u = jnp.maximum(_LOW, 2.0 * u - 1.0)
+            out[name] = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(u)
+        else:
+            out[name] = 2.0 * u - 1.0
+        start += size
+    return out
+
+
+def clipped(z, loc, scale, width):
+    """Normal(loc, scale) clipped to loc +- width * scale, from standard normals ``z``."""
+    return loc + scale * jnp.clip(z, -width, width)
+
+
+def free_run(z, mu, sigma):
     """Length change (wl) over one control period: the sum of ``feedback_k`` free-running draws,
-    each clip(Normal(mu, sigma), mu +- 3 sigma) per stage. ``mu`` (N,) is the current mean."""
-    draws = clipped_normal(key, 0.0, 1.0, 3.0, (feedback_k, *jnp.shape(mu)))
-    return feedback_k * mu + sigma * draws.sum(0)
+    each clip(Normal(mu, sigma), mu +- 3 sigma) per stage. ``z`` (feedback_k, N) standard normals,
+    ``mu`` (N,) the current mean."""
+    return z.shape[0] * mu + sigma * jnp.clip(z, -3.0, 3.0).sum(0)
 
 
-def initial_offsets(key, init_loc, spread, stages: int):
-    """Reset offsets from the optimum: clip(Normal(init_loc, s0), init_loc +- 2 s0) per stage."""
-    return clipped_normal(key, init_loc, spread, 2.0, (stages,))
+def initial_offsets(z, init_loc, spread):
+    """Reset offsets from the optimum: clip(Normal(init_loc, s0), init_loc +- 2 s0), ``z`` (N,)."""
+    return clipped(z, init_loc, spread, 2.0)
 
 
-def episode_drift(key, episode, cap, ramp):
+def episode_drift(u, episode, cap, ramp):
     """The reference's hard-mode drift factor r ~ Uniform(-s, s), s = min(cap, episode * ramp),
-    where ``episode`` counts the resets before this one (0 at the first: no drift)."""
-    s = jnp.minimum(cap, episode * ramp)
-    return s * jax.random.uniform(key, minval=-1.0, maxval=1.0)
+    where ``episode`` counts the resets before this one (0 at the first: no drift); ``u`` U[-1, 1)."""
+    return jnp.minimum(cap, episode * ramp) * u
 
 
-def drift_knot(key, amplitude, stages: int):
-    """A knot of the within-episode piecewise-linear drift mean: Uniform(-amplitude, amplitude) (wl)."""
-    return amplitude * jax.random.uniform(key, (stages,), minval=-1.0, maxval=1.0)
+def drift_knot(u, amplitude):
+    """A knot of the within-episode piecewise-linear drift mean: Uniform(-amplitude, amplitude)
+    (wl), ``u`` (N,) U[-1, 1)."""
+    return amplitude * u
 
 
 def piecewise_linear(prev_knot, next_knot, t, segment):

@@ -160,11 +160,11 @@ def test_feedback_delay_sums_k_draws():
 
 
 def test_hard_drift_grows_with_episodes_and_shifts_mean():
-    key = jax.random.key(0)
-    r = jax.vmap(lambda k: noise.episode_drift(k, 5, 1.0, 0.1))(jax.random.split(key, 20000))
+    u = noise.draws(jax.random.key(0), uniform={"u": (20000,)})["u"]
+    r = noise.episode_drift(u, 5, 1.0, 0.1)
     assert np.abs(r).max() <= 0.5
     assert np.std(r) == pytest.approx(0.5 / np.sqrt(3), rel=0.03)
-    r20 = jax.vmap(lambda k: noise.episode_drift(k, 20, 1.0, 0.1))(jax.random.split(key, 20000))
+    r20 = noise.episode_drift(u, 20, 1.0, 0.1)
     assert np.abs(r20).max() <= 1.0 and np.abs(r20).max() > 0.95  # capped at 1
     # In the environment: mean increment per episode equals mu = r * sigma.
     env, params = ops_jax.make(stages=2, mode="hard", max_steps=1)
@@ -261,3 +261,11 @@ def test_import_does_not_pull_heavy_dependencies():
     code = "import sys, ops_jax; print(any(m.split('.')[0] in ('brax', 'matplotlib') for m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_draws_are_standard_and_separate():
+    d = noise.draws(jax.random.key(5), normal={"z": (200, 100)}, uniform={"u": (20000,), "v": (20000,)})
+    z, u, v = (np.asarray(d[k]).ravel() for k in "zuv")
+    assert z.dtype == np.float32 and abs(z.mean()) < 0.02 and z.std() == pytest.approx(1.0, rel=0.02)
+    assert stats.kstest(z, "norm").pvalue > 1e-3 and stats.kstest(u, "uniform", args=(-1, 2)).pvalue > 1e-3
+    assert u.min() >= -1 and u.max() < 1 and abs(np.corrcoef(u, v)[0, 1]) < 0.03  # disjoint bits

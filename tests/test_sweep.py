@@ -91,7 +91,12 @@ def test_quick_sweep_end_to_end(tmp_path):
     assert {r["algo"] for r in rows} == {"spgd", "physics", "ppo", "sac", "td3"}
     assert {r["mode"] for r in rows} == {"easy", "medium", "hard"}
     assert all(0.0 <= float(r["mean"]) <= 1.0 for r in rows)
+    td3_cells = 0
     for cell in (out / "cells").glob("*.json"):
         data = json.loads(cell.read_text())["result"]
         finals = data.get("final") or data["test_env"]["final"]
         assert all(0.0 <= v <= 1.0 for v in finals)
+        if cell.name.startswith("table1-") and "-td3-" in cell.name:  # both seeds of a cell in one vmapped call
+            td3_cells += 1
+            assert data["wall_time"]["seeds_in_call"] == 2, cell.name
+    assert td3_cells == 6

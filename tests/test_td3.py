@@ -95,3 +95,46 @@ def test_cli_end_to_end(tmp_path, capsys):
     res = subprocess.run([sys.executable, "-m", "agents.train", "--help"], cwd=REPO, capture_output=True, text=True,
                          env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=60)
     assert res.returncode == 0 and "--algo" in res.stdout
+
+
+FEW = dict(HYPER, eval_every=320)  # the warm-up, then chunks of 10 iterations (40 gradient steps)
+FEW_STEPS = 1024 + 2 * 320
+
+
+def test_seeds_in_one_call_and_on_two_devices(tmp_path):
+    """train_seeds: reproducible for a seed list, the same draws as each seed alone (equal before
+    any gradient step, equal to float rounding after 80), the seeds differ; with two (forced CPU)
+    devices (a subprocess, started first to overlap) the seed axis is split across them."""
+    code = (
+        "import json, sys, numpy as np, jax; from agents import td3;"
+        f"both = td3.train_seeds({ENV!r}, seeds=[3, 5], total_steps={FEW_STEPS}, **{FEW!r});"
+        "np.savez(sys.argv[1], *[np.ravel(x) for r in both for x in jax.tree.leaves(r.params)]);"
+        "sharded = [str(f['sharding'].spec) for f in td3._BUILDS.values() if f['sharding'] is not None];"
+        "print(json.dumps(dict(devices=jax.device_count(), sharded=sharded)))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "two.npz")], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    both = agents.train_seeds("td3", ENV, seeds=[3, 5], total_steps=FEW_STEPS, **FEW)
+    again = td3.train_seeds(ENV, seeds=[3, 5], total_steps=FEW_STEPS, **FEW)
+    solo = agents.train("td3", ENV, seed=5, total_steps=FEW_STEPS, **FEW)
+    assert [r.seed for r in both] == [3, 5] and both[0].wall_time["seeds_in_call"] == 2
+    jax.tree.map(np.testing.assert_array_equal, both[1].params, again[1].params)
+    assert both[1].curve["normalized_power"][0] == solo.curve["normalized_power"][0]
+    np.testing.assert_allclose(both[1].curve["normalized_power"], solo.curve["normalized_power"], atol=1e-4)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-4), both[1].params, solo.params)
+    kernel = lambda r: r.params["actor"]["params"]["MLP_0"]["Dense_0"]["kernel"]  # noqa: E731
+    assert not np.allclose(kernel(both[0]), kernel(both[1]))
+    with pytest.raises(ValueError, match="distinct"):
+        td3.train_seeds(ENV, seeds=[1, 1], total_steps=FEW_STEPS, **FEW)
+
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr[-2000:]
+    out = json.loads(stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2 and len(out["sharded"]) == 1 and "seeds" in out["sharded"][0], out
+    two = np.load(tmp_path / "two.npz")
+    two = [two[f"arr_{i}"] for i in range(len(two.files))]
+    ours = [np.ravel(x) for r in (both[0], solo) for x in jax.tree.leaves(r.params)]
+    for a, b in zip(two, ours):
+        np.testing.assert_allclose(a, b, atol=1e-4)
