@@ -144,10 +144,13 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, env_params = ops_jax.make(**env_config)
     steps = int(steps or env.config.max_steps)
-    run, probes = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
+    run, probes, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
-    jax.block_until_ready(run(params, env_params, key, ids))  # compile and warm up
+    signature = (int(episodes), str(jax.tree.map(lambda x: (jnp.shape(x), jnp.result_type(x)), params)))
+    if signature not in warm:  # compile and warm up once per argument signature
+        jax.block_until_ready(run(params, env_params, key, ids))
+        warm.add(signature)
     t0 = time.perf_counter()
     npow, term = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
@@ -194,7 +197,8 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
     """``evaluator`` memoised, so repeated evaluations (seeds, testing environments, other modes
     with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
     what its policy is built from (algorithm, training configuration, hyperparameters), a policy
-    by identity; the environment by its static ``EnvConfig`` (its parameters are arguments)."""
+    by identity; the environment by its static ``EnvConfig`` (its parameters are arguments).
+    Returns ``(run, probes, warmed)``: ``warmed`` holds the argument signatures already run once."""
     if isinstance(source, TrainResult):
         ident = ("result", source.algo, json.dumps(source.env_config, sort_keys=True, default=str),
                  json.dumps(source.hyper, sort_keys=True, default=str))
@@ -202,7 +206,7 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
         ident = ("policy", policy)
     key = (ident, env.config, steps, drift_episode)
     if key not in _EVALUATORS:
-        _EVALUATORS[key] = evaluator(env, policy, steps, drift_episode)
+        _EVALUATORS[key] = (*evaluator(env, policy, steps, drift_episode), set())  # + warmed signatures
         if len(_EVALUATORS) > _EVALUATORS_MAX:
             _EVALUATORS.popitem(last=False)
     _EVALUATORS.move_to_end(key)
