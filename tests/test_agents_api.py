@@ -104,7 +104,7 @@ def test_evaluate_compiles_once_per_policy_and_static_config():
     assert len(base._EVALUATORS) == before
     ident = ("result", "spgd", json.dumps(result.env_config, sort_keys=True, default=str),
              json.dumps(result.hyper, sort_keys=True, default=str))
-    (run, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
+    (run, _, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
     assert run._cache_size() == 1  # 32 episodes of 200 steps throughout: one trace, one compile
     agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
     assert len(base._EVALUATORS) == before + 1
