@@ -137,13 +137,20 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
     configuration's max_steps) in one jitted scan, without auto-reset. Each episode starts as the
     ``drift_episode``-th reset of its environment, so hard mode's drift is fully on (r in [-1, 1]);
-    a different ``seed`` gives a different drift realisation (the paper's testing environment)."""
+    a different ``seed`` gives a different drift realisation (the paper's testing environment).
+    A repeated call with the same program, parameters, environment, episodes and seed returns the
+    stored result (the same object; the evaluation is deterministic)."""
     policy, params = _as_policy(result_or_policy)
     env_config = check_env_config(env_config)
     if not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, env_params = ops_jax.make(**env_config)
     steps = int(steps or env.config.max_steps)
+    memo = (_source_ident(result_or_policy, policy), json.dumps(env_config, sort_keys=True, default=str),
+            int(episodes), int(seed), steps, int(drift_episode), _digest(params))
+    if memo in _RESULTS:  # the same program, parameters, environment and draws: the same result
+        _RESULTS.move_to_end(memo)
+        return _RESULTS[memo]
     run, probes, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
@@ -155,8 +162,12 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     npow, term = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
-    return EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
-                                            inference_s_per_step=elapsed / steps))
+    out = EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
+                                           inference_s_per_step=elapsed / steps))
+    _RESULTS[memo] = out
+    if len(_RESULTS) > _RESULTS_MAX:
+        _RESULTS.popitem(last=False)
+    return out
 
 
 def summarize(npow: np.ndarray, **extra) -> dict:
@@ -191,6 +202,30 @@ def episode_ids(episodes: int):
 
 _EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()
 _EVALUATORS_MAX = 64
+# Finished evaluations (evaluation is deterministic): e.g. SPGD's and the physics controller's
+# "training" curve is an evaluation that the sweep then asks for again as the training environment.
+_RESULTS: "OrderedDict[tuple, EvalResult]" = OrderedDict()
+_RESULTS_MAX = 256
+
+
+def _source_ident(source, policy: Policy):
+    """What the evaluated program is built from: a ``TrainResult``'s algorithm, training
+    configuration and hyperparameters, or a policy's identity."""
+    if isinstance(source, TrainResult):
+        return ("result", source.algo, json.dumps(source.env_config, sort_keys=True, default=str),
+                json.dumps(source.hyper, sort_keys=True, default=str))
+    return ("policy", policy)
+
+
+def _digest(params) -> str:
+    """Content hash of a parameter pytree (structure, shapes, dtypes and bytes)."""
+    leaves, treedef = jax.tree.flatten(params)
+    h = hashlib.sha256(str(treedef).encode())
+    for leaf in leaves:
+        a = np.asarray(leaf)
+        h.update(f"{a.shape}{a.dtype}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: int):
@@ -199,12 +234,7 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
     what its policy is built from (algorithm, training configuration, hyperparameters), a policy
     by identity; the environment by its static ``EnvConfig`` (its parameters are arguments).
     Returns ``(run, probes, warmed)``: ``warmed`` holds the argument signatures already run once."""
-    if isinstance(source, TrainResult):
-        ident = ("result", source.algo, json.dumps(source.env_config, sort_keys=True, default=str),
-                 json.dumps(source.hyper, sort_keys=True, default=str))
-    else:
-        ident = ("policy", policy)
-    key = (ident, env.config, steps, drift_episode)
+    key = (_source_ident(source, policy), env.config, steps, drift_episode)
     if key not in _EVALUATORS:
         _EVALUATORS[key] = (*evaluator(env, policy, steps, drift_episode), set())  # + warmed signatures
         if len(_EVALUATORS) > _EVALUATORS_MAX:

@@ -108,3 +108,13 @@ def test_evaluate_compiles_once_per_policy_and_static_config():
     assert run._cache_size() == 1  # 32 episodes of 200 steps throughout: one trace, one compile
     agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
     assert len(base._EVALUATORS) == before + 1
+
+
+def test_repeated_evaluation_is_served_from_memory():
+    pair = (_dither_policy(), {"k": jnp.float32(5.0)})
+    a = agents.evaluate(pair, ENV, episodes=4, seed=11, steps=10)
+    assert agents.evaluate(pair, ENV, episodes=4, seed=11, steps=10) is a
+    other = agents.evaluate((pair[0], {"k": jnp.float32(4.0)}), ENV, episodes=4, seed=11, steps=10)  # other params
+    assert other is not a and not np.array_equal(other.normalized_power, a.normalized_power)
+    assert agents.evaluate(pair, {**ENV, "mode": "easy"}, episodes=4, seed=11, steps=10) is not a
+    assert agents.evaluate(pair, ENV, episodes=4, seed=12, steps=10) is not a
