@@ -188,16 +188,23 @@ def summarize(npow: np.ndarray, **extra) -> dict:
     )
 
 
-def episode_ids(episodes: int):
-    """Episode indices, sharded over all local devices when they divide evenly (a multi-GPU host,
-    or XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU): the jitted evaluation then
-    splits its episodes across devices. Results do not depend on the device count."""
-    ids = jnp.arange(episodes)
+def split_over_devices(size: int, axis: str):
+    """A ``NamedSharding`` splitting a leading axis of length ``size`` over all local devices (a
+    multi-GPU host, or XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU) when there are
+    several and they divide it; else None (one device)."""
     devices = jax.local_devices()
-    if len(devices) > 1 and episodes % len(devices) == 0:
-        mesh = jax.sharding.Mesh(np.array(devices), ("episodes",))
-        ids = jax.device_put(ids, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("episodes")))
-    return ids
+    if len(devices) < 2 or size % len(devices):
+        return None
+    mesh = jax.sharding.Mesh(np.array(devices), (axis,))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(axis))
+
+
+def episode_ids(episodes: int):
+    """Episode indices, sharded with ``split_over_devices``: the jitted evaluation then splits its
+    episodes across devices. Results do not depend on the device count."""
+    ids = jnp.arange(episodes)
+    sharding = split_over_devices(episodes, "episodes")
+    return ids if sharding is None else jax.device_put(ids, sharding)
 
 
 _EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()

@@ -309,16 +309,6 @@ def _seed_axes(ts: TrainState) -> TrainState:
     return axes._replace(buffer=buffer, updates=None, env_params=None)
 
 
-def _seed_sharding(num_seeds: int):
-    """Sharding of the seed axis over all local devices when they divide it (several GPUs, or
-    XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU), else None (one device)."""
-    devices = jax.local_devices()
-    if len(devices) < 2 or num_seeds % len(devices):
-        return None
-    mesh = jax.sharding.Mesh(np.array(devices), ("seeds",))
-    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds"))
-
-
 def _over_seeds(fns: dict, evaluate_fn, ts_shape: TrainState, num_seeds: int, sharding) -> dict:
     """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
     the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
@@ -371,7 +361,7 @@ def _cached_build(env_config: dict, h: dict, num_seeds: int) -> dict:
     in this process, so that other seeds or modes (their ``EnvParams`` are arguments) do not
     recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
     env, env_params = ops_jax.make(**train_env_config(env_config))
-    sharding = _seed_sharding(num_seeds)
+    sharding = base.split_over_devices(num_seeds, "seeds")
     key = (env.config, repr([(k, h[k]) for k in _BUILD_KEYS]), num_seeds > 1, sharding)
     if key not in _BUILDS:
         raw = _build(env, h)
