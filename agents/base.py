@@ -9,7 +9,10 @@ every probe as a measurement. Learned policies ignore carry and probe.
 Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
 ``train(env_config, *, seed, total_steps, **hyper) -> TrainResult``,
 ``make_policy(env_config, hyper) -> Policy`` and ``params_template(env_config, hyper)`` (a pytree
-of the parameters' structure, for ``load``).
+of the parameters' structure, for ``load``). ``make_policy`` may depend only on ``hyper`` and the
+static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
+from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
+serves a policy trained in any mode.
 """
 
 from __future__ import annotations
@@ -113,6 +116,8 @@ def evaluated_result(algo: str, env_config: dict, hyper: dict, params, seed: int
     """The TrainResult of a controller with nothing to train (SPGD, physics-informed): its curve is
     a short evaluation (``episodes`` episodes, seed ``seed``), P/Pmax per control step. Evaluated as
     the result itself, so later evaluations of it reuse the compiled program."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"curve_episodes must be an integer >= 1, got {episodes!r}")
     t0 = time.perf_counter()
     result = TrainResult(algo, env_config, hyper, params, {}, {}, int(seed))
     npow = evaluate(result, env_config, episodes=episodes, seed=int(seed)).normalized_power.mean(0)
@@ -216,11 +221,11 @@ _RESULTS_MAX = 256
 
 
 def _source_ident(source, policy: Policy):
-    """What the evaluated program is built from: a ``TrainResult``'s algorithm, training
-    configuration and hyperparameters, or a policy's identity."""
+    """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
+    configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
     if isinstance(source, TrainResult):
-        return ("result", source.algo, json.dumps(source.env_config, sort_keys=True, default=str),
-                json.dumps(source.hyper, sort_keys=True, default=str))
+        static = ops_jax.make(**source.env_config)[0].config
+        return ("result", source.algo, static, json.dumps(source.hyper, sort_keys=True, default=str))
     return ("policy", policy)
 
 

@@ -85,7 +85,15 @@ def check_hyper(hyper: dict) -> dict:
 
 def params_template(env_config, hyper):
     del env_config, hyper
-    return None
+    return {"action_scale": np.float32(0), "window": np.float32(0)}
+
+
+def policy_params(env_config: dict) -> dict:
+    """The controller's numbers from its environment: ``action_scale`` (wl per action unit) and
+    ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
+    program, so one compiled policy serves every mode (make_policy reads only the static config)."""
+    _, env_params = ops_jax.make(**check_env_config(env_config))
+    return {"action_scale": np.float32(env_params.action_scale), "window": np.float32(env_params.window)}
 
 
 def wrap(x):
@@ -94,17 +102,16 @@ def wrap(x):
 
 
 def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
-    """The physics-informed policy; ``params`` are unused (None)."""
+    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
     h = check_hyper(hyper or {})
-    env, env_params = ops_jax.make(**env_config)
+    env, _ = ops_jax.make(**env_config)
     cfg = env.config
     n = cfg.stages
     frame = env.frame_size
     ny = 2**n  # P and the 2^n - 1 samples
     fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
-    scale = jnp.float32(env_params.action_scale)
-    window = jnp.float32(env_params.window)
+    default = policy_params(env_config)
     p_max = physics.p_max(n, cfg.detector)
     peak = physics.peak_intensity(n)
 
@@ -147,7 +154,9 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
                 "valid": jnp.zeros((b,), jnp.float32)}
 
     def act(params, carry, obs, key, probe):
-        del params, probe
+        del probe
+        p = default if params is None else params
+        scale, window = p["action_scale"], p["window"]
         b = obs.shape[0]
         last = obs[:, obs.shape[1] - frame:]
         y = last[:, :ny]
@@ -171,9 +180,11 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     return Policy(init, act)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
-    """Nothing to learn (the model is the simulator): validates, and records a short evaluation
-    (32 episodes, seed ``seed``) as the curve. ``total_steps`` is ignored."""
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, curve_episodes: int = 32,
+          **hyper) -> TrainResult:
+    """Nothing to learn (the model is the simulator): validates; the curve is
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
+    when asked for again). ``total_steps`` is ignored."""
     env_config = check_env_config(env_config)
     h = check_hyper(hyper)
-    return evaluated_result("physics", env_config, h, {}, seed)
+    return evaluated_result("physics", env_config, h, policy_params(env_config), seed, curve_episodes)

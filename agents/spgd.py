@@ -103,12 +103,15 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     return Policy(init, act)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
-    """No learning: the gains are ``hyper`` (defaults: the searched ``DEFAULTS``). The curve is a
-    short evaluation (32 episodes, seed ``seed``); ``total_steps`` is ignored (0 env steps used)."""
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, curve_episodes: int = 32,
+          **hyper) -> TrainResult:
+    """No learning: the gains are ``hyper`` (defaults: the searched ``DEFAULTS``). The curve is
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
+    when asked for again); ``total_steps`` is ignored (0 env steps used)."""
     env_config = check_env_config(env_config)
     h = check_hyper(hyper)
-    return evaluated_result("spgd", env_config, h, {k: np.asarray(v) for k, v in gains(h).items()}, seed)
+    params = {k: np.asarray(v) for k, v in gains(h).items()}
+    return evaluated_result("spgd", env_config, h, params, seed, curve_episodes)
 
 
 def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episodes: int = 64, seed: int = 1000):

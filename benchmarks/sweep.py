@@ -112,9 +112,13 @@ class Sweep:
         config = self._train_config(algo, env_config, seed)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
+        # A controller with nothing to train records an evaluation as its curve: the same one as
+        # the training-environment evaluation below, which is then served from memory.
+        curve = {} if algo in LEARNERS else {"curve_episodes": config["episodes"]}
+
         def compute():
             trained = result if result is not None else agents.train(
-                algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"])
+                algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"], **curve)
             agents.save(ckpt, trained)
             ev_train = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed)
             ev_test = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)

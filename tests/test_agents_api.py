@@ -1,7 +1,6 @@
 """The shared agents API: evaluate (probes counted, deterministic, device-count independent),
 checkpoints (round trip, missing, corrupt), bad input."""
 
-import json
 import os
 import subprocess
 import sys
@@ -99,15 +98,22 @@ def test_evaluate_compiles_once_per_policy_and_static_config():
     env = {"stages": 3, "mode": "easy", "model": "phasor"}
     result = agents.train("spgd", env, seed=0)  # evaluates itself once (32 episodes)
     before = len(base._EVALUATORS)
+    ident = base._source_ident(result, None)
+    (run, _, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
+    traced = run._cache_size()
     for mode, seed in (("easy", 1), ("easy", 2), ("hard", 1), ("medium", 3)):
         agents.evaluate(result, {**env, "mode": mode}, episodes=32, seed=seed, steps=200)
-    assert len(base._EVALUATORS) == before
-    ident = ("result", "spgd", json.dumps(result.env_config, sort_keys=True, default=str),
-             json.dumps(result.hyper, sort_keys=True, default=str))
-    (run, _, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
-    assert run._cache_size() == 1  # 32 episodes of 200 steps throughout: one trace, one compile
+    for algo, hyper in (("spgd", {}), ("physics", {"starts": 3, "iters": 2})):  # trained in another mode
+        first = agents.train(algo, env, seed=0, **hyper)
+        n = len(base._EVALUATORS)
+        agents.evaluate(agents.train(algo, {**env, "mode": "medium"}, seed=0, **hyper), env, episodes=32, seed=1)
+        assert len(base._EVALUATORS) == n, algo
+        if algo == "physics":  # its numbers from the environment are parameters, not constants
+            assert set(first.params) == {"action_scale", "window"}
+    assert len(base._EVALUATORS) == before + 1  # + the physics controller's
+    assert run._cache_size() == traced  # 32 episodes of 200 steps throughout: no new trace or compile
     agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
-    assert len(base._EVALUATORS) == before + 1
+    assert len(base._EVALUATORS) == before + 2
 
 
 def test_repeated_evaluation_is_served_from_memory():

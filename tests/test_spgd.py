@@ -34,6 +34,12 @@ def test_train_same_seed_same_result_and_params_are_gains():
     pr = agents.evaluate(a, ENV, episodes=4, seed=9, steps=10).normalized_power
     pn = agents.evaluate(a.policy(), ENV, episodes=4, seed=9, steps=10).normalized_power
     np.testing.assert_allclose(pr, pn, atol=1e-6)
+    # the curve is the training-environment evaluation with curve_episodes episodes
+    c = agents.train("spgd", ENV, seed=3, curve_episodes=4)
+    ev = agents.evaluate(c, ENV, episodes=4, seed=3)
+    np.testing.assert_array_equal(c.curve["normalized_power"], ev.normalized_power.mean(0))
+    with pytest.raises(ValueError, match="curve_episodes"):
+        agents.train("spgd", ENV, seed=3, curve_episodes=0)
 
 
 @pytest.mark.parametrize("hyper, word", [
