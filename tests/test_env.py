@@ -126,8 +126,8 @@ def test_actions_are_clipped():
 
 @pytest.mark.parametrize("mode", ["easy", "medium", "hard"])
 def test_initial_spread_matches_mode(mode):
-    env, params = ops_jax.make(stages=5, mode=mode)
-    _, states = env.reset_batch(jax.random.split(jax.random.key(1), 20000), params)
+    env, params = ops_jax.make(stages=5, mode=mode, model="phasor")  # statistics: any model
+    _, states = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(1), 20000), params)
     x = np.asarray(states.deltas).ravel()
     s0 = ops_jax.env.MODE_PARAMS[mode]["init_spread"]
     expected_std = s0 * stats.truncnorm(-2, 2).std()  # clip at 2 s0: the tails land on the bound
@@ -139,10 +139,10 @@ def test_initial_spread_matches_mode(mode):
 
 
 def test_step_noise_statistics():
-    env, params = ops_jax.make(stages=4, mode="medium")
-    _, states = env.reset_batch(jax.random.split(jax.random.key(2), 20000), params)
+    env, params = ops_jax.make(stages=4, mode="medium", model="phasor")
+    _, states = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(2), 20000), params)
     keys = jax.random.split(jax.random.key(3), 20000)
-    _, s2, *_ = jax.vmap(env.step_env, in_axes=(0, 0, None, None))(keys, states, jnp.zeros(4), params)
+    _, s2, *_ = jax.jit(jax.vmap(env.step_env, in_axes=(0, 0, None, None)))(keys, states, jnp.zeros(4), params)
     inc = np.asarray(s2.deltas - states.deltas).ravel()
     clipped = stats.norm.sf(3) * 2
     expected = 5e-4 * np.sqrt(stats.truncnorm(-3, 3).var() * (1 - clipped) + 9 * clipped)
@@ -151,10 +151,10 @@ def test_step_noise_statistics():
 
 
 def test_feedback_delay_sums_k_draws():
-    env, params = ops_jax.make(stages=3, mode="easy", feedback_k=25)
-    _, states = env.reset_batch(jax.random.split(jax.random.key(2), 8000), params)
+    env, params = ops_jax.make(stages=3, mode="easy", feedback_k=25, model="phasor")
+    _, states = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(2), 8000), params)
     keys = jax.random.split(jax.random.key(3), 8000)
-    _, s2, *_ = jax.vmap(env.step_env, in_axes=(0, 0, None, None))(keys, states, jnp.zeros(3), params)
+    _, s2, *_ = jax.jit(jax.vmap(env.step_env, in_axes=(0, 0, None, None)))(keys, states, jnp.zeros(3), params)
     inc = np.asarray(s2.deltas - states.deltas).ravel()
     assert np.std(inc) == pytest.approx(5e-4 * 5 * 0.9866, rel=0.03)  # sqrt(25) draws
 
@@ -184,10 +184,10 @@ def test_piecewise_linear_drift():
 
 
 def test_params_can_differ_per_instance():
-    env, params = ops_jax.make(stages=3, mode="custom")
+    env, params = ops_jax.make(stages=3, mode="custom", model="phasor")
     spreads = jnp.linspace(0.0, 0.2, 64)
     batched = ops_jax.EnvParams(**{**vars(params), "init_spread": spreads})
-    _, states = env.reset_batch(jax.random.split(jax.random.key(0), 64), batched)
+    _, states = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(0), 64), batched)
     assert np.abs(np.asarray(states.deltas[0])).max() == 0.0
     assert np.abs(np.asarray(states.deltas[-1])).max() > 0.0
     ro = ops_jax.rollout(env, batched, _zero_policy(3), jax.random.key(1), 64, 5)
