@@ -283,6 +283,20 @@ def enable_compilation_cache():
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
+QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
+
+
+def quick_compilation():
+    """``--quick`` compiles with XLA's backend optimisation level 0 (added to XLA_FLAGS unless that
+    sets the level already; before jax's backend starts): compilation, not execution, is most of
+    its wall time (measured: 214 s instead of 244 s for the whole preset). Results differ from an
+    optimised build by rounding, which training amplifies; the disk cache keys include XLA_FLAGS,
+    so the two builds are never mixed."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_backend_optimization_level" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {QUICK_XLA_FLAG}".strip()
+
+
 def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
     preset = json.loads(json.dumps(PRESETS[name]))  # deep copy
@@ -313,6 +327,8 @@ def main(argv=None):
     # Before jax is first imported (enable_compilation_cache): XLA's C++ log lines, e.g. one error
     # line per program loaded from the persistent cache, would drown the progress bar.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    if args.quick:
+        quick_compilation()
     enable_compilation_cache()
     sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
     sweep.run(sections)

@@ -277,6 +277,7 @@ def summary(out: Path, p: dict, sections, timing: dict, cells):
         f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['config']}",
         f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
         f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
+        f"- XLA_FLAGS: {os.environ.get('XLA_FLAGS') or '(none)'}",
         f"- cells computed this run: {cells.computed}, reused from earlier runs: {cells.reused}",
         "",
         "## Wall time per section (this run)",

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import ttest_ind
 
+from benchmarks import sweep
 from benchmarks.cells import CellStore
 from benchmarks.sweep_report import bold_mask, convergence_step
 
@@ -100,3 +101,5 @@ def test_quick_sweep_end_to_end(tmp_path):
             td3_cells += 1
             assert data["wall_time"]["seeds_in_call"] == 2, cell.name
     assert td3_cells == 6
+    if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):  # --quick compiles at -O0
+        assert sweep.QUICK_XLA_FLAG in (out / "summary.md").read_text()
