@@ -20,8 +20,11 @@ different drift realisation.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
+import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -103,7 +106,19 @@ class Sweep:
 
     def _finished(self, label: str, config: dict) -> bool:
         record = self.cells.load(label, config, quiet=True)
-        return record is not None and (self.out / record["checkpoint"]).exists()
+        return record is not None and self._loads(record, quiet=True)
+
+    def _loads(self, record: dict, quiet: bool = False) -> bool:
+        """Whether a cell's checkpoint is there and loads (not truncated, corrupt or of an older format)."""
+        import agents
+
+        try:
+            agents.load(self.out / record["checkpoint"])
+            return True
+        except (FileNotFoundError, ValueError) as exc:
+            if not quiet:
+                self.log(f"checkpoint {record['checkpoint']} unusable ({exc}): training again")
+            return False
 
     def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None) -> dict:
         """Train (or reuse) one controller, evaluate it in its training and testing environment.
@@ -132,7 +147,7 @@ class Sweep:
             )
 
         record = self.cells.get(label, config, compute)
-        if not (self.out / record["checkpoint"]).exists():  # checkpoint lost: retrain
+        if not self._loads(record):  # checkpoint lost or unusable: train again
             self.cells.path(label, config).unlink()
             record = self.cells.get(label, config, compute)
         return record
@@ -273,6 +288,25 @@ def _eval_record(ev) -> dict:
     )
 
 
+def _crash_injection(sweep: Sweep, out: Path):
+    """Tests of ``supervise``: with OPS_SWEEP_CRASH_AFTER=K the process kills itself with SIGSEGV
+    once it has computed K cells, once per output folder (marker file ``.crash-injected``)."""
+    after = int(os.environ.get("OPS_SWEEP_CRASH_AFTER", "0"))
+    marker = out / ".crash-injected"
+    if after <= 0 or marker.exists():
+        return
+    get = sweep.cells.get
+
+    def get_then_crash(*args, **kw):
+        record = get(*args, **kw)
+        if sweep.cells.computed >= after:
+            marker.touch()
+            os.kill(os.getpid(), signal.SIGSEGV)
+        return record
+
+    sweep.cells.get = get_then_crash
+
+
 def enable_compilation_cache():
     """Persist XLA compilations (``OPS_JAX_CACHE`` or ~/.cache/ops-jax/xla): the many trainings of a
     sweep share programs that differ only in their seed, so later cells and re-runs skip compiling."""
@@ -285,6 +319,43 @@ def enable_compilation_cache():
 
 
 QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
+WORKER_ENV = "OPS_SWEEP_WORKER"  # set in the worker process that supervise() starts
+CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
+
+
+def _die_with_parent():  # Linux: the worker gets SIGKILL when the supervising process dies
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def supervise(argv: list, restarts: int) -> int:
+    """Run the sweep in a worker process (``python -X faulthandler``, so a crash prints the Python
+    stack) and start it again, up to ``restarts`` times, when it dies of a crash signal (SIGSEGV,
+    SIGBUS, SIGABRT, SIGILL, SIGFPE): finished cells are stored, so each restart resumes. Other
+    exits are passed on. Returns the exit code."""
+    cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.sweep", *argv]
+    env = {**os.environ, WORKER_ENV: "1"}
+    for attempt in range(restarts + 1):
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_parent if sys.platform == "linux" else None)
+        try:
+            code = proc.wait()
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            return 130
+        if code >= 0 or -code not in CRASH_SIGNALS:
+            return code if code >= 0 else 128 - code
+        name = signal.Signals(-code).name
+        if attempt == restarts:
+            print(f"sweep worker died with {name} after {time.perf_counter() - t0:.0f} s; no restarts left "
+                  f"(re-run the command to resume from the stored cells)", file=sys.stderr)
+            return 128 - code
+        print(f"sweep worker died with {name} after {time.perf_counter() - t0:.0f} s; resuming from the stored "
+              f"cells (restart {attempt + 1} of {restarts})", file=sys.stderr)
+    return 1
 
 
 def quick_compilation():
@@ -320,11 +391,18 @@ def main(argv=None):
     ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
     ap.add_argument("--only", nargs="+", choices=SECTIONS, help="sections to run (default: all)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
+    ap.add_argument("--restarts", type=int, default=2,
+                    help="times to resume from the stored cells after the worker process crashes (default 2; 0: "
+                         "run in this process)")
     args = ap.parse_args(argv)
+    if args.restarts < 0:
+        raise SystemExit(f"--restarts must be >= 0, got {args.restarts}")
     preset = build_preset(args)
     out = args.out or Path("results") / preset["name"]
     out.mkdir(parents=True, exist_ok=True)
     sections = args.only or list(SECTIONS)
+    if args.restarts and os.environ.get(WORKER_ENV) != "1":
+        raise SystemExit(supervise(sys.argv[1:] if argv is None else list(argv), args.restarts))
     # Before jax is first imported (enable_compilation_cache): XLA's C++ log lines, e.g. one error
     # line per program loaded from the persistent cache, would drown the progress bar.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
@@ -332,6 +410,7 @@ def main(argv=None):
         quick_compilation()
     enable_compilation_cache()
     sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
+    _crash_injection(sweep, out)
     sweep.run(sections)
     print(f"wrote {out}/summary.md ({sweep.cells.computed} cells computed, {sweep.cells.reused} reused)")
     return out

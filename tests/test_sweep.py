@@ -53,10 +53,22 @@ def test_cell_store_resumes_and_detects_corruption(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
-def _run_sweep(args, **kw):
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+def _run_sweep(args, env_extra=None, **kw):
+    env = {**os.environ, "PYTHONPATH": str(REPO), **(env_extra or {})}
     return subprocess.Popen([sys.executable, "-m", "benchmarks.sweep", *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _sweep_processes(out):
+    """PIDs of live processes whose command line names ``out``."""
+    pids = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if str(out).encode() in cmdline.read_bytes():
+                pids.append(cmdline.parent.name)
+        except OSError:
+            pass
+    return pids
 
 
 def test_resume_after_sigkill(tmp_path):
@@ -68,6 +80,11 @@ def test_resume_after_sigkill(tmp_path):
         time.sleep(0.2)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    if sys.platform == "linux":  # the worker process dies with its supervisor
+        deadline = time.time() + 10
+        while time.time() < deadline and _sweep_processes(out):
+            time.sleep(0.2)
+        assert not _sweep_processes(out)
     first = sorted((out / "cells").glob("*.json"))
     assert first, "no cell finished before the deadline"
     stamp = {p.name: p.stat().st_mtime_ns for p in first}
@@ -78,6 +95,16 @@ def test_resume_after_sigkill(tmp_path):
     reused = int(stdout.split(" reused")[0].rsplit(", ", 1)[1])
     assert reused >= len(first)
     assert (out / "table1.md").exists()
+    # A checkpoint that no longer loads (here: corrupted) is reported and its cell trained again.
+    cell = first[0]
+    blob = out / json.loads(cell.read_text())["result"]["checkpoint"] / "params.msgpack"
+    blob.write_bytes(blob.read_bytes()[:-3] + b"xyz")
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
+    stdout, stderr = _run_sweep(args).communicate(timeout=400)
+    assert "unusable" in stderr, stderr[-2000:]
+    assert cell.stat().st_mtime_ns != stamps[cell.name]
+    assert all(p.stat().st_mtime_ns == t for p, t in ((out / "cells" / n, t) for n, t in stamps.items())
+               if p.name != cell.name)
 
 
 def test_quick_sweep_end_to_end(tmp_path):
@@ -103,3 +130,18 @@ def test_quick_sweep_end_to_end(tmp_path):
     assert td3_cells == 6
     if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):  # --quick compiles at -O0
         assert sweep.QUICK_XLA_FLAG in (out / "summary.md").read_text()
+
+
+def test_worker_crash_is_resumed(tmp_path):
+    """The command runs the sweep in a worker and resumes it after a crash signal (here injected:
+    SIGSEGV after the second computed cell)."""
+    out = tmp_path / "run"
+    args = ["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)]
+    proc = _run_sweep(args, env_extra={"OPS_SWEEP_CRASH_AFTER": "2"})
+    stdout, stderr = proc.communicate(timeout=400)
+    assert proc.returncode == 0, stderr[-2000:]
+    assert "died with SIGSEGV" in stderr and "restart 1 of 2" in stderr
+    assert "Fatal Python error: Segmentation fault" in stderr  # the worker runs with faulthandler
+    reused = int(stdout.split(" reused")[0].rsplit(", ", 1)[1])
+    assert reused == 2 and len(list((out / "cells").glob("*.json"))) == 6  # 3 modes x 2 seeds
+    assert (out / "table1.md").exists()
