@@ -146,8 +146,9 @@ class Sweep:
                 test_env=_eval_record(ev_test),
             )
 
+        computed = self.cells.computed
         record = self.cells.get(label, config, compute)
-        if not self._loads(record):  # checkpoint lost or unusable: train again
+        if self.cells.computed == computed and not self._loads(record):  # stored cell, checkpoint lost or unusable
             self.cells.path(label, config).unlink()
             record = self.cells.get(label, config, compute)
         return record
