@@ -349,14 +349,11 @@ def supervise(argv: list, restarts: int) -> int:
             return 130
         if code >= 0 or -code not in CRASH_SIGNALS:
             return code if code >= 0 else 128 - code
-        name = signal.Signals(-code).name
-        if attempt == restarts:
-            print(f"sweep worker died with {name} after {time.perf_counter() - t0:.0f} s; no restarts left "
-                  f"(re-run the command to resume from the stored cells)", file=sys.stderr)
-            return 128 - code
-        print(f"sweep worker died with {name} after {time.perf_counter() - t0:.0f} s; resuming from the stored "
-              f"cells (restart {attempt + 1} of {restarts})", file=sys.stderr)
-    return 1
+        then = (f"resuming from the stored cells (restart {attempt + 1} of {restarts})" if attempt < restarts
+                else "no restarts left (re-run the command to resume from the stored cells)")
+        print(f"sweep worker died with {signal.Signals(-code).name} after {time.perf_counter() - t0:.0f} s; {then}",
+              file=sys.stderr)
+    return 128 - code
 
 
 def quick_compilation():
