@@ -26,6 +26,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -34,6 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks.cells import CellStore, config_hash
+from benchmarks.common import write_json_atomic
 
 MODES = ("easy", "medium", "hard")
 SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")
@@ -87,11 +89,32 @@ TEST_SEED_OFFSET = 10_000
 LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperparameter config
 
 
+# Relative wall time of one algorithm's cells (measured: default preset table 1, SAC 6.8 min, PPO 6.5,
+# TD3 5.4, physics 2.1 + its stage scan; quick preset alike): how ``partition`` balances workers.
+ALGO_COST = {"ppo": 3.0, "sac": 3.0, "td3": 2.0, "physics": 1.5, "spgd": 0.5}
+
+
+def partition(algos, jobs: int) -> list:
+    """``algos`` split over at most ``jobs`` workers: heaviest first (``ALGO_COST``) onto the least
+    loaded. An algorithm's cells all go to one worker, since its transfer and feedback cells use the
+    checkpoints its table-1 cells write."""
+    parts = [[] for _ in range(max(1, min(jobs, len(algos))))]
+    load = [0.0] * len(parts)
+    for algo in sorted(algos, key=lambda a: -ALGO_COST.get(a, 1.0)):
+        i = load.index(min(load))
+        parts[i].append(algo)
+        load[i] += ALGO_COST.get(algo, 1.0)
+    return parts
+
+
 class Sweep:
-    def __init__(self, preset: dict, out: Path, log):
+    def __init__(self, preset: dict, out: Path, log, algos=None, bar_position: int = 0):
+        """``algos``: the algorithms this process computes (a worker's part; default all)."""
         self.p = preset
         self.out = out
         self.log = log
+        self.algos = list(algos or preset["algos"])
+        self.bar_position = bar_position
         self.cells = CellStore(out / "cells", log)
         self.ckpt_dir = out / "checkpoints"
         self.timing = {}
@@ -189,64 +212,86 @@ class Sweep:
     def table1_runs(self, bar):
         runs = {}
         for mode in MODES:
-            for algo in self.p["algos"]:
+            for algo in self.algos:
                 records = self.trained_seeds(algo, {"stages": 5, "mode": mode}, range(self.p["seeds"]),
                                              lambda s: f"table1-{mode}-{algo}-s{s}", bar)
                 runs.update({(mode, algo, seed): r for seed, r in records.items()})
         return runs
 
     # -- sections -----------------------------------------------------------------------------
+    def _stage_algos(self) -> list:
+        return [a for a in self.p["stage_algos"] if a in self.algos]
+
     def count(self, sections) -> int:
         p = self.p
-        n1 = len(MODES) * len(p["algos"]) * p["seeds"]
+        n1 = len(MODES) * len(self.algos) * p["seeds"]
         n_stages = p["stage_range"][1] - p["stage_range"][0] + 1
-        nst = n_stages * len(p["stage_modes"]) * len(p["stage_algos"]) * p["stage_seeds"]
+        nst = n_stages * len(p["stage_modes"]) * len(self._stage_algos()) * p["stage_seeds"]
         total = 0
         if {"table1", "table2", "transfer", "feedback"} & set(sections):
             total += n1
         if "stages" in sections:
             total += nst
         if "transfer" in sections:
-            total += len(p["algos"]) * self.aux_seeds * len(MODES) * len(MODES)
+            total += len(self.algos) * self.aux_seeds * len(MODES) * len(MODES)
         if "feedback" in sections:
-            total += len(p["algos"]) * self.aux_seeds * len(p["feedback_ks"])
+            total += len(self.algos) * self.aux_seeds * len(p["feedback_ks"])
         return total
 
-    def run(self, sections):
+    def compute(self, sections):
+        """A worker's part: every cell of ``self.algos`` in ``sections``, no reports. Returns the
+        wall time per section."""
+        self._sections(sections, report=None)
+        return self.timing
+
+    def run(self, sections, workers=(), started=float("nan")):
+        """Every cell (computing those not stored), then the tables, figures and summary; returns
+        (cells computed, cells reused). ``workers``: the records (algos, timing, computed, reused)
+        of the part workers that computed cells for this run before this process; ``started``: the
+        command's start (time.time()), if known."""
         from benchmarks import sweep_report as report
 
-        bar = tqdm(total=self.count(sections), unit="cell", desc="sweep", dynamic_ncols=True)
+        self._sections(sections, report)
+        # The part workers' cells were computed in this run; this process only loaded them.
+        counts = (self.cells.computed + sum(w["computed"] for w in workers),
+                  self.cells.reused - sum(w["computed"] for w in workers))
+        report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
+        return counts
+
+    def _sections(self, sections, report):
+        """Compute (or load) the cells of ``sections``, then write their reports unless ``report`` is None."""
+        bar = tqdm(total=self.count(sections), unit="cell", dynamic_ncols=True, position=self.bar_position,
+                   desc="sweep" if self.algos == list(self.p["algos"]) else f"sweep {'+'.join(self.algos)}")
         t0 = time.perf_counter()
         runs = self.table1_runs(bar) if {"table1", "table2", "transfer", "feedback"} & set(sections) else {}
         self.timing["table1 training + evaluation"] = time.perf_counter() - t0
-        if "table1" in sections:
-            report.table1(self.out, runs, self.p)
-            report.training_curves(self.out, runs, self.p)
-            report.testing_curves(self.out, runs, self.p)
-        if "table2" in sections:
-            report.table2(self.out, runs, self.p)
-        if "stages" in sections:
-            t = time.perf_counter()
-            report.stages(self.out, self.stage_scan(bar), self.p)
-            self.timing["stages"] = time.perf_counter() - t
-        if "transfer" in sections:
-            t = time.perf_counter()
-            report.transfer(self.out, self.transfer(runs, bar), self.p)
-            self.timing["transfer"] = time.perf_counter() - t
-        if "feedback" in sections:
-            t = time.perf_counter()
-            report.feedback(self.out, self.feedback(runs, bar), self.p)
-            self.timing["feedback"] = time.perf_counter() - t
+        results = {}
+        for name, compute in (("stages", lambda: self.stage_scan(bar)), ("transfer", lambda: self.transfer(runs, bar)),
+                              ("feedback", lambda: self.feedback(runs, bar))):
+            if name in sections:
+                t = time.perf_counter()
+                results[name] = compute()
+                self.timing[name] = time.perf_counter() - t
         bar.close()
+        if report is not None:
+            t = time.perf_counter()
+            if "table1" in sections:
+                report.table1(self.out, runs, self.p)
+                report.training_curves(self.out, runs, self.p)
+                report.testing_curves(self.out, runs, self.p)
+            if "table2" in sections:
+                report.table2(self.out, runs, self.p)
+            for name, res in results.items():
+                getattr(report, name)(self.out, res, self.p)
+            self.timing["tables and figures"] = time.perf_counter() - t
         self.timing["total"] = time.perf_counter() - t0
-        report.summary(self.out, self.p, sections, self.timing, self.cells)
 
     def stage_scan(self, bar):
         res = {}
         lo, hi = self.p["stage_range"]
         for n in range(lo, hi + 1):
             for mode in self.p["stage_modes"]:
-                for algo in self.p["stage_algos"]:
+                for algo in self._stage_algos():
                     records = self.trained_seeds(algo, {"stages": n, "mode": mode}, range(self.p["stage_seeds"]),
                                                  lambda s: f"stages-N{n}-{mode}-{algo}-s{s}", bar)
                     res.update({(n, mode, algo, seed): r for seed, r in records.items()})
@@ -320,7 +365,10 @@ def enable_compilation_cache():
 
 
 QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
-WORKER_ENV = "OPS_SWEEP_WORKER"  # set in the worker process that supervise() starts
+WORKER_ENV = "OPS_SWEEP_WORKER"  # set in the worker processes that supervise() starts
+STARTED_ENV = "OPS_SWEEP_STARTED"  # the command's start (time.time()), for the summary's wall time
+PARTS_ENV = "OPS_SWEEP_PARTS"  # in the report worker: how many part workers computed cells before it
+PART_TIMING_DIR = ".parts"  # in the output folder: each part worker's algorithms, cell counts and timing
 CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
 
 
@@ -331,29 +379,65 @@ def _die_with_parent():  # Linux: the worker gets SIGKILL when the supervising p
         pass
 
 
-def supervise(argv: list, restarts: int) -> int:
-    """Run the sweep in a worker process (``python -X faulthandler``, so a crash prints the Python
-    stack) and start it again, up to ``restarts`` times, when it dies of a crash signal (SIGSEGV,
-    SIGBUS, SIGABRT, SIGILL, SIGFPE): finished cells are stored, so each restart resumes. Other
-    exits are passed on. Returns the exit code."""
-    cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.sweep", *argv]
-    env = {**os.environ, WORKER_ENV: "1"}
+def _supervised(cmd: list, env: dict, restarts: int, procs: list, name: str) -> int:
+    """Run ``cmd`` and start it again, up to ``restarts`` times, when it dies of a crash signal;
+    each process is appended to ``procs`` (for interruption). Returns the exit code."""
     for attempt in range(restarts + 1):
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_parent if sys.platform == "linux" else None)
-        try:
-            code = proc.wait()
-        except KeyboardInterrupt:
-            proc.terminate()
-            proc.wait()
-            return 130
+        procs.append(proc)
+        code = proc.wait()
         if code >= 0 or -code not in CRASH_SIGNALS:
             return code if code >= 0 else 128 - code
         then = (f"resuming from the stored cells (restart {attempt + 1} of {restarts})" if attempt < restarts
                 else "no restarts left (re-run the command to resume from the stored cells)")
-        print(f"sweep worker died with {signal.Signals(-code).name} after {time.perf_counter() - t0:.0f} s; {then}",
+        print(f"{name} died with {signal.Signals(-code).name} after {time.perf_counter() - t0:.0f} s; {then}",
               file=sys.stderr)
     return 128 - code
+
+
+def supervise(argv: list, restarts: int, parts: list, out: Path) -> int:
+    """Run the sweep in worker processes (``python -X faulthandler``, so a crash prints the Python
+    stack), each restarted up to ``restarts`` times when it dies of a crash signal (SIGSEGV, SIGBUS,
+    SIGABRT, SIGILL, SIGFPE): finished cells are stored, so a restart resumes. With several
+    ``parts`` (lists of algorithms), one worker per part computes its cells, all at once; then one
+    more worker finds every cell stored and writes the tables, figures and summary. Returns the
+    exit code (the first failing worker's)."""
+    cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.sweep", *argv]
+    env = {**os.environ, WORKER_ENV: "1", STARTED_ENV: str(time.time())}
+    procs = []
+    try:
+        if len(parts) > 1:
+            timing_dir = out / PART_TIMING_DIR
+            for stale in timing_dir.glob("part*.json"):
+                stale.unlink()
+            # Workers sharing one accelerator must not each reserve most of its memory up front.
+            part_env = {**env, "XLA_PYTHON_CLIENT_PREALLOCATE": os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "false")}
+            codes = [None] * len(parts)
+
+            def work(i):
+                codes[i] = _supervised([*cmd, "--part", f"{i}/{len(parts)}"], part_env, restarts, procs,
+                                       f"sweep worker {i + 1} ({'+'.join(parts[i])})")
+
+            threads = [threading.Thread(target=work, args=(i,), daemon=True) for i in range(len(parts))]
+            for t in threads:
+                t.start()
+            for t in threads:
+                while t.is_alive():
+                    t.join(0.5)
+            if any(codes):
+                i = next(i for i, c in enumerate(codes) if c)
+                print(f"sweep worker {i + 1} ({'+'.join(parts[i])}) exited with code {codes[i]}; the other workers' "
+                      "cells are stored (re-run the command to resume)", file=sys.stderr)
+                return codes[i]
+            env[PARTS_ENV] = str(len(parts))
+        return _supervised(cmd, env, restarts, procs, "sweep worker")
+    except KeyboardInterrupt:
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.wait()
+        return 130
 
 
 def quick_compilation():
@@ -390,27 +474,46 @@ def main(argv=None):
     ap.add_argument("--only", nargs="+", choices=SECTIONS, help="sections to run (default: all)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
     ap.add_argument("--restarts", type=int, default=2,
-                    help="times to resume from the stored cells after the worker process crashes (default 2; 0: "
-                         "run in this process)")
+                    help="times to resume from the stored cells after a worker process crashes (default 2; 0 with "
+                         "--jobs 1: run in this process)")
+    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                    help="worker processes computing cells at once, each for its own algorithms (default: 2, or "
+                         "1 on a 1-CPU machine); times in table2 are then measured beside the other workers")
+    ap.add_argument("--part", help=argparse.SUPPRESS)  # I/J: this worker computes part I of J (see supervise)
     args = ap.parse_args(argv)
     if args.restarts < 0:
         raise SystemExit(f"--restarts must be >= 0, got {args.restarts}")
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     preset = build_preset(args)
     out = args.out or Path("results") / preset["name"]
     out.mkdir(parents=True, exist_ok=True)
     sections = args.only or list(SECTIONS)
-    if args.restarts and os.environ.get(WORKER_ENV) != "1":
-        raise SystemExit(supervise(sys.argv[1:] if argv is None else list(argv), args.restarts))
+    parts = partition(preset["algos"], args.jobs)
+    if (args.restarts or len(parts) > 1) and os.environ.get(WORKER_ENV) != "1":
+        raise SystemExit(supervise(sys.argv[1:] if argv is None else list(argv), args.restarts, parts, out))
     # Before jax is first imported (enable_compilation_cache): XLA's C++ log lines, e.g. one error
     # line per program loaded from the persistent cache, would drown the progress bar.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     if args.quick:
         quick_compilation()
     enable_compilation_cache()
-    sweep = Sweep(preset, out, lambda msg: tqdm.write(msg, file=sys.stderr))
+    log = lambda msg: tqdm.write(msg, file=sys.stderr)  # noqa: E731
+    if args.part:
+        i, n = (int(v) for v in args.part.split("/"))
+        sweep = Sweep(preset, out, log, algos=partition(preset["algos"], n)[i], bar_position=i)
+        _crash_injection(sweep, out)
+        timing = sweep.compute(sections)
+        write_json_atomic(out / PART_TIMING_DIR / f"part{i}.json",
+                          dict(algos=sweep.algos, timing=timing, computed=sweep.cells.computed,
+                               reused=sweep.cells.reused))
+        return out
+    sweep = Sweep(preset, out, log)
     _crash_injection(sweep, out)
-    sweep.run(sections)
-    print(f"wrote {out}/summary.md ({sweep.cells.computed} cells computed, {sweep.cells.reused} reused)")
+    workers = [json.loads((out / PART_TIMING_DIR / f"part{i}.json").read_text())
+               for i in range(int(os.environ.get(PARTS_ENV, "0")))]
+    computed, reused = sweep.run(sections, workers, started=float(os.environ.get(STARTED_ENV, "nan")))
+    print(f"wrote {out}/summary.md ({computed} cells computed, {reused} reused)")
     return out
 
 

@@ -265,8 +265,23 @@ def feedback(out: Path, res: dict, p: dict):
     (out / "feedback.md").write_text("\n".join(lines) + "\n")
 
 
-def summary(out: Path, p: dict, sections, timing: dict, cells):
+def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall=float("nan")):
+    """summary.md: configuration, machine, cells (``counts``: computed, reused), wall times (this
+    process's ``timing``; each part worker's in ``workers``; ``wall``, the whole command's, if
+    known) and every table and figure."""
     import jax
+
+    computed, reused = counts
+    if workers:
+        times = [f"- worker {i + 1} ({'+'.join(w['algos'])}): "
+                 + ", ".join(f"{k} {v:.1f} s" for k, v in w["timing"].items()) for i, w in enumerate(workers)]
+        times += ["- then, in one process: " + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()),
+                  "", f"The {len(workers)} workers ran at once, so the times per step in table2 were measured "
+                  "beside the other workers' work."]
+    else:
+        times = [f"- {k}: {v:.1f} s" for k, v in timing.items()]
+    if wall == wall:
+        times = [f"- whole command: {wall:.1f} s", *times]
 
     files = sorted(f.name for f in out.iterdir() if f.suffix in (".md", ".csv", ".png") and f.name != "summary.md")
     lines = [
@@ -278,11 +293,11 @@ def summary(out: Path, p: dict, sections, timing: dict, cells):
         f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
         f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
         f"- XLA_FLAGS: {os.environ.get('XLA_FLAGS') or '(none)'}",
-        f"- cells computed this run: {cells.computed}, reused from earlier runs: {cells.reused}",
+        f"- cells computed this run: {computed}, reused from earlier runs: {reused}",
         "",
         "## Wall time per section (this run)",
         "",
-        *[f"- {k}: {v:.1f} s" for k, v in timing.items()],
+        *times,
         "",
         "## Files",
         "",

@@ -1,6 +1,7 @@
 """The sweep: Welch bolding against scipy, the resumable cell store, --quick end to end, resume
 after SIGKILL."""
 
+import argparse
 import json
 import os
 import signal
@@ -51,6 +52,17 @@ def test_cell_store_resumes_and_detects_corruption(tmp_path):
     assert store.get("a", {"x": 1}, compute) == {"value": 3}
     assert any("unreadable" in m for m in logs)
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_partition_balances_algorithms_over_workers():
+    algos = sweep.PRESETS["default"]["algos"]
+    for jobs in (1, 2, 3, 7):
+        parts = sweep.partition(algos, jobs)
+        assert len(parts) == min(jobs, len(algos)) and all(parts)
+        assert sorted(a for part in parts for a in part) == sorted(algos)  # each algorithm in exactly one part
+        load = [sum(sweep.ALGO_COST[a] for a in part) for part in parts]
+        assert max(load) - min(load) <= max(sweep.ALGO_COST.values())
+    assert sweep.partition(["spgd"], 2) == [["spgd"]]
 
 
 def _run_sweep(args, env_extra=None, **kw):
@@ -109,9 +121,15 @@ def test_resume_after_sigkill(tmp_path):
 
 def test_quick_sweep_end_to_end(tmp_path):
     out = tmp_path / "quick"
-    proc = _run_sweep(["--quick", "--out", str(out)])
+    proc = _run_sweep(["--quick", "--jobs", "2", "--out", str(out)])
     stdout, stderr = proc.communicate(timeout=900)
     assert proc.returncode == 0, stderr[-3000:]
+    # Two workers computed every cell once; the report pass only loaded them.
+    preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=None))
+    total = sweep.Sweep(preset, tmp_path / "count", print).count(sweep.SECTIONS)
+    assert f"({total} cells computed, 0 reused)" in stdout, stdout[-2000:]
+    summary = (out / "summary.md").read_text()
+    assert "worker 1 (" in summary and "worker 2 (" in summary and "whole command:" in summary
     for name in ["table1.md", "table1.csv", "table2.md", "stages.md", "transfer.md", "feedback.md", "summary.md",
                  "training_curves.png", "testing_curves.png", "stages.png", "transfer.png", "feedback.png"]:
         assert (out / name).stat().st_size > 0, name
@@ -129,7 +147,7 @@ def test_quick_sweep_end_to_end(tmp_path):
             assert data["wall_time"]["seeds_in_call"] == 2, cell.name
     assert td3_cells == 6
     if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):  # --quick compiles at -O0
-        assert sweep.QUICK_XLA_FLAG in (out / "summary.md").read_text()
+        assert sweep.QUICK_XLA_FLAG in summary
 
 
 def test_worker_crash_is_resumed(tmp_path):
