@@ -20,14 +20,18 @@ import jax.numpy as jnp
 from tqdm import tqdm
 
 import ops_jax
+from agents.base import split_over_devices
 from benchmarks.common import load_reference_timing, write_json_atomic
 
 SCAN_STEPS = 200
 
 
 def build(stages: int, model: str, batch: int):
-    """A jitted function running SCAN_STEPS batched steps from a given state."""
+    """A jitted function running SCAN_STEPS batched steps from a given state. With several local
+    devices that divide the batch, the batch is split across them (``agents.base.split_over_devices``)."""
     env, params = ops_jax.make(stages, "hard", model=model)
+    sharding = split_over_devices(batch, "batch")
+    shard = (lambda x: x) if sharding is None else (lambda x: jax.lax.with_sharding_constraint(x, sharding))
 
     @jax.jit
     def run(key, obs, state):
@@ -35,8 +39,8 @@ def build(stages: int, model: str, batch: int):
             obs, state = carry
             k = jax.random.fold_in(key, t)
             k_act, k_env = jax.random.split(k)
-            action = jax.random.uniform(k_act, (batch, stages), minval=-1.0, maxval=1.0)
-            keys = jax.random.split(k_env, batch)
+            action = shard(jax.random.uniform(k_act, (batch, stages), minval=-1.0, maxval=1.0))
+            keys = shard(jax.random.split(k_env, batch))
             obs, state, reward, *_ = env.step_batch(keys, state, action, params)
             return (obs, state), reward.mean()
 
@@ -44,6 +48,8 @@ def build(stages: int, model: str, batch: int):
         return obs, state, r
 
     obs, state = jax.jit(env.reset_batch)(jax.random.split(jax.random.key(0), batch), params)
+    if sharding is not None:
+        obs, state = jax.device_put((obs, state), sharding)
     return run, obs, state
 
 
@@ -91,8 +97,16 @@ def main(argv=None):
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
     ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--host-devices", type=int, default=1,
+                    help="CPU only: split the CPU into this many JAX devices (one thread each) and the batch "
+                         "across them; sets XLA_FLAGS=--xla_force_host_platform_device_count (default 1)")
     ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
     args = ap.parse_args(argv)
+    if args.host_devices < 1:
+        raise SystemExit(f"--host-devices must be >= 1, got {args.host_devices}")
+    if args.host_devices > 1:  # read when jax's backend starts, i.e. before the first computation
+        os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} "
+                                   f"--xla_force_host_platform_device_count={args.host_devices}").strip()
 
     ref = load_reference_timing()
     rows = []
@@ -132,6 +146,7 @@ def main(argv=None):
         jax=jax.__version__,
         backend=jax.default_backend(),
         devices=[str(d) for d in jax.devices()],
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
         cpu_count=os.cpu_count(),
         platform=platform.platform(),
         scan_steps=SCAN_STEPS,
