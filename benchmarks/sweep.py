@@ -413,7 +413,7 @@ def supervise(argv: list, restarts: int, parts: list, out: Path) -> int:
                 stale.unlink()
             # Workers sharing one accelerator must not each reserve most of its memory up front.
             part_env = {**env, "XLA_PYTHON_CLIENT_PREALLOCATE": os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "false")}
-            codes = [None] * len(parts)
+            codes = [1] * len(parts)  # a thread that raised (e.g. could not start its worker) counts as failed
 
             def work(i):
                 codes[i] = _supervised([*cmd, "--part", f"{i}/{len(parts)}"], part_env, restarts, procs,
