@@ -10,7 +10,9 @@ and testing environments, Welch's t-test bolding), ``table2`` (timings of the pa
 the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on one mode, test on each),
 ``feedback`` (train at k = 1, test at k = 1..100). Everything lands in ``results/<name>/``: tables
 (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored in ``cells/`` the
-moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them.
+moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them. The
+command runs the work in ``--jobs`` worker processes (default 2), each computing the cells of its
+own algorithms, then one more that writes the reports (``supervise``).
 
 Evaluation as in the paper: P/Pmax at the end of 200-step test episodes. The training environment
 uses the training seed's draws; the testing environment another seed, so in hard mode it has a
