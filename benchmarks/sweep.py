@@ -248,8 +248,8 @@ class Sweep:
 
     def run(self, sections, workers=(), started=float("nan")):
         """Every cell (computing those not stored), then the tables, figures and summary; returns
-        (cells computed, cells reused). ``workers``: the records (algos, timing, computed, reused)
-        of the part workers that computed cells for this run before this process; ``started``: the
+        (cells computed, cells reused). ``workers``: the records (algos, timing, computed) of
+        the part workers that computed cells for this run before this process; ``started``: the
         command's start (time.time()), if known."""
         from benchmarks import sweep_report as report
 
@@ -370,7 +370,7 @@ QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
 WORKER_ENV = "OPS_SWEEP_WORKER"  # set in the worker processes that supervise() starts
 STARTED_ENV = "OPS_SWEEP_STARTED"  # the command's start (time.time()), for the summary's wall time
 PARTS_ENV = "OPS_SWEEP_PARTS"  # in the report worker: how many part workers computed cells before it
-PART_TIMING_DIR = ".parts"  # in the output folder: each part worker's algorithms, cell counts and timing
+PART_TIMING_DIR = ".parts"  # in the output folder: each part worker's algorithms, cells computed and timing
 CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
 
 
@@ -507,8 +507,7 @@ def main(argv=None):
         _crash_injection(sweep, out)
         timing = sweep.compute(sections)
         write_json_atomic(out / PART_TIMING_DIR / f"part{i}.json",
-                          dict(algos=sweep.algos, timing=timing, computed=sweep.cells.computed,
-                               reused=sweep.cells.reused))
+                          dict(algos=sweep.algos, timing=timing, computed=sweep.cells.computed))
         return out
     sweep = Sweep(preset, out, log)
     _crash_injection(sweep, out)
