@@ -10,7 +10,8 @@ then ``agents.evaluate`` on the testing environment (seed 1000 + s, drift fully 
 ``--episodes`` episodes of 200 steps, the exact "field" model). Per run it records the final
 P/Pmax (mean over episodes), the median test-time steps to reach 0.9 and the fraction of episodes
 that do, and the wall time (total, simulation, optimisation). Results go to ``<out>/learning.json``
-(rewritten atomically after every run; existing runs are reused, and said so, unless ``--fresh``)
+(rewritten atomically after every run; a stored run asked for with the same --steps, --config and
+--episodes is reused, and said so, unless ``--fresh``; one asked for with others is rerun)
 and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. A run that fails is recorded with
 its error and printed; nothing is skipped silently.
 """
@@ -113,6 +114,7 @@ def main(argv=None) -> dict:
     if path.exists() and not args.fresh:
         done = {run_key(r["algo"], r["mode"], r["seed"]): r for r in json.loads(path.read_text())["runs"]
                 if r["status"] == "ok" and r["stages"] == args.stages}
+    asked = dict(steps=args.steps, config=args.config, episodes=args.episodes)
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
     jobs = [(a, m, s) for a in args.algos for m in args.modes for s in range(args.seed0, args.seed0 + args.seeds)]
     runs = dict(done)
@@ -120,12 +122,15 @@ def main(argv=None) -> dict:
     for algo, mode, seed in bar:
         key = run_key(algo, mode, seed)
         bar.set_description(key)
-        if key in done:
+        if key in done and done[key].get("asked") != asked:
+            tqdm.write(f"{key}: the stored run was asked for {done[key].get('asked')}, this one for {asked}: rerunning")
+        elif key in done:
             p = done[key]["testing_p_pmax"]
             tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {p:.4f}); --fresh reruns it")
             continue
         try:
             rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
+            rec["asked"] = asked
             wall = rec["wall_time"].get("total", float("nan"))
             tqdm.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
                        f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s")
