@@ -10,8 +10,9 @@ then ``agents.evaluate`` on the testing environment (seed 1000 + s, drift fully 
 ``--episodes`` episodes of 200 steps, the exact "field" model). Per run it records the final
 P/Pmax (mean over episodes), the median test-time steps to reach 0.9 and the fraction of episodes
 that do, and the wall time (total, simulation, optimisation). Results go to ``<out>/learning.json``
-(rewritten atomically after every run; a stored run asked for with the same --steps, --config and
---episodes is reused, and said so, unless ``--fresh``; one asked for with others is rerun)
+(rewritten atomically after every run; a stored run with the same hyperparameters, as resolved now
+(so a changed default counts), and the same --episodes is reused, and said so, unless ``--fresh``;
+one with others is rerun)
 and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. A run that fails is recorded with
 its error and printed; nothing is skipped silently.
 """
@@ -33,6 +34,18 @@ def run_key(algo: str, mode: str, seed: int) -> str:
     return f"{algo}/{mode}/{seed}"
 
 
+def expected_hyper(algo: str, steps, config) -> dict:
+    """The hyperparameters a run with these arguments trains with, in the stored (JSON) form."""
+    from agents.base import algo_module
+
+    module = algo_module(algo)
+    resolve = getattr(module, "resolve_hyper", None) or module.check_hyper
+    h = resolve({} if config is None else {"config": config})
+    if steps is not None and "total_steps" in h:
+        h["total_steps"] = int(steps)
+    return json.loads(json.dumps(h))
+
+
 def run_one(algo: str, stages: int, mode: str, seed: int, steps, config, episodes: int, ckpt_dir: Path | None) -> dict:
     """Train and evaluate one (algo, mode, seed); returns the run record."""
     import agents
@@ -47,7 +60,7 @@ def run_one(algo: str, stages: int, mode: str, seed: int, steps, config, episode
     if ckpt_dir is not None:
         agents.save(ckpt_dir / f"{algo}_{mode}_s{seed}", result)
     s = ev.summary
-    return dict(algo=algo, mode=mode, seed=seed, stages=stages, status="ok",
+    return dict(algo=algo, mode=mode, seed=seed, stages=stages, status="ok", episodes=episodes,
                 testing_p_pmax=s["final_mean"], testing_p_pmax_std_over_episodes=s["final_std"],
                 mean_last10=s["mean_last10"], steps_to_0p9=s["steps_to_0p9_median"],
                 fraction_reached_0p9=s["fraction_reached_0p9"], measurements_per_step=s["measurements_per_step"],
@@ -114,7 +127,6 @@ def main(argv=None) -> dict:
     if path.exists() and not args.fresh:
         done = {run_key(r["algo"], r["mode"], r["seed"]): r for r in json.loads(path.read_text())["runs"]
                 if r["status"] == "ok" and r["stages"] == args.stages}
-    asked = dict(steps=args.steps, config=args.config, episodes=args.episodes)
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
     jobs = [(a, m, s) for a in args.algos for m in args.modes for s in range(args.seed0, args.seed0 + args.seeds)]
     runs = dict(done)
@@ -122,15 +134,17 @@ def main(argv=None) -> dict:
     for algo, mode, seed in bar:
         key = run_key(algo, mode, seed)
         bar.set_description(key)
-        if key in done and done[key].get("asked") != asked:
-            tqdm.write(f"{key}: the stored run was asked for {done[key].get('asked')}, this one for {asked}: rerunning")
-        elif key in done:
+        stored = done.get(key)
+        same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
+            expected_hyper(algo, args.steps, args.config), args.episodes)
+        if stored is not None and not same:
+            tqdm.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
+        elif same:
             p = done[key]["testing_p_pmax"]
             tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {p:.4f}); --fresh reruns it")
             continue
         try:
             rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
-            rec["asked"] = asked
             wall = rec["wall_time"].get("total", float("nan"))
             tqdm.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
                        f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s")
