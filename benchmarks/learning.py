@@ -137,12 +137,11 @@ def main(argv=None) -> dict:
         stored = done.get(key)
         same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
             expected_hyper(algo, args.steps, args.config), args.episodes)
-        if stored is not None and not same:
-            tqdm.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
-        elif same:
-            p = done[key]["testing_p_pmax"]
-            tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {p:.4f}); --fresh reruns it")
+        if same:
+            tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it")
             continue
+        if stored is not None:
+            tqdm.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
         try:
             rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
             wall = rec["wall_time"].get("total", float("nan"))
