@@ -27,19 +27,23 @@ def _unit(bits):
 
 def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> dict:
     """Standard draws from one key: ``normal`` {name: shape} -> N(0, 1) float32 (inverse-erf of a
-    uniform, as ``jax.random.normal``); ``uniform`` {name: shape} -> U[-1, 1) float32."""
-    specs = [(name, tuple(shape), "normal") for name, shape in (normal or {}).items()]
-    specs += [(name, tuple(shape), "uniform") for name, shape in (uniform or {}).items()]
-    sizes = [int(np.prod(shape)) for _, shape, _ in specs]
-    bits = jax.random.bits(key, (max(1, sum(sizes)),), jnp.uint32)
+    uniform, as ``jax.random.normal``); ``uniform`` {name: shape} -> U[-1, 1) float32.
+
+    All normals are transformed in one elementwise pass behind an ``optimization_barrier``: left
+    to itself XLA fuses the (log1p, sqrt, two-polynomial) inverse erf into each consumer's fusion
+    (the observation frame's concatenation, the free run), where the CPU backend does not
+    vectorise it; the barrier keeps it in its own vectorised loop (5 stages, phasor, batch 8192:
+    +24% env-steps/s, measured side by side). The values are the same either way."""
+    specs = [(name, tuple(shape), int(np.prod(shape))) for name, shape in (normal or {}).items()]
+    n_normal = sum(size for _, _, size in specs)
+    specs += [(name, tuple(shape), int(np.prod(shape))) for name, shape in (uniform or {}).items()]
+    bits = jax.random.bits(key, (max(1, sum(size for _, _, size in specs)),), jnp.uint32)
+    u = 2.0 * _unit(bits) - 1.0
+    z = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(jnp.maximum(_LOW, u[:n_normal]))
+    values = jnp.concatenate(jax.lax.optimization_barrier((z, u[n_normal:])))
     out, start = {}, 0
-    for (name, shape, kind), size in zip(specs, sizes):
-        u = _unit(bits[start:start + size]).reshape(shape)
-        if kind == "normal":
-            u = jnp.maximum(_LOW, 2.0 * u - 1.0)
-            out[name] = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(u)
-        else:
-            out[name] = 2.0 * u - 1.0
+    for name, shape, size in specs:
+        out[name] = values[start:start + size].reshape(shape)
         start += size
     return out
 
