@@ -74,7 +74,7 @@ PRESETS = {
     ),
     "default": dict(  # budgets sized for ~30 min on 2 CPU cores (see README for a measured run)
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
-        budgets={"spgd": 0, "physics": 0, "ppo": 100_000, "sac": 100_000, "td3": 60_000},
+        budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
         hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
                "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
