@@ -77,6 +77,7 @@ def test_stalled_instance_tests_each_line_then_commits_a_jump():
         _, carry = policy.act(None, carry, obs, key, probe)
     assert all(np.all(np.abs(s) > 0) for s in seen)  # dither: every line perturbed
     a0, carry = policy.act(None, carry, obs, key, probe)  # tests line 0: no better
+    np.testing.assert_array_equal(np.asarray(a0), 0.0)  # a test step does not move the lines
     np.testing.assert_allclose(seen[-1], [0.05, 0, 0])
     a1, carry = policy.act(None, carry, obs, key, probe)  # tests line 1: commit
     np.testing.assert_allclose(seen[-1], [0, 0.05, 0])
