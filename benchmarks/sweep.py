@@ -72,7 +72,7 @@ PRESETS = {
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1,
     ),
-    "default": dict(  # budgets sized for ~30 min on 2 CPU cores (see README for a measured run)
+    "default": dict(  # budgets for a run well under 30 min on 2 CPU cores (19.7 min measured, see README)
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
         budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
         hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
