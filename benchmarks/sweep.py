@@ -72,12 +72,10 @@ PRESETS = {
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1,
     ),
-    "default": dict(  # budgets for a run well under 30 min on 2 CPU cores (19.7 min measured, see README)
+    "default": dict(  # budgets for a run well under 30 min on 2 CPU cores (22.0 min measured, see README)
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
         budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
-        # PPO keeps the 2 x 64 networks its budget and the README's table were measured with (the fast
-        # config's 2 x 128 costs ~1.3x per step and was tuned for 8M steps).
-        hyper={"ppo": {"hidden": [64, 64]}, "sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
+        hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
                "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2,
@@ -94,8 +92,9 @@ LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperpara
 
 
 # Relative wall time of one algorithm's cells: how ``partition`` balances workers. The resulting split
-# (PPO + TD3 | SAC + physics + SPGD) measured 1,171 s against 1,143 s for the default preset (PPO 2M
-# steps) and 74 s against 82 s for the quick one (2026-11-24).
+# (PPO + TD3 | SAC + physics + SPGD) measured 1,312 s against 1,038 s for the default preset (PPO 2M
+# steps, 2 x 128 networks; 1,171 against 1,143 s with stop 14's 2 x 64) and 74 s against 82 s for the quick one
+# (2026-11-24).
 ALGO_COST = {"ppo": 3.0, "sac": 3.0, "td3": 2.0, "physics": 1.5, "spgd": 0.5}
 
 
