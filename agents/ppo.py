@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import base
+from agents import base, brax_compat
 
 CONFIGS = {
     "paper": dict(
@@ -264,6 +264,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
           **hyper) -> base.TrainResult:
     """Train PPO with ``brax.training.agents.ppo.train``. ``progress(row)`` (optional) is called
     with each evaluation row (step, normalized_power, reward, wall)."""
+    brax_compat.prepare_brax()
     from brax.training.agents.ppo import train as ppo_train
 
     env_config = base.check_env_config(env_config)

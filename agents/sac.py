@@ -27,7 +27,7 @@ import time
 
 import jax
 
-from agents import base
+from agents import base, brax_compat
 from agents.ppo import (
     EVAL_FIRST_EPISODE,
     Recorder,
@@ -111,6 +111,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
           **hyper) -> base.TrainResult:
     """Train SAC with ``brax.training.agents.sac.train``. ``progress(row)`` (optional) is called
     with each evaluation row (step, normalized_power, reward, wall)."""
+    brax_compat.prepare_brax()
     from brax.training.agents.sac import train as sac_train
 
     env_config = base.check_env_config(env_config)

@@ -34,12 +34,24 @@ the environment's own truncation, which ``final_normalized_power`` relies on).
 
 from __future__ import annotations
 
+import contextlib
+import io
+
 import numpy as np
 
 import jax
 import jax.numpy as jnp
-from brax import envs as brax_envs
-from brax.envs.base import Env, State
+
+try:
+    # brax.envs imports mujoco's optional warp backend, which prints "Failed to import warp" to
+    # stdout when it is absent; that message concerns a backend this adapter never uses.
+    with contextlib.redirect_stdout(io.StringIO()):
+        from brax import envs as brax_envs
+        from brax.envs.base import Env, State
+except ModuleNotFoundError as e:
+    if e.name is not None and e.name.split(".")[0] == "brax":
+        raise ImportError('ops_jax.brax_env needs brax: pip install "ops-jax[agents]"') from e
+    raise
 
 import ops_jax
 

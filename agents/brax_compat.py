@@ -1,0 +1,49 @@
+"""Compatibility of brax 0.14's trainers with current JAX.
+
+brax 0.14.2's PPO and SAC trainers (``brax.training.agents.{ppo,sac}.train``) and
+``brax.training.pmap`` call ``jax.device_put_replicated``, which JAX 0.10 removed (brax issue
+#671). ``ensure_device_put_replicated()`` provides it again, built on ``jax.device_put`` with a
+``NamedSharding`` over a one-axis ``Mesh`` of the given devices: every leaf is stacked once per
+device along a new leading axis, one slice per device, which is what ``jax.pmap`` expects as a
+replicated argument. It changes nothing on JAX versions that still have the function.
+
+``prepare_brax()`` is what the trainers call before importing brax's training code: it imports
+brax through ``ops_jax.brax_env`` (which keeps mujoco's optional-backend messages off stdout)
+and applies the patch above when needed.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+
+def device_put_replicated(x, devices):
+    """``x`` (a pytree) stacked ``len(devices)`` times on a new leading axis, slice i on devices[i]."""
+    devices = list(devices)
+    if not devices:
+        raise ValueError("devices must name at least one device")
+    sharding = NamedSharding(Mesh(np.array(devices), ("replica",)), PartitionSpec("replica"))
+
+    def put(leaf):
+        leaf = np.asarray(leaf) if not isinstance(leaf, jax.Array) else leaf
+        stacked = jax.numpy.broadcast_to(leaf, (len(devices),) + tuple(leaf.shape))
+        return jax.device_put(stacked, sharding)
+
+    return jax.tree.map(put, x)
+
+
+def ensure_device_put_replicated() -> bool:
+    """Install ``jax.device_put_replicated`` if this JAX lacks it; returns True when it installed it."""
+    if hasattr(jax, "device_put_replicated"):
+        return False
+    jax.device_put_replicated = device_put_replicated
+    return True
+
+
+def prepare_brax() -> None:
+    """Import brax quietly and make its trainers runnable on this JAX (call before brax.training)."""
+    import ops_jax.brax_env  # noqa: F401  (imports brax.envs with mujoco's warp messages kept off stdout)
+
+    ensure_device_put_replicated()
