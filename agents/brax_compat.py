@@ -7,9 +7,10 @@ brax 0.14.2's PPO and SAC trainers (``brax.training.agents.{ppo,sac}.train``) an
 device along a new leading axis, one slice per device, which is what ``jax.pmap`` expects as a
 replicated argument. It changes nothing on JAX versions that still have the function.
 
-``prepare_brax()`` is what the trainers call before importing brax's training code: it imports
-brax through ``ops_jax.brax_env`` (which keeps mujoco's optional-backend messages off stdout)
-and applies the patch above when needed.
+Importing this module imports brax through ``ops_jax.brax_env``, which keeps mujoco's
+optional-backend messages ("Failed to import warp") off stdout: the agents modules that use
+brax import this module first. ``prepare_brax()`` is what the trainers call before running
+brax's training code.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from __future__ import annotations
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+import ops_jax.brax_env  # noqa: F401  (the first, quiet import of brax)
 
 
 def device_put_replicated(x, devices):
@@ -43,7 +46,5 @@ def ensure_device_put_replicated() -> bool:
 
 
 def prepare_brax() -> None:
-    """Import brax quietly and make its trainers runnable on this JAX (call before brax.training)."""
-    import ops_jax.brax_env  # noqa: F401  (imports brax.envs with mujoco's warp messages kept off stdout)
-
+    """Make brax's trainers runnable on this JAX (call before running them; idempotent)."""
     ensure_device_put_replicated()

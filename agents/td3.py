@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from agents import base
+from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 
 CONFIGS = {
     # The paper's Table 4 (SB3 TD3, grid-searched on 5-stage medium): one env, 100 env steps then
