@@ -11,6 +11,15 @@ from ops_jax import physics
 ALL_N = range(1, 8)
 
 
+def enable_x64():
+    """float64 inside a ``with`` block (``jax.enable_x64`` on current JAX, jax.experimental's before)."""
+    if hasattr(jax, "enable_x64"):
+        return jax.enable_x64(True)
+    from jax.experimental import enable_x64 as experimental_enable_x64
+
+    return experimental_enable_x64(True)
+
+
 def _errors(m, phys, N):
     scale = phys[f"N{N}_pulse_I_full"].max()
     return (
@@ -31,7 +40,7 @@ def test_field_matches_reference_float32(reference, N):
 @pytest.mark.parametrize("N", ALL_N)
 def test_field_matches_reference_float64(reference, N):
     phys, _ = reference
-    with jax.enable_x64(True):
+    with enable_x64():
         m = physics.measure(phys[f"N{N}_deltas_wl"], stages=N)
         assert m.power.dtype == jnp.float64
         assert max(_errors(m, phys, N)) <= 1e-6
@@ -68,7 +77,7 @@ def test_dense_sweep_matches_reference(reference, N):
 @pytest.mark.parametrize("detector", physics.DETECTORS)
 def test_phasor_agrees_with_field(N, detector):
     x = np.random.default_rng(N).uniform(-3, 3, (256, N))
-    with jax.enable_x64(True):
+    with enable_x64():
         f = physics.measure(x, stages=N, detector=detector)
         p = physics.measure(x, stages=N, model="phasor", detector=detector)
         assert p.intensity is None
@@ -105,7 +114,7 @@ def test_last_stage_phase_blind_with_total_detector_but_not_with_polariser():
 def test_grad_matches_finite_differences(model):
     N = 4
     x0 = np.random.default_rng(0).uniform(-0.3, 0.3, N)
-    with jax.enable_x64(True):
+    with enable_x64():
         f = lambda x: physics.measure(x, stages=N, model=model).power
         g = np.asarray(jax.grad(f)(jnp.asarray(x0)))
         h = 1e-6
