@@ -203,3 +203,14 @@ def test_unstarted_env_pickles_without_starting_jax():
             "print(_jax_running()); e.reset(seed=0); print(_jax_running())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert out.stdout.split() == ["False", "True"]
+
+
+def test_gym_modes_benchmark_rows():
+    """benchmarks.gym_modes measures a mode in-process and reports a failing one as its row's error."""
+    from benchmarks import gym_modes
+
+    for mode, n in [("single", 1), ("vector_entry_point", 4)]:
+        row = gym_modes.measure_one(mode, None, n, "phasor", stages=2, repeats=1)
+        assert row["num_envs"] == n and row["env_steps_per_s"] > 0 and row["start_s"] > 0
+    failed = gym_modes.run_in_subprocess("sync", None, 2, "no-such-model", 2, 1)
+    assert "model" in failed["error"] and "env_steps_per_s" not in failed
