@@ -119,12 +119,14 @@ def _device(device):
         return None
     if isinstance(device, jax.Device):
         return device
-    if isinstance(device, tuple):  # (platform, id) of a pickled jax.Device
-        return next(d for d in jax.devices(device[0]) if d.id == device[1])
+    platform, index = device if isinstance(device, tuple) else (device, None)  # tuple: a pickled jax.Device
     try:
-        return jax.devices(device)[0]
+        found = [d for d in jax.devices(platform) if index is None or d.id == index]
     except RuntimeError as exc:
         raise ValueError(f"device {device!r} is not available: {exc}") from exc
+    if not found:
+        raise ValueError(f"device {device!r} is not available: no {platform} device with id {index}")
+    return found[0]
 
 
 def _picklable_device(device):
