@@ -142,6 +142,10 @@ def main(argv=None):
         ratio = f", {ref5 / single['seconds_per_call']:.0f}x faster than the reference's {1e3 * ref5:.1f} ms" if ref5 else ""
         print(f"{model:7} single {1e3 * single['seconds_per_call']:.3f} ms{ratio}; "
               f"vector(1024) {vector['env_steps_per_second']:,.0f} env-steps/s")
+    from benchmarks.gym_modes import measure_modes
+
+    print()
+    gym_modes = measure_modes(args.models, repeats=args.repeats)
     meta = dict(
         jax=jax.__version__,
         backend=jax.default_backend(),
@@ -152,7 +156,8 @@ def main(argv=None):
         scan_steps=SCAN_STEPS,
         repeats=args.repeats,
     )
-    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows, gymnasium=gym_rows))
+    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows, gymnasium=gym_rows,
+                                   gymnasium_modes=gym_modes))
     print(f"wrote {args.out}")
     return rows
 

@@ -101,24 +101,62 @@ class EnvState:
     frames: jax.Array
 
 
+class _Range(NamedTuple):
+    """An option's accepted interval ("[" / "]": bound included; ``integer``: whole numbers only)."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+    unit: str = ""
+
+    def __str__(self):
+        fmt = lambda v: "inf" if v == math.inf else (str(int(v)) if float(v).is_integer() else f"{v:g}")
+        interval = f"{'(' if self.low_open else '['}{fmt(self.low)}, {fmt(self.high)}{')' if self.high_open else ']'}"
+        return f"{'an integer' if self.integer else 'a finite number'} in {interval}{' ' + self.unit if self.unit else ''}"
+
+    def contains(self, value) -> bool:
+        v = np.asarray(value)
+        if v.dtype == bool or not np.issubdtype(v.dtype, np.number) or not np.all(np.isfinite(v)):
+            return False
+        above = v > self.low if self.low_open else v >= self.low
+        below = v < self.high if self.high_open else v <= self.high
+        return bool(np.all(above & below) and (not self.integer or np.all(v == np.round(v))))
+
+
+INT32_MAX = 2**31 - 1  # step counters are int32
+
+# Accepted ranges of the numeric options. Each excludes values that leave no meaningful task:
+# actions without effect (action_scale 0), a window nothing fits in, phases randomised every step
+# (offsets repeat every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more
+# information), observations drowned in noise (entries live in about [-1, 1]).
 _PARAM_RANGES = {
-    "init_spread": (0.0, math.inf),
-    "step_sigma": (0.0, math.inf),
-    "drift_cap": (0.0, math.inf),
-    "drift_ramp": (0.0, math.inf),
-    "drift_amplitude": (0.0, math.inf),
-    "drift_segment": (1, math.inf),
-    "action_scale": (0.0, math.inf),
-    "obs_noise": (0.0, math.inf),
-    "window": (1e-9, math.inf),
+    "init_spread": _Range(0.0, 1.0, unit="wl"),  # 0: every episode starts at the optimum
+    "step_sigma": _Range(0.0, 0.1, unit="wl"),  # 0: noise-free
+    "drift_cap": _Range(0.0, 10.0),
+    "drift_ramp": _Range(0.0, math.inf, high_open=True),
+    "drift_amplitude": _Range(0.0, 0.1, unit="wl per step"),
+    "drift_segment": _Range(1, INT32_MAX, integer=True, unit="steps"),
+    "action_scale": _Range(0.0, 1.0, low_open=True, unit="wl per unit action"),
+    "obs_noise": _Range(0.0, 1.0),  # 0: noise-free observations
+    "window": _Range(0.0, math.inf, low_open=True, high_open=True, unit="wl"),  # and > init_spread
+}
+_CONFIG_RANGES = {
+    "max_steps": _Range(1, INT32_MAX, integer=True),
+    "feedback_k": _Range(1, INT32_MAX, integer=True),
+    "frame_stack": _Range(1, INT32_MAX, integer=True),
 }
 
 
 def _validate_params(params: EnvParams) -> None:
-    for name, (lo, hi) in _PARAM_RANGES.items():
-        value = np.asarray(getattr(params, name))
-        if not np.all(np.isfinite(value)) or np.any(value < lo) or np.any(value > hi):
-            raise ValueError(f"{name} must be finite and >= {lo}, got {value}")
+    for name, accepted in _PARAM_RANGES.items():
+        value = getattr(params, name)
+        if not accepted.contains(value):
+            raise ValueError(f"{name} must be {accepted}, got {value!r}")
+    if not np.all(np.asarray(params.window) > np.asarray(params.init_spread)):
+        raise ValueError(f"window must be > init_spread (most episodes would end at their first step), "
+                         f"got window={params.window!r}, init_spread={params.init_spread!r}")
 
 
 def _validate_config(cfg: EnvConfig) -> None:
@@ -126,10 +164,12 @@ def _validate_config(cfg: EnvConfig) -> None:
     physics._check_choice("model", cfg.model, physics.MODELS)
     physics._check_choice("detector", cfg.detector, physics.DETECTORS)
     physics._check_choice("reward", cfg.reward, REWARDS)
-    for name in ("max_steps", "feedback_k", "frame_stack"):
+    for name, accepted in _CONFIG_RANGES.items():
         v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not accepted.contains(v):
+            raise ValueError(f"{name} must be {accepted}, got {v!r}")
+    if not isinstance(cfg.include_noise, (bool, np.bool_)):
+        raise TypeError(f"include_noise must be a bool, got {cfg.include_noise!r}")
 
 
 class OPSEnv:

@@ -20,6 +20,13 @@ Semantics (both adapters):
 - randomness: ``reset(seed=s)`` seeds ``np_random`` and restarts the episode counter (hard mode's
   drift ramps with it); the JAX key of the episode is drawn from ``np_random``. ``reset(options=
   {"episode": k})`` starts as the k-th episode (k >= 10: hard mode's drift fully on).
+- JAX starts at the first ``reset`` (construction only validates and builds the spaces), so
+  Gymnasium's ``"async"`` mode may fork its workers after building one env for the spaces. An
+  adapter constructed in a process forked after JAX started (JAX is multithreaded: it would
+  deadlock) raises ``RuntimeError`` at once, naming the fixes (``vectorization_mode=
+  "vector_entry_point"``, or ``vector_kwargs={"context": "forkserver"}``).
+- ``copy.deepcopy`` and ``pickle`` copy a live adapter (options, parameters, state, JAX key,
+  ``np_random``, episode counter); the copy looks its jitted functions up again.
 - the vector env auto-resets in the same step (``AutoresetMode.SAME_STEP``): the returned obs of a
   finished instance is its next episode's first; ``infos["final_obs"]`` (object array, ``None`` where
   not finished) and ``infos["final_info"]`` hold the finished episode's last observation and info.
@@ -28,6 +35,7 @@ Semantics (both adapters):
 from __future__ import annotations
 
 import dataclasses
+import os
 from typing import Any
 
 import gymnasium
@@ -57,17 +65,73 @@ def register() -> None:
     )
 
 
+FORK_ERROR = (
+    "ops_jax/OPS-v0 cannot run in a process forked after JAX started in its parent (JAX is multithreaded; "
+    "the child would deadlock). Fixes: gymnasium.make_vec(..., vectorization_mode=\"vector_entry_point\") "
+    "(one process, all instances in one jitted call), or keep \"async\" with "
+    "vector_kwargs={\"context\": \"forkserver\"} (or \"spawn\"); plain \"async\" with the default fork "
+    "works when the parent has not run JAX yet.")
+
+
+def _jax_running() -> bool:
+    """Whether JAX's backends (and their threads) have started in this process; no lock taken."""
+    try:
+        from jax._src import xla_bridge
+    except ImportError:
+        return True
+    backends = getattr(xla_bridge, "_backends", None)
+    if isinstance(backends, dict):
+        return bool(backends)
+    check = getattr(xla_bridge, "backends_are_initialized", None)
+    return bool(check()) if check is not None else True
+
+
+_FORKED_AFTER_JAX = False
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_AFTER_JAX
+    _FORKED_AFTER_JAX = _FORKED_AFTER_JAX or _jax_running()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def _refuse_after_fork() -> None:
+    """Raise ``RuntimeError(FORK_ERROR)`` in a process forked after JAX started (instead of deadlocking)."""
+    if _FORKED_AFTER_JAX:
+        raise RuntimeError(FORK_ERROR)
+
+
+def _check_device(device):
+    """Validate ``device`` (None, a platform name or a jax.Device) without starting JAX; resolve it
+    now (availability checked) only where JAX already runs."""
+    if device is not None and not isinstance(device, (str, jax.Device)):
+        raise TypeError(f"device must be None, a platform name such as 'cpu' or a jax.Device, got {device!r}")
+    if _jax_running() and not _FORKED_AFTER_JAX:
+        _device(device)
+    return device
+
+
 def _device(device):
     if device is None:
         return None
     if isinstance(device, jax.Device):
         return device
-    if not isinstance(device, str):
-        raise TypeError(f"device must be None, a platform name such as 'cpu' or a jax.Device, got {device!r}")
+    platform, index = device if isinstance(device, tuple) else (device, None)  # tuple: a pickled jax.Device
     try:
-        return jax.devices(device)[0]
+        found = [d for d in jax.devices(platform) if index is None or d.id == index]
     except RuntimeError as exc:
         raise ValueError(f"device {device!r} is not available: {exc}") from exc
+    if not found:
+        raise ValueError(f"device {device!r} is not available: no {platform} device with id {index}")
+    return found[0]
+
+
+def _picklable_device(device):
+    """A jax.Device as (platform, id) (devices do not pickle); other values unchanged."""
+    return (device.platform, device.id) if isinstance(device, jax.Device) else device
 
 
 def _observation_bounds(env, params) -> np.ndarray:
@@ -235,25 +299,47 @@ class OPSGymEnv(gymnasium.Env):
 
     def __init__(self, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
                  device: Any = "cpu", **options):
+        _refuse_after_fork()
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.env, self.params = make(stages, mode, **options)
         self.options = dict(stages=stages, mode=mode, **options)
         self.render_mode = render_mode
-        self.device = _device(device)
+        self._device_spec = _check_device(device)
+        self.device = None  # resolved when JAX starts (first reset)
         n, d = self.env.num_actions, self.env.observation_size
         self._n, self._d = n, d
         bound = _observation_bounds(self.env, self.params)
         self.observation_space = spaces.Box(-bound, bound, (d,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
         self.max_episode_steps = self.env.config.max_steps
-        self._step, self._reset, self._codec, self._head = _single_fns(stages, mode, options)
-        head, codec = self._head, self._codec
-        self._buf = jax.device_put(jnp.zeros(head + codec.size, jnp.float32), self.device)
+        self._step = self._reset = self._codec = self._head = None
+        self._buf = None  # (packed step, key, state): a device array once started, host after unpickling
         self._started = False
         self._episode = 0
         self._last = None
         self._scope = None
+
+    def _start(self) -> None:
+        """Start JAX for this instance: device, jitted functions (shared cache), carry on the device."""
+        if self._step is not None:
+            return
+        _refuse_after_fork()
+        options = {k: v for k, v in self.options.items() if k not in ("stages", "mode")}
+        fns = _single_fns(self.options["stages"], self.options["mode"], options)
+        self.device = _device(self._device_spec)
+        buf = self._buf if self._buf is not None else np.zeros(fns[3] + fns[2].size, np.float32)
+        self._buf = jax.device_put(buf, self.device)
+        self._step, self._reset, self._codec, self._head = fns
+
+    def __getstate__(self):
+        """Picklable state: the carry as a host array; jitted functions, device and render scope left out."""
+        state = dict(self.__dict__)
+        state.update(_step=None, _reset=None, _codec=None, _head=None, _scope=None, device=None,
+                     _device_spec=_picklable_device(self._device_spec))
+        if self._buf is not None:
+            state["_buf"] = np.array(self._buf)
+        return state
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``seed`` reseeds ``np_random`` and restarts the episode counter;
@@ -269,6 +355,7 @@ class OPSGymEnv(gymnasium.Env):
             if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
                 raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
             self._episode = int(episode)
+        self._start()
         key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
         if self.device is not None:
             key = jax.device_put(key, self.device)
@@ -290,6 +377,7 @@ class OPSGymEnv(gymnasium.Env):
         action = np.asarray(action, np.float32)
         if action.shape != (self._n,):
             raise ValueError(f"action must have shape ({self._n},) for stages={self._n}, got {action.shape}")
+        self._start()
         self._buf = self._step(self._buf, action)
         u = _Unpacked(np.asarray(self._buf)[:self._head], self._d, self._n)
         info = {
@@ -305,6 +393,7 @@ class OPSGymEnv(gymnasium.Env):
 
     def _codec_state(self):
         """(key data, EnvState) of the instance now (for tests and debugging)."""
+        self._start()
         return self._codec.unflatten(jax.device_get(self._buf)[self._head:])
 
     def render(self):
@@ -341,15 +430,18 @@ class OPSVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
                  device: Any = None, **options):
+        _refuse_after_fork()
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         options.pop("max_episode_steps", None)  # make_vec forwards the spec's (None); truncation is max_steps
         self.env, self.params = make(stages, mode, **options)
+        self.options = dict(stages=stages, mode=mode, **options)
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
-        self.device = _device(device)
+        self._device_spec = _check_device(device)
+        self.device = None  # resolved when JAX starts (first reset)
         n, d = self.env.num_actions, self.env.observation_size
         self._n, self._d = n, d
         bound = _observation_bounds(self.env, self.params)
@@ -358,10 +450,34 @@ class OPSVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.max_episode_steps = self.env.config.max_steps
-        self._reset, self._step = _vector_fns(self.num_envs, stages, mode, options)
-        self._carry = None
+        self._reset = self._step = None
+        self._carry = None  # (key, states): on the device once started, host arrays after unpickling
         self._episode = 0
         self._scopes = None
+
+    def _start(self) -> None:
+        """Start JAX for this batch: device, jitted functions (shared cache), carry on the device."""
+        if self._step is not None:
+            return
+        _refuse_after_fork()
+        options = {k: v for k, v in self.options.items() if k not in ("stages", "mode")}
+        fns = _vector_fns(self.num_envs, self.options["stages"], self.options["mode"], options)
+        self.device = _device(self._device_spec)
+        if self._carry is not None:
+            key_data, states = self._carry
+            self._carry = jax.device_put((jax.random.wrap_key_data(key_data), states), self.device)
+        self._reset, self._step = fns
+
+    def __getstate__(self):
+        """Picklable state: the carry as host arrays; jitted functions, device and render scopes left out."""
+        state = dict(self.__dict__)
+        state.update(_reset=None, _step=None, _scopes=None, device=None,
+                     _device_spec=_picklable_device(self._device_spec))
+        if self._carry is not None:
+            key, states = self._carry
+            key_data = key if isinstance(key, np.ndarray) else jax.random.key_data(key)
+            state["_carry"] = (np.array(key_data), jax.tree.map(np.array, states))
+        return state
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset every instance. ``seed`` reseeds ``np_random`` (and restarts the episode counter);
@@ -377,6 +493,7 @@ class OPSVectorEnv(VectorEnv):
             if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
                 raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
             self._episode = int(episode)
+        self._start()
         key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
         if self.device is not None:
             key = jax.device_put(key, self.device)
@@ -393,6 +510,7 @@ class OPSVectorEnv(VectorEnv):
         actions = np.asarray(actions, np.float32)
         if actions.shape != (self.num_envs, self._n):
             raise ValueError(f"actions must have shape ({self.num_envs}, {self._n}), got {actions.shape}")
+        self._start()
         self._carry, packed = self._step(self._carry, actions)
         u = _Unpacked(np.asarray(packed), self._d, self._n)
         ones = np.ones(self.num_envs, bool)

@@ -1,6 +1,10 @@
 """Gymnasium adapters: registration, env_checker, spaces/types, seeding, and the vector env against
 stepping the same instances one by one with ``OPSEnv.step``."""
 
+import copy
+import pickle
+import subprocess
+import sys
 import warnings
 
 import gymnasium
@@ -144,3 +148,69 @@ def test_step_cost_helper():
     batch = gym_env.step_cost(3, "phasor", 8, number=5, repeats=1)
     assert 0 < single["seconds_per_call"] < 1.0
     assert batch["env_steps_per_second"] == pytest.approx(8 / batch["seconds_per_call"])
+
+
+def _rollout(env, actions):
+    """Observations, rewards and flags of ``env.step`` over ``actions``, resetting (unseeded) when an
+    episode ends, so the continuation also exercises ``np_random`` and the episode counter."""
+    out = []
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out.append((obs, r, term, trunc, info["deltas_wl"]))
+        if (np.any(term) or np.any(trunc)) and not isinstance(env.unwrapped, VectorEnv):
+            out.append(env.reset())
+    return out
+
+
+def _assert_same(a, b):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_copy_and_pickle_continue_the_same_trajectory(how):
+    """A copy of a live env (wrapped as gymnasium.make returns it) continues exactly as the original
+    under the same actions, independently of it, with the jitted functions looked up again."""
+    env = gymnasium.make("ops_jax/OPS-v0", stages=3, mode="hard", model="phasor", max_steps=4)
+    env.reset(seed=7)
+    actions = np.random.default_rng(0).uniform(-1, 1, (11, 3)).astype(np.float32)
+    _rollout(env, actions[:6])  # mid-episode, after one unseeded reset
+    twin = copy.deepcopy(env) if how == "deepcopy" else pickle.loads(pickle.dumps(env))
+    assert twin.unwrapped is not env.unwrapped and twin.unwrapped._step is None  # nothing compiled travels
+    ahead = _rollout(twin, actions[6:])  # stepping the copy leaves the original where it was
+    _assert_same(ahead, _rollout(env, actions[6:]))
+    assert twin.unwrapped._step is env.unwrapped._step  # the cached jitted step, not a recompile
+    assert twin.unwrapped._episode == env.unwrapped._episode > 1
+    _assert_same(twin.reset(), env.reset())
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_vector_env_copy_and_pickle(how):
+    venv = OPSVectorEnv(num_envs=4, stages=2, mode="hard", model="phasor", max_steps=3)
+    venv.reset(seed=3)
+    actions = np.random.default_rng(1).uniform(-1, 1, (8, 4, 2)).astype(np.float32)
+    _rollout(venv, actions[:2])
+    twin = copy.deepcopy(venv) if how == "deepcopy" else pickle.loads(pickle.dumps(venv))
+    ahead = _rollout(twin, actions[2:])  # crosses auto-resets
+    _assert_same(ahead, _rollout(venv, actions[2:]))
+    _assert_same(twin.reset(), venv.reset())
+
+
+def test_unstarted_env_pickles_without_starting_jax():
+    """Construction does not start JAX (so async workers may fork after it); a pickled fresh env works."""
+    code = ("import pickle, ops_jax; from ops_jax.gym_env import OPSGymEnv, _jax_running; "
+            "e = pickle.loads(pickle.dumps(OPSGymEnv(stages=2, mode='easy', model='phasor'))); "
+            "print(_jax_running()); e.reset(seed=0); print(_jax_running())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.split() == ["False", "True"]
+
+
+def test_gym_modes_benchmark_rows():
+    """benchmarks.gym_modes measures a mode in-process and reports a failing one as its row's error."""
+    from benchmarks import gym_modes
+
+    for mode, n in [("single", 1), ("vector_entry_point", 4)]:
+        row = gym_modes.measure_one(mode, None, n, "phasor", stages=2, repeats=1)
+        assert row["num_envs"] == n and row["env_steps_per_s"] > 0 and row["start_s"] > 0
+    failed = gym_modes.run_in_subprocess("sync", None, 2, "no-such-model", 2, 1)
+    assert "model" in failed["error"] and "env_steps_per_s" not in failed

@@ -1,0 +1,93 @@
+"""Every option of ``ops_jax.make`` and of the Gymnasium constructors, table-driven: values at the
+edges of the accepted range construct; degenerate or malformed values raise naming the option and
+the accepted range. A new option without a row fails ``test_every_option_has_a_row``."""
+
+import dataclasses
+import inspect
+import math
+
+import jax
+import pytest
+
+import ops_jax
+from ops_jax.gym_env import OPSGymEnv, OPSVectorEnv
+
+INT32_MAX = 2**31 - 1
+INT_RANGE = f"an integer in [1, {INT32_MAX}]"
+
+# option: (accepted values, [(rejected value, exception, words of the message)])
+ROWS = {
+    "stages": ([1, 4], [(0, ValueError, "stages must be an integer >= 1"), (1.5, TypeError, "stages")]),
+    "mode": (["easy", "custom"], [("insane", ValueError, "mode")]),
+    "model": (["field", "phasor"], [("ray", ValueError, "model")]),
+    "detector": (["total", "polariser"], [("eye", ValueError, "detector")]),
+    "reward": (["paper", "reference"], [("money", ValueError, "reward")]),
+    "max_steps": ([1, INT32_MAX], [(0, ValueError, f"max_steps must be {INT_RANGE}"),
+                                   (2**31, ValueError, INT_RANGE), (2.0, ValueError, INT_RANGE)]),
+    "feedback_k": ([1, 100], [(0, ValueError, f"feedback_k must be {INT_RANGE}"), (True, ValueError, INT_RANGE)]),
+    "frame_stack": ([1, 4], [(0, ValueError, f"frame_stack must be {INT_RANGE}"), (-2, ValueError, INT_RANGE)]),
+    "include_noise": ([False, True], [(1, TypeError, "include_noise must be a bool")]),
+    "init_spread": ([0.0, 1.0], [(-0.1, ValueError, "init_spread must be a finite number in [0, 1] wl"),
+                                 (1.5, ValueError, "[0, 1] wl"), (math.nan, ValueError, "[0, 1] wl")]),
+    "step_sigma": ([0.0, 0.1], [(-1e-4, ValueError, "step_sigma must be a finite number in [0, 0.1] wl"),
+                                (0.5, ValueError, "[0, 0.1] wl")]),
+    "drift_cap": ([0.0, 10.0], [(-1.0, ValueError, "drift_cap must be a finite number in [0, 10]"),
+                                (11.0, ValueError, "[0, 10]")]),
+    "drift_ramp": ([0.0, 1e3], [(-0.1, ValueError, "drift_ramp must be a finite number in [0, inf)"),
+                                (math.inf, ValueError, "[0, inf)")]),
+    "drift_amplitude": ([0.0, 0.1], [(-1e-3, ValueError, "drift_amplitude must be a finite number in [0, 0.1]"),
+                                     (0.2, ValueError, "[0, 0.1]")]),
+    "drift_segment": ([1, 50.0], [(0, ValueError, f"drift_segment must be {INT_RANGE} steps"),
+                                  (2.5, ValueError, INT_RANGE), (True, ValueError, INT_RANGE)]),
+    "action_scale": ([1e-6, 1.0], [(0.0, ValueError, "action_scale must be a finite number in (0, 1] wl"),
+                                   (-0.01, ValueError, "(0, 1]"), (1.5, ValueError, "(0, 1]"),
+                                   (math.inf, ValueError, "(0, 1]")]),
+    "obs_noise": ([0.0, 1.0], [(-1e-4, ValueError, "obs_noise must be a finite number in [0, 1]"),
+                               (2.0, ValueError, "[0, 1]"), (math.nan, ValueError, "[0, 1]")]),
+    "window": ([0.16, 1e6], [(0.0, ValueError, "window must be a finite number in (0, inf) wl"),
+                             (math.inf, ValueError, "(0, inf) wl"),
+                             (0.15, ValueError, "window must be > init_spread")]),  # hard: init_spread 0.15
+    "render_mode": ([None, "rgb_array"], [("ascii", ValueError, "render_mode must be None or one of")]),
+    "device": ([None, "cpu"], [(3, TypeError, "device must be None, a platform name"),
+                               ("no-such-platform", ValueError, "device 'no-such-platform' is not available")]),
+    "num_envs": ([1, 3], [(0, ValueError, "num_envs must be an integer >= 1"), (1.5, ValueError, "num_envs"),
+                          (True, ValueError, "num_envs")]),
+}
+
+BASE = dict(stages=3, mode="hard", model="phasor")
+CONSTRUCTORS = {
+    "make": lambda **kw: ops_jax.make(**{**BASE, **kw}),
+    "OPSGymEnv": lambda **kw: OPSGymEnv(**{**BASE, **kw}),
+    "OPSVectorEnv": lambda **kw: OPSVectorEnv(**{"num_envs": 2, **BASE, **kw}),
+}
+
+
+def _options(constructor) -> set:
+    """Named parameters of ``constructor`` plus, where it forwards ``**options`` to ``make``, make's."""
+    sig = inspect.signature(constructor).parameters
+    names = {n for n, p in sig.items() if p.kind is not p.VAR_KEYWORD and n != "self"}
+    if any(p.kind is p.VAR_KEYWORD for p in sig.values()):
+        names |= {f.name for cls in (ops_jax.EnvConfig, ops_jax.EnvParams) for f in dataclasses.fields(cls)}
+    return names
+
+
+OPTIONS = {"make": _options(ops_jax.make), "OPSGymEnv": _options(OPSGymEnv), "OPSVectorEnv": _options(OPSVectorEnv)}
+CASES = [(c, o) for c in CONSTRUCTORS for o in sorted(OPTIONS[c])]
+
+
+def test_every_option_has_a_row():
+    assert set().union(*OPTIONS.values()) == set(ROWS)
+    assert OPTIONS["make"] < OPTIONS["OPSGymEnv"] < OPTIONS["OPSVectorEnv"]
+
+
+@pytest.mark.parametrize("constructor, option", CASES)
+def test_option_range(constructor, option):
+    jax.devices()  # the adapters check a device's availability at construction once JAX runs
+    build = CONSTRUCTORS[constructor]
+    good, bad = ROWS[option]
+    for value in good:
+        build(**{option: value})
+    for value, exc, words in bad:
+        with pytest.raises(exc) as err:
+            build(**{option: value})
+        assert option in str(err.value) and words in str(err.value), (value, str(err.value))
