@@ -54,6 +54,7 @@ class PlainProgress:
         self.postfix = ""
         self.start = time.monotonic()
         self._last_print = self.start
+        self._printed_state = None
         self._closed = False
 
     def __iter__(self):
@@ -86,6 +87,7 @@ class PlainProgress:
     def _emit(self):
         print(self.line(), file=self.file, flush=True)
         self._last_print = time.monotonic()
+        self._printed_state = (self.n, self.postfix)
 
     def update(self, n: float = 1) -> None:
         self.n += n
@@ -111,7 +113,8 @@ class PlainProgress:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._emit()
+            if self._printed_state != (self.n, self.postfix):
+                self._emit()
 
 
 def progress(iterable=None, *, total=None, desc: str = "", unit: str = "it", file=None, **tqdm_kwargs):
