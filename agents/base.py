@@ -255,9 +255,12 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
     return _EVALUATORS[key]
 
 
-def evaluator(env, policy: Policy, steps: int, drift_episode: int):
-    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted evaluation scan returning
-    P/Pmax and terminated flags (steps, episodes); ``probes[0]`` counts probe calls per step once traced."""
+def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: bool = False):
+    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted episode rollout (no
+    auto-reset) returning P/Pmax and terminated flags (steps, episodes), with ``trajectory`` also
+    the delay offsets (steps + 1, episodes, N) wl after the reset and after each step; ``probes[0]``
+    counts probe calls per step once traced. The one rollout of a policy: ``evaluate`` and the
+    episode renderer (``agents.episode``) use it."""
     probes = [0]
     axes_params = None
 
@@ -281,9 +284,12 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int):
             keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
             obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
                 keys, states, action, env_params)
-            return (obs, states, carry), (info["normalized_power"], term)
+            out = (info["normalized_power"], term) + ((states.deltas,) if trajectory else ())
+            return (obs, states, carry), out
 
         _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
+        if trajectory:
+            out = (*out[:2], jnp.concatenate([states.deltas[None], out[2]]))
         return out
 
     return run, probes
