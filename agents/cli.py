@@ -7,8 +7,8 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time). A tqdm bar shows env steps, steps/s, the latest evaluation
-P/Pmax and the ETA for algorithms whose ``train`` takes a ``progress_fn``.
+the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
+plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
 """
 
 from __future__ import annotations
@@ -16,14 +16,15 @@ from __future__ import annotations
 import argparse
 import ast
 import csv
-import inspect
 from pathlib import Path
 
 import numpy as np
 
 import agents
 from agents import base
+from agents.config import CONFIG_TYPES
 from agents.io import write_json_atomic
+from ops_jax.progress import progress
 
 
 def parse_set(items) -> dict:
@@ -38,14 +39,6 @@ def parse_set(items) -> dict:
         except (ValueError, SyntaxError):
             out[k] = v
     return out
-
-
-def default_total_steps(module, hyper: dict):
-    """The module's default step budget, if it exposes ``CONFIGS`` (for the progress bar's ETA)."""
-    configs = getattr(module, "CONFIGS", None)
-    if isinstance(configs, dict):
-        return configs.get(hyper.get("config", "fast"), {}).get("total_steps")
-    return None
 
 
 def write_curve_csv(path: Path, curve: dict) -> None:
@@ -90,29 +83,19 @@ def main(argv=None) -> dict:
     ap.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options")
     args = ap.parse_args(argv)
 
-    from tqdm import tqdm
-
     out = args.out or Path("runs") / args.algo
     env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
-    hyper = parse_set(args.set)
-    if args.config is not None:
-        hyper["config"] = args.config
-    module = base.algo_module(args.algo)
-    total = args.steps if args.steps is not None else default_total_steps(module, hyper)
+    config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+    total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
+    bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
-    bar = tqdm(total=total, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}",
-               dynamic_ncols=True)
-    kwargs = dict(hyper)
-    if "progress_fn" in inspect.signature(module.train).parameters:
-        def progress(step, metrics):
-            bar.update(max(0, int(step) - bar.n))
-            if "normalized_power" in metrics:
-                bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}")
-        kwargs["progress_fn"] = progress
-    else:
-        bar.set_postfix_str("(no progress reporting from this algorithm)")
+    def show(step: int, metrics: dict) -> None:
+        bar.update(max(0, int(step) - bar.n))
+        bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}")
+
     try:
-        result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, **kwargs)
+        result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
+                            config=config)
     finally:
         bar.close()
 

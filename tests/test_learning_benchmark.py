@@ -4,7 +4,7 @@ never passed off as the new one)."""
 
 import json
 
-from agents import spgd
+from agents import SPGDConfig
 from benchmarks import learning
 
 
@@ -14,7 +14,7 @@ def test_runs_are_reused_only_for_the_same_request(tmp_path, capsys):
     agg = learning.main(argv)
     assert agg["spgd/easy"]["seeds"] == 1 and 0 < agg["spgd/easy"]["p_pmax_mean"] <= 1
     first = json.loads((tmp_path / "learning.json").read_text())["runs"]
-    assert [(r["episodes"], r["hyper"]["kp"]) for r in first] == [(4, spgd.DEFAULTS["kp"])]
+    assert [(r["episodes"], r["hyper"]["kp"]) for r in first] == [(4, SPGDConfig.preset().kp)]
     capsys.readouterr()
 
     learning.main(argv)

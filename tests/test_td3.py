@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import td3
+from agents import TD3Config, td3
 from agents.base import Policy
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,7 +40,10 @@ def test_td3_beats_doing_nothing(trained):
 
 
 def test_same_seed_same_result(trained):
-    again = agents.train("td3", ENV, seed=3, total_steps=STEPS, **HYPER)
+    reported = []
+    again = agents.train("td3", ENV, seed=3, total_steps=STEPS, progress_fn=lambda *a: reported.append(a), **HYPER)
+    assert [step for step, _ in reported] == again.curve["step"].tolist()  # progress_fn(step, metrics)
+    np.testing.assert_array_equal([m["normalized_power"] for _, m in reported], again.curve["normalized_power"])
     np.testing.assert_array_equal(trained.curve["normalized_power"], again.curve["normalized_power"])
     jax.tree.map(np.testing.assert_array_equal, trained.params, again.params)
 
@@ -66,14 +69,16 @@ def test_checkpoint_round_trip_identical_actions(trained, tmp_path):
 
 def test_bad_hyperparameters():
     with pytest.raises(TypeError, match="unknown TD3 hyperparameter"):
-        td3.resolve_hyper({"learning_rate": 1e-3})
+        TD3Config.preset("fast", learning_rate=1e-3)
     with pytest.raises(ValueError, match="gamma"):
-        td3.resolve_hyper({"gamma": 1.5})
+        TD3Config.preset("fast", gamma=1.5)
     with pytest.raises(ValueError, match="config"):
-        td3.resolve_hyper({"config": "slow"})
+        TD3Config.make("slow")
+    with pytest.raises(ValueError, match="learning_starts"):
+        agents.train("td3", ENV, config=TD3Config.preset("fast", batch_size=128), learning_starts=64)
 
 
-def test_cli_end_to_end(tmp_path, capsys):
+def test_cli_end_to_end(tmp_path):
     from agents import cli
 
     # Same setting as the fixture and a budget of one training chunk of the same length (1024
@@ -82,8 +87,7 @@ def test_cli_end_to_end(tmp_path, capsys):
     argv = ["--algo", "td3", "--stages", "3", "--mode", "easy", "--out", str(out), "--steps", "8512", "--seed", "1",
             "--episodes", "4", "--env", "model='phasor'", "--set"] + [f"{k}={v!r}" for k, v in HYPER.items()]
     summary = cli.main(argv)
-    printed = capsys.readouterr()
-    assert "testing P/Pmax" in printed.out and "P_Pmax=" in printed.err  # final line and tqdm postfix
+    assert summary["hyper"]["hidden"] == [64, 64] and summary["train_steps"] >= 8512
     assert (out / "checkpoint" / "meta.json").exists() and (out / "curve.png").stat().st_size > 1000
     rows = list(csv.DictReader(open(out / "curve.csv")))
     assert len(rows) == 2 and int(rows[-1]["step"]) >= 8512
