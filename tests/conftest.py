@@ -1,7 +1,9 @@
+import contextlib
 import json
 import os
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -17,3 +19,24 @@ def reference():
     physics = dict(np.load(ref / "ops_reference_physics.npz"))
     constants = json.loads((ref / "ops_reference_constants.json").read_text())["stages"]
     return physics, constants
+
+
+@contextlib.contextmanager
+def _count_compiles():
+    n = [0]
+
+    def listen(event, duration, **kwargs):
+        n[0] += event == "/jax/core/compile/backend_compile_duration"
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield n
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
+@pytest.fixture
+def compiles():
+    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``
+    (``jax.monitoring``'s compile events): a check that nothing is traced or compiled again."""
+    return _count_compiles

@@ -1,7 +1,6 @@
 """The shared agents API: evaluate (probes counted, deterministic, device-count independent),
 checkpoints (round trip, missing, corrupt), bad input."""
 
-import contextlib
 import json
 import os
 import subprocess
@@ -92,22 +91,7 @@ def test_bad_input(call, exc, words):
         call()
 
 
-@contextlib.contextmanager
-def compiles():
-    """Counts XLA compilations inside the block (``jax.monitoring``'s compile events): ``n[0]``."""
-    n = [0]
-
-    def listen(event, duration, **kwargs):
-        n[0] += event == "/jax/core/compile/backend_compile_duration"
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield n
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-
-
-def test_evaluate_compiles_once_per_policy_and_static_config():
+def test_evaluate_compiles_once_per_policy_and_static_config(compiles):
     """Seeds, testing environments and other modes with the same static configuration reuse one
     compiled evaluation program; another static configuration (feedback_k) gets its own."""
     env = {"stages": 3, "mode": "easy", "model": "phasor"}

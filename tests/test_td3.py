@@ -48,12 +48,12 @@ def test_same_seed_same_result(trained):
     jax.tree.map(np.testing.assert_array_equal, trained.params, again.params)
 
 
-def test_modes_share_one_build(trained):
+def test_modes_share_one_build(trained, compiles):
     """Another mode reuses the compiled training programs (EnvParams are arguments) and still
     trains on its own dynamics."""
-    builds = len(td3._BUILDS)
-    hard = agents.train("td3", {**ENV, "mode": "hard"}, seed=3, total_steps=STEPS, **HYPER)
-    assert len(td3._BUILDS) == builds
+    with compiles() as n:
+        hard = agents.train("td3", {**ENV, "mode": "hard"}, seed=3, total_steps=STEPS, **HYPER)
+    assert n[0] == 0
     assert not np.array_equal(hard.curve["normalized_power"], trained.curve["normalized_power"])
 
 
@@ -107,10 +107,10 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path):
     any gradient step, equal to float rounding after 80), the seeds differ; with two (forced CPU)
     devices (a subprocess, started first to overlap) the seed axis is split across them."""
     code = (
-        "import json, sys, numpy as np, jax; from agents import td3;"
+        "import json, sys, numpy as np, jax, agents; from agents import td3;"
         f"both = td3.train_seeds({ENV!r}, seeds=[3, 5], total_steps={FEW_STEPS}, **{FEW!r});"
         "np.savez(sys.argv[1], *[np.ravel(x) for r in both for x in jax.tree.leaves(r.params)]);"
-        "sharded = [str(f['sharding'].spec) for f in td3._BUILDS.values() if f['sharding'] is not None];"
+        "sharded = [str(agents.base.split_over_devices(2, 'seeds').spec)];"
         "print(json.dumps(dict(devices=jax.device_count(), sharded=sharded)))"
     )
     env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
