@@ -134,3 +134,25 @@ def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
     assert summary["algo"] == "spgd" and summary["evaluation"]["episodes"] == 4
     assert 0 < summary["evaluation"]["final_mean"] <= 1
     assert "P_Pmax=" in res.stderr  # the progress line's evaluation metric
+
+
+@pytest.mark.parametrize("algo", sorted(agents.ALGOS))
+def test_every_algorithm_has_one_config_type(algo):
+    """Presets build and round-trip through the stored form; one error style for every algorithm."""
+    import dataclasses
+
+    from agents.config import CONFIG_TYPES
+
+    cls = CONFIG_TYPES[algo]
+    for name in cls.PRESETS:
+        config = cls.preset(name)
+        assert cls.from_hyper(config.to_hyper()) == config
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            config.total_steps = 1
+    field = next(f for f in cls.names() if isinstance(getattr(config, f), float))
+    changed = cls.preset(None, **{field: getattr(config, field) / 2})
+    assert getattr(changed, field) == getattr(config, field) / 2
+    with pytest.raises(ValueError, match=rf"^{field} must be a finite number in [\[(].*got -1"):
+        cls.preset(None, **{field: -1.0})
+    with pytest.raises(TypeError, match=r"unknown .* hyperparameter\(s\) \['nope'\]; accepted: config, \["):
+        agents.train(algo, ENV, nope=1)
