@@ -90,8 +90,8 @@ def main(argv=None) -> dict:
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
     def show(step: int, metrics: dict) -> None:
+        bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
         bar.update(max(0, int(step) - bar.n))
-        bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}")
 
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
