@@ -7,9 +7,12 @@ the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``eval
 every probe as a measurement. Learned policies ignore carry and probe.
 
 Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
-``train(env_config, *, seed, total_steps, **hyper) -> TrainResult``,
-``make_policy(env_config, hyper) -> Policy`` and ``params_template(env_config, hyper)`` (a pytree
-of the parameters' structure, for ``load``). ``make_policy`` may depend only on ``hyper`` and the
+``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
+(``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
+fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
+``normalized_power``), ``make_policy(env_config, hyper) -> Policy`` and
+``params_template(env_config, hyper)`` (a pytree of the parameters' structure, for ``load``);
+``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may depend only on ``hyper`` and the
 static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
 from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
 serves a policy trained in any mode.
@@ -92,13 +95,16 @@ def check_env_config(env_config) -> dict:
     return dict(env_config)
 
 
-def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None, **hyper) -> TrainResult:
-    """Train ``algo`` ("spgd", "ppo", "sac", "td3", "physics") on ``ops_jax.make(**env_config)``."""
+def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
+          progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> TrainResult:
+    """Train ``algo`` ("spgd", "ppo", "sac", "td3", "physics") on ``ops_jax.make(**env_config)``.
+    ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
+    fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     if total_steps is not None and (not isinstance(total_steps, (int, np.integer)) or total_steps < 0):
         raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
-    return module.train(env_config, seed=seed, total_steps=total_steps, **hyper)
+    return module.train(env_config, seed=seed, total_steps=total_steps, progress_fn=progress_fn, **hyper)
 
 
 def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
@@ -112,10 +118,12 @@ def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None =
     return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
 
 
-def evaluated_result(algo: str, env_config: dict, hyper: dict, params, seed: int, episodes: int = 32) -> TrainResult:
+def evaluated_result(algo: str, env_config: dict, hyper: dict, params, seed: int, episodes: int = 32,
+                     progress_fn: Callable[[int, dict], None] | None = None) -> TrainResult:
     """The TrainResult of a controller with nothing to train (SPGD, physics-informed): its curve is
-    a short evaluation (``episodes`` episodes, seed ``seed``), P/Pmax per control step. Evaluated as
-    the result itself, so later evaluations of it reuse the compiled program."""
+    a short evaluation (``episodes`` episodes, seed ``seed``), P/Pmax per control step, reported
+    to ``progress_fn(0, metrics)`` (0 env steps of training). Evaluated as the result itself, so
+    later evaluations of it reuse the compiled program."""
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"curve_episodes must be an integer >= 1, got {episodes!r}")
     t0 = time.perf_counter()
@@ -124,6 +132,8 @@ def evaluated_result(algo: str, env_config: dict, hyper: dict, params, seed: int
     total = time.perf_counter() - t0
     result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
     result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
+    if progress_fn is not None:
+        progress_fn(0, {"normalized_power": float(npow[-1]), "elapsed_s": total})
     return result
 
 
@@ -255,9 +265,12 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
     return _EVALUATORS[key]
 
 
-def evaluator(env, policy: Policy, steps: int, drift_episode: int):
-    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted evaluation scan returning
-    P/Pmax and terminated flags (steps, episodes); ``probes[0]`` counts probe calls per step once traced."""
+def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: bool = False):
+    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted episode rollout (no
+    auto-reset) returning P/Pmax and terminated flags (steps, episodes), with ``trajectory`` also
+    the delay offsets (steps + 1, episodes, N) wl after the reset and after each step; ``probes[0]``
+    counts probe calls per step once traced. The one rollout of a policy: ``evaluate`` and the
+    episode renderer (``agents.episode``) use it."""
     probes = [0]
     axes_params = None
 
@@ -281,9 +294,12 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int):
             keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
             obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
                 keys, states, action, env_params)
-            return (obs, states, carry), (info["normalized_power"], term)
+            out = (info["normalized_power"], term) + ((states.deltas,) if trajectory else ())
+            return (obs, states, carry), out
 
         _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
+        if trajectory:
+            out = (*out[:2], jnp.concatenate([states.deltas[None], out[2]]))
         return out
 
     return run, probes

@@ -49,39 +49,7 @@ import numpy as np
 import ops_jax
 from ops_jax import physics
 from agents.base import Policy, TrainResult, check_env_config, evaluated_result
-
-DEFAULTS = dict(starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
-                lengths_only=False)
-
-_INT = dict(starts=(0, 4096), iters=(1, 1000))
-_FLOAT = dict(damping=(0.0, 1e6), w_hist=(0.0, 1e6), gain=(0.0, 10.0), drift_gain=(0.0, 1.0))
-_BOOL = ("use_lengths", "lengths_only")
-
-
-def check_hyper(hyper: dict) -> dict:
-    """Merge ``hyper`` over ``DEFAULTS`` and validate (ValueError naming the parameter)."""
-    unknown = set(hyper) - set(DEFAULTS)
-    if unknown:
-        raise ValueError(f"unknown physics hyperparameter(s) {sorted(unknown)}; accepted: {sorted(DEFAULTS)}")
-    h = {**DEFAULTS, **hyper}
-    for name, (lo, hi) in _INT.items():
-        v = h[name]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
-            raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {v!r}")
-        h[name] = int(v)
-    for name, (lo, hi) in _FLOAT.items():
-        v = h[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not lo <= v <= hi:
-            raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {v!r}")
-        h[name] = float(v)
-    for name in _BOOL:
-        if not isinstance(h[name], (bool, np.bool_)):
-            raise ValueError(f"{name} must be True or False, got {h[name]!r}")
-        h[name] = bool(h[name])
-    if h["starts"] == 0 and not h["use_lengths"]:
-        raise ValueError("starts must be >= 1 unless use_lengths=True (nothing to start the fit from)")
-    return h
-
+from agents.config import PhysicsConfig
 
 def params_template(env_config, hyper):
     del env_config, hyper
@@ -101,10 +69,10 @@ def wrap(x):
     return x - 0.5 * jnp.round(x / 0.5)
 
 
-def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
+def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
-    h = check_hyper(hyper or {})
+    h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
     env, _ = ops_jax.make(**env_config)
     cfg = env.config
     n = cfg.stages
@@ -180,11 +148,11 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     return Policy(init, act)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, curve_episodes: int = 32,
-          **hyper) -> TrainResult:
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
+          curve_episodes: int = 32, config: PhysicsConfig | str | None = None, **hyper) -> TrainResult:
     """Nothing to learn (the model is the simulator): validates; the curve is
     ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
-    when asked for again). ``total_steps`` is ignored."""
+    when asked for again), reported once to ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
     env_config = check_env_config(env_config)
-    h = check_hyper(hyper)
-    return evaluated_result("physics", env_config, h, policy_params(env_config), seed, curve_episodes)
+    h = PhysicsConfig.make(config, **hyper).to_hyper()
+    return evaluated_result("physics", env_config, h, policy_params(env_config), seed, curve_episodes, progress_fn)

@@ -1,7 +1,7 @@
 """PPO: ``brax.training.agents.ppo.train`` on the Brax adapter (``ops_jax.brax_env.OPSBraxEnv``),
 unchanged; this module only chooses hyperparameters, records the curve and wraps the result.
 
-Configurations (``hyper["config"]``; any key below may be overridden):
+Presets of ``agents.config.PPOConfig`` (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 PPO (Table 5): 2 x 256 tanh networks, lr 3e-4, gamma 0.99, GAE lambda
   0.95, clip 0.2, entropy 0.001, vf coefficient 0.5, max grad norm 0.5, 10 epochs over a 512-step
   rollout in minibatches of 64. In brax terms: 8 envs x unroll 64 (= 512 steps per update),
@@ -39,8 +39,8 @@ gradient steps, compilation, host overhead).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-import math
 import time
 
 import jax
@@ -48,70 +48,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import base, brax_compat
+from agents.config import PPOConfig
 
-CONFIGS = {
-    "paper": dict(
-        num_envs=8, unroll_length=64, batch_size=1, num_minibatches=8, num_updates_per_batch=10,
-        learning_rate=3e-4, entropy_cost=1e-3, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
-        vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=False,
-        hidden=(256, 256), activation="tanh", init_noise_std=1.0, bootstrap_on_timeout=True,
-        total_steps=300_000, num_evals=10, num_eval_envs=64,
-    ),
-    "fast": dict(
-        num_envs=256, unroll_length=16, batch_size=32, num_minibatches=32, num_updates_per_batch=8,
-        learning_rate=3e-4, entropy_cost=0.0, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
-        vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=True,
-        hidden=(128, 128), activation="tanh", init_noise_std=0.3, bootstrap_on_timeout=True,
-        total_steps=8_000_000, num_evals=10, num_eval_envs=64,
-    ),
-}
 EVAL_FIRST_EPISODE = 10
-_ACTIVATIONS = ("tanh", "relu", "swish", "elu")
 
 
 # -- shared with agents.sac ----------------------------------------------------------------------
-
-def resolve(name: str, configs: dict, hyper: dict | None) -> dict:
-    """Full hyperparameters: ``config`` (default "fast") plus overrides, validated. Unknown keys
-    raise TypeError; out-of-range values ValueError naming the key."""
-    hyper = dict(hyper or {})
-    config = hyper.pop("config", "fast")
-    if config not in configs:
-        raise ValueError(f"config must be one of {sorted(configs)}, got {config!r}")
-    out = dict(configs[config])
-    unknown = set(hyper) - set(out)
-    if unknown:
-        raise TypeError(f"unknown {name} hyperparameter(s) {sorted(unknown)}; accepted: config, {sorted(out)}")
-    out.update(hyper)
-    for k, default in configs[config].items():
-        v = out[k]
-        if isinstance(default, bool):
-            if not isinstance(v, (bool, np.bool_)):
-                raise TypeError(f"{k} must be a bool, got {v!r}")
-            out[k] = bool(v)
-        elif isinstance(default, int):
-            lo = 0 if k in ("total_steps", "min_replay_size") else 1
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
-            out[k] = int(v)
-        elif isinstance(default, float):
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
-            if k in ("discounting", "gae_lambda", "tau") and not 0 < v <= 1:
-                raise ValueError(f"{k} must be in (0, 1], got {v!r}")
-            if k in ("learning_rate", "init_noise_std") and v <= 0:
-                raise ValueError(f"{k} must be > 0, got {v!r}")
-            out[k] = float(v)
-    hidden = out["hidden"]
-    if (not isinstance(hidden, (list, tuple)) or not hidden
-            or not all(isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in hidden)):
-        raise ValueError(f"hidden must be a non-empty sequence of layer widths >= 1, got {hidden!r}")
-    out["hidden"] = [int(h) for h in hidden]
-    if "activation" in out and out["activation"] not in _ACTIVATIONS:
-        raise ValueError(f"activation must be one of {_ACTIVATIONS}, got {out['activation']!r}")
-    out["config"] = config
-    return out
-
 
 def train_env_config(env_config: dict) -> dict:
     """The env_config used for training: ``model="phasor"`` unless one is given."""
@@ -176,12 +118,13 @@ def _time_env_steps(env, num_envs: int, steps: int, seed: int) -> float:
 
 
 class Recorder:
-    """brax ``progress_fn``: collects the evaluation curve."""
+    """brax ``progress_fn``: collects the evaluation curve and passes each evaluation on to
+    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s)."""
 
-    def __init__(self, callback=None):
+    def __init__(self, progress_fn=None):
         self.t0 = time.perf_counter()
         self.rows = []
-        self.callback = callback
+        self.progress_fn = progress_fn
 
     def __call__(self, step, metrics):
         row = dict(
@@ -191,12 +134,22 @@ class Recorder:
             wall=time.perf_counter() - self.t0,
         )
         self.rows.append(row)
-        if self.callback is not None:
-            self.callback(row)
+        if self.progress_fn is not None:
+            self.progress_fn(row["step"], dict(normalized_power=row["normalized_power"], reward=row["reward"],
+                                               elapsed_s=row["wall"]))
 
     def curve(self) -> dict:
         keys = ("step", "normalized_power", "reward", "wall")
         return {k: np.asarray([r[k] for r in self.rows], np.int64 if k == "step" else np.float64) for k in keys}
+
+    def result(self, algo: str, env, env_config: dict, c, params, total: float, seed: int) -> base.TrainResult:
+        """The TrainResult of a brax training call of ``total`` seconds (wall time split as above)."""
+        curve = self.curve()
+        steps = int(curve["step"][-1]) if curve["step"].size else 0
+        eval_steps = len(self.rows) * c.num_eval_envs * env.max_steps
+        sim = seconds_per_env_step(env, c.num_envs, seed=seed)
+        return base.TrainResult(algo, env_config, c.to_hyper(), jax.device_get(params), curve,
+                                wall_split(total, sim, steps + eval_steps), int(seed))
 
 
 def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
@@ -206,30 +159,22 @@ def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
 
 # -- PPO -----------------------------------------------------------------------------------------
 
-def resolve_hyper(hyper: dict | None = None) -> dict:
-    h = resolve("PPO", CONFIGS, hyper)
-    if (h["batch_size"] * h["num_minibatches"]) % h["num_envs"]:
-        raise ValueError(f"batch_size * num_minibatches must be divisible by num_envs, got "
-                         f"{h['batch_size']} * {h['num_minibatches']} and {h['num_envs']}")
-    return h
-
-
-def _network_factory(h: dict):
+def _network_factory(c: PPOConfig):
     from brax.training.agents.ppo import networks as ppo_networks
 
-    return functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=tuple(h["hidden"]),
-                             value_hidden_layer_sizes=tuple(h["hidden"]), activation=activation(h["activation"]),
-                             init_noise_std=h["init_noise_std"])
+    return functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=c.hidden,
+                             value_hidden_layer_sizes=c.hidden, activation=activation(c.activation),
+                             init_noise_std=c.init_noise_std)
 
 
-def _networks(env_config: dict, h: dict):
+def _networks(env_config: dict, c: PPOConfig):
     from brax.training.acme import running_statistics
 
     import ops_jax
 
     env, _ = ops_jax.make(**train_env_config(env_config))
-    normalize = running_statistics.normalize if h["normalize_observations"] else (lambda x, y: x)
-    net = _network_factory(h)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
+    normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
+    net = _network_factory(c)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
     return net, env.observation_size
 
 
@@ -237,8 +182,7 @@ def params_template(env_config: dict, hyper: dict):
     """brax's PPO params tuple (normalizer state, policy params, value params), freshly initialised."""
     from brax.training.acme import running_statistics
 
-    h = resolve_hyper(hyper)
-    net, d = _networks(env_config, h)
+    net, d = _networks(env_config, PPOConfig.from_hyper(hyper))
     key = jax.random.PRNGKey(0)
     return (running_statistics.init_state(obs_spec(d)), net.policy_network.init(key), net.value_network.init(key))
 
@@ -248,8 +192,7 @@ def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     ignores carry and probe."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    h = resolve_hyper(hyper)
-    net, _ = _networks(env_config, h)
+    net, _ = _networks(env_config, PPOConfig.from_hyper(hyper))
     make = ppo_networks.make_inference_fn(net)
 
     def act(params, carry, obs, key, probe):
@@ -260,37 +203,32 @@ def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     return base.Policy(lambda key, obs: (), act)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress=None,
-          **hyper) -> base.TrainResult:
-    """Train PPO with ``brax.training.agents.ppo.train``. ``progress(row)`` (optional) is called
-    with each evaluation row (step, normalized_power, reward, wall)."""
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
+          config: PPOConfig | str | None = None, **hyper) -> base.TrainResult:
+    """Train PPO with ``brax.training.agents.ppo.train``; ``config``: a preset name or a
+    ``PPOConfig``, ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` (optional)
+    is called after each evaluation (metrics normalized_power, reward, elapsed_s)."""
     brax_compat.prepare_brax()
     from brax.training.agents.ppo import train as ppo_train
 
     env_config = base.check_env_config(env_config)
-    h = resolve_hyper(hyper)
+    c = PPOConfig.make(config, **hyper)
     if total_steps is not None:
-        h["total_steps"] = int(total_steps)
+        c = dataclasses.replace(c, total_steps=total_steps)
     env = make_brax_env(env_config)
     eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
-    rec = Recorder(progress)
+    rec = Recorder(progress_fn)
     t0 = time.perf_counter()
     _, params, _ = ppo_train.train(
-        environment=env, eval_env=eval_env, num_timesteps=h["total_steps"], episode_length=env.max_steps,
-        num_envs=h["num_envs"], unroll_length=h["unroll_length"], batch_size=h["batch_size"],
-        num_minibatches=h["num_minibatches"], num_updates_per_batch=h["num_updates_per_batch"],
-        learning_rate=h["learning_rate"], entropy_cost=h["entropy_cost"], discounting=h["discounting"],
-        gae_lambda=h["gae_lambda"], clipping_epsilon=h["clipping_epsilon"],
-        vf_loss_coefficient=h["vf_loss_coefficient"], max_grad_norm=h["max_grad_norm"],
-        reward_scaling=h["reward_scaling"], normalize_observations=h["normalize_observations"],
-        bootstrap_on_timeout=h["bootstrap_on_timeout"], network_factory=_network_factory(h), seed=int(seed),
-        num_evals=h["num_evals"], num_eval_envs=h["num_eval_envs"], deterministic_eval=True, progress_fn=rec,
+        environment=env, eval_env=eval_env, num_timesteps=c.total_steps, episode_length=env.max_steps,
+        num_envs=c.num_envs, unroll_length=c.unroll_length, batch_size=c.batch_size,
+        num_minibatches=c.num_minibatches, num_updates_per_batch=c.num_updates_per_batch,
+        learning_rate=c.learning_rate, entropy_cost=c.entropy_cost, discounting=c.discounting,
+        gae_lambda=c.gae_lambda, clipping_epsilon=c.clipping_epsilon,
+        vf_loss_coefficient=c.vf_loss_coefficient, max_grad_norm=c.max_grad_norm,
+        reward_scaling=c.reward_scaling, normalize_observations=c.normalize_observations,
+        bootstrap_on_timeout=c.bootstrap_on_timeout, network_factory=_network_factory(c), seed=int(seed),
+        num_evals=c.num_evals, num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
         use_pmap_on_reset=False,
     )
-    total = time.perf_counter() - t0
-    curve = rec.curve()
-    steps = int(curve["step"][-1]) if curve["step"].size else 0
-    eval_steps = len(rec.rows) * h["num_eval_envs"] * env.max_steps
-    sim = seconds_per_env_step(env, h["num_envs"], seed=seed)
-    params = jax.device_get(params)
-    return base.TrainResult("ppo", env_config, h, params, curve, wall_split(total, sim, steps + eval_steps), int(seed))
+    return rec.result("ppo", env, env_config, c, params, time.perf_counter() - t0, seed)

@@ -44,8 +44,8 @@ local maxima). Then the escape with single-line candidates only (128 episodes), 
 chosen patience 10, margin 0.005: 0.997 / 0.991 / 0.990. Last, for speed (1024 episodes), delta0 in
 {0.04, 0.08} x anneal in {20, 40} x kp in {16, 64} and five smaller dithers: final P/Pmax within
 +-0.003 of each other; delta0 0.04, anneal 20 cut the median steps to 0.9 from 59 / 68 / 73 to 34 /
-53 / 69 (0.998 / 0.994 / 0.987); a dither of delta0 <= 0.04 or none at all does as well. ``DEFAULTS``
-holds the chosen values; ``python -m agents.spgd --search`` reruns the patience x margin grid.
+53 / 69 (0.998 / 0.994 / 0.987); a dither of delta0 <= 0.04 or none at all does as well. ``SPGDConfig``'s
+preset holds the chosen values; ``python -m agents.spgd --search`` reruns the patience x margin grid.
 """
 
 from __future__ import annotations
@@ -59,35 +59,16 @@ import numpy as np
 
 import ops_jax
 from agents.base import Policy, TrainResult, check_env_config, evaluated_result
+from agents.config import SPGDConfig
 
-DEFAULTS = dict(delta=0.002, delta0=0.04, anneal=20.0, kp=16.0, kp_min=0.1, kp_pow=2.0, ki=0.0, kd=0.0,
-                leak=0.9, jump=0.25, patience=10.0, p_stall=0.9, margin=0.005)
-_RANGES = dict(delta=(1e-6, 0.25), delta0=(1e-6, 0.25), anneal=(0.0, 1e6), kp=(0.0, 1e6), kp_min=(0.0, 1e6),
-               kp_pow=(0.0, 10.0), ki=(0.0, 1e6), kd=(0.0, 1e6), leak=(0.0, 1.0), jump=(0.0, 0.5),
-               patience=(1.0, 1e6), p_stall=(0.0, 1.0), margin=(0.0, 1.0))
-
-
-def check_hyper(hyper: dict) -> dict:
-    """Merge ``hyper`` over ``DEFAULTS`` and validate (ValueError naming the parameter)."""
-    unknown = set(hyper) - set(DEFAULTS)
-    if unknown:
-        raise ValueError(f"unknown SPGD hyperparameter(s) {sorted(unknown)}; accepted: {sorted(DEFAULTS)}")
-    out = {**DEFAULTS, **hyper}
-    for name, (lo, hi) in _RANGES.items():
-        v = out[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (lo <= v <= hi):
-            raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {v!r}")
-        out[name] = float(v)
-    return out
-
-
-def gains(hyper: dict, action_scale: float = 0.01) -> dict:
-    """The controller's parameters (float32 scalars) from validated hyperparameters, plus
-    ``action_scale`` (wl per unit action of the environment it runs in; the escape's move needs it)."""
-    h = check_hyper(hyper)
+def gains(hyper: dict | SPGDConfig, action_scale: float = 0.01) -> dict:
+    """The controller's parameters (float32 scalars) from hyperparameters (a ``SPGDConfig`` or
+    overrides of its default preset), plus ``action_scale`` (wl per unit action of the environment
+    it runs in; the escape's move needs it)."""
+    c = hyper if isinstance(hyper, SPGDConfig) else SPGDConfig.from_hyper(hyper)
     if isinstance(action_scale, bool) or not isinstance(action_scale, (int, float, np.number)) or not action_scale > 0:
         raise ValueError(f"action_scale must be a number > 0 (wl per unit action), got {action_scale!r}")
-    return {**{k: jnp.float32(h[k]) for k in DEFAULTS}, "action_scale": jnp.float32(action_scale)}
+    return {**{k: jnp.float32(v) for k, v in c.to_hyper().items()}, "action_scale": jnp.float32(action_scale)}
 
 
 def params_template(env_config, hyper):
@@ -149,17 +130,18 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     return Policy(init, act)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, curve_episodes: int = 32,
-          **hyper) -> TrainResult:
-    """No learning: the params are ``gains(hyper)`` (defaults: the searched ``DEFAULTS``) with the
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
+          curve_episodes: int = 32, config: SPGDConfig | str | None = None, **hyper) -> TrainResult:
+    """No learning: the params are ``gains(config)`` (default: the searched preset) with the
     environment's action scale. The curve is
     ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
-    when asked for again); ``total_steps`` is ignored (0 env steps used)."""
+    when asked for again), reported once to ``progress_fn(0, metrics)``; ``total_steps`` is
+    ignored (0 env steps used)."""
     env_config = check_env_config(env_config)
-    h = check_hyper(hyper)
+    c = SPGDConfig.make(config, **hyper)
     _, env_params = ops_jax.make(**env_config)
-    params = {k: np.asarray(v) for k, v in gains(h, float(env_params.action_scale)).items()}
-    return evaluated_result("spgd", env_config, h, params, seed, curve_episodes)
+    params = {k: np.asarray(v) for k, v in gains(c, float(env_params.action_scale)).items()}
+    return evaluated_result("spgd", env_config, c.to_hyper(), params, seed, curve_episodes, progress_fn)
 
 
 def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episodes: int = 1024, seed: int = 1000):

@@ -1,7 +1,7 @@
 """TD3 (Fujimoto et al. 2018) in pure JAX, in the style of brax's trainers.
 
-Flax (linen) networks, optax Adam, brax's ``UniformSamplingQueue`` replay buffer, and the whole
-training loop as jitted ``lax.scan`` chunks over the batched ``ops_jax`` environment
+Flax (linen) networks in flax ``TrainState``s (optax Adam; targets by ``optax.incremental_update``),
+brax's ``UniformSamplingQueue`` replay buffer, and the whole training loop as jitted ``lax.scan`` chunks over the batched ``ops_jax`` environment
 (``env.reset_batch`` / ``env.step_batch``, ``model="phasor"`` unless the env_config names a model).
 Twin critics, target policy smoothing, delayed actor and target updates, Gaussian exploration.
 Time-outs bootstrap: the stored discount is ``1 - terminated`` and the stored next observation is
@@ -13,7 +13,8 @@ and targets every ``policy_delay`` steps). With ``unroll`` > 1 (the paper's SB3 
 steps, then 100 gradient steps) an iteration collects ``unroll`` batched steps first.
 
 Observations are standardised with a mean / std frozen after the random warm-up (the offsets
-x_i / 3 are ~0.05 while the powers span [-1, 1]); the statistics are part of the policy params.
+x_i / 3 are ~0.05 while the powers span [-1, 1]), computed over the warm-up's observations that the
+replay buffer holds (the last ``buffer_size``); the statistics are part of the policy params.
 
 Wall time: ``total`` is everything; ``compile`` the jit compilations; ``evaluation`` the periodic
 evaluation rollouts; ``simulation`` is the warm-up (a jitted env-only scan: uniform random
@@ -31,7 +32,7 @@ steps): 'step', 'normalized_power' (mean P/Pmax over the last 10 of 200 steps of
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import time
 from typing import Any, Callable, NamedTuple, Sequence
 
@@ -41,75 +42,7 @@ import numpy as np
 
 import ops_jax
 from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
-
-CONFIGS = {
-    # The paper's Table 4 (SB3 TD3, grid-searched on 5-stage medium): one env, 100 env steps then
-    # 100 gradient steps, replay 1e4, learning starts 1000, gamma 0.98, N(0, 0.7) action noise,
-    # lr 3e-4, 2 x 256. Batch 100 and tau 0.005, target noise 0.2 / clip 0.5: SB3 defaults.
-    "paper": dict(
-        num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
-        actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
-        expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
-        total_steps=300_000, eval_every=10_000, eval_episodes=16,
-    ),
-    # Tuned for wall clock on a 2-core CPU: many parallel envs, larger batch, fewer updates per
-    # env step, normalised observations.
-    "fast": dict(
-        num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
-        actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
-        expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-        total_steps=300_000, eval_every=20_000, eval_episodes=16,
-    ),
-}
-_INT_KEYS = ("num_envs", "unroll", "updates_per_iter", "batch_size", "buffer_size", "learning_starts",
-             "policy_delay", "total_steps", "eval_every", "eval_episodes")
-_POS_FLOAT = ("actor_lr", "critic_lr")
-_UNIT_FLOAT = ("gamma", "tau")
-_NONNEG_FLOAT = ("expl_std", "target_noise", "noise_clip")
-
-
-def resolve_hyper(hyper: dict | None = None) -> dict:
-    """Full hyperparameter dict: ``config`` ("fast" | "paper", default "fast") plus overrides.
-    Unknown keys raise TypeError, out-of-range values ValueError."""
-    hyper = dict(hyper or {})
-    config = hyper.pop("config", "fast")
-    if config not in CONFIGS:
-        raise ValueError(f"config must be one of {sorted(CONFIGS)}, got {config!r}")
-    out = dict(CONFIGS[config])
-    unknown = set(hyper) - set(out)
-    if unknown:
-        raise TypeError(f"unknown TD3 hyperparameter(s) {sorted(unknown)}; accepted: config, {sorted(out)}")
-    out.update(hyper)
-    for k in _INT_KEYS:
-        v = out[k]
-        lo = 0 if k in ("learning_starts", "total_steps") else 1
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise ValueError(f"{k} must be an integer >= {lo}, got {v!r}")
-        out[k] = int(v)
-    for k in _POS_FLOAT:
-        if not (isinstance(out[k], (int, float)) and 0 < out[k] < math.inf):
-            raise ValueError(f"{k} must be a finite float > 0, got {out[k]!r}")
-    for k in _UNIT_FLOAT:
-        if not (isinstance(out[k], (int, float)) and 0 < out[k] <= 1):
-            raise ValueError(f"{k} must be in (0, 1], got {out[k]!r}")
-    for k in _NONNEG_FLOAT:
-        if not (isinstance(out[k], (int, float)) and 0 <= out[k] < math.inf):
-            raise ValueError(f"{k} must be a finite float >= 0, got {out[k]!r}")
-    hidden = out["hidden"]
-    if (not isinstance(hidden, (list, tuple)) or not hidden
-            or not all(isinstance(h, (int, np.integer)) and h >= 1 for h in hidden)):
-        raise ValueError(f"hidden must be a non-empty sequence of layer widths >= 1, got {hidden!r}")
-    out["hidden"] = [int(h) for h in hidden]
-    if out["buffer_size"] < out["num_envs"] * out["unroll"]:
-        raise ValueError(f"buffer_size must be >= num_envs * unroll = {out['num_envs'] * out['unroll']}, "
-                         f"got {out['buffer_size']}")
-    if out["learning_starts"] < out["batch_size"]:
-        raise ValueError(f"learning_starts must be >= batch_size = {out['batch_size']}, got {out['learning_starts']}")
-    if out["batch_size"] > out["buffer_size"]:
-        raise ValueError(f"batch_size must be <= buffer_size, got {out['batch_size']}")
-    out["normalize_obs"] = bool(out["normalize_obs"])
-    out["config"] = config
-    return out
+from agents.config import TD3Config
 
 
 def train_env_config(env_config: dict) -> dict:
@@ -149,11 +82,15 @@ def _normalise(norm, obs):
     return (obs - norm["mean"]) / norm["std"]
 
 
+def _stored_config(hyper: dict) -> TD3Config:
+    """The config of a stored ``hyper`` dict (keys that are not fields are left out)."""
+    return TD3Config.from_hyper({k: v for k, v in hyper.items() if k in TD3Config.names() or k == "config"})
+
+
 def params_template(env_config: dict, hyper: dict):
     """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-    hyper = resolve_hyper({k: v for k, v in hyper.items() if k in CONFIGS["fast"] or k == "config"})
     env, _ = ops_jax.make(**train_env_config(env_config))
-    actor, _ = _networks(hyper["hidden"], env.num_actions)
+    actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
     d = env.observation_size
     return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
             "obs_norm": {"mean": jnp.zeros(d), "std": jnp.ones(d)}}
@@ -161,9 +98,8 @@ def params_template(env_config: dict, hyper: dict):
 
 def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     """The deterministic actor: a = tanh(MLP((obs - mean) / std)); ignores key, carry and probe."""
-    hyper = resolve_hyper({k: v for k, v in hyper.items() if k in CONFIGS["fast"] or k == "config"})
     env, _ = ops_jax.make(**train_env_config(env_config))
-    actor, _ = _networks(hyper["hidden"], env.num_actions)
+    actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
 
     def act(params, carry, obs, key, probe):
         del key, probe
@@ -174,13 +110,11 @@ def make_policy(env_config: dict, hyper: dict) -> base.Policy:
 
 # -- training -----------------------------------------------------------------------------------
 
-class TrainState(NamedTuple):
-    actor: Any
-    critic: Any
-    actor_target: Any
-    critic_target: Any
-    actor_opt: Any
-    critic_opt: Any
+class TD3State(NamedTuple):
+    actor: Any  # flax TrainState: params, optimiser state
+    critic: Any  # flax TrainState
+    actor_target: Any  # params
+    critic_target: Any  # params
     obs_norm: Any
     buffer: Any
     env_state: Any
@@ -193,6 +127,7 @@ class TrainState(NamedTuple):
 def _build(env, h):
     import optax
     from brax.training.replay_buffers import UniformSamplingQueue
+    from flax.training.train_state import TrainState
 
     actor, critic = _networks(h["hidden"], env.num_actions)
     d, n, b = env.observation_size, env.num_actions, h["num_envs"]
@@ -204,7 +139,7 @@ def _build(env, h):
 
     def explore(ts, key, obs, random):
         k1, k2 = jax.random.split(key)
-        greedy = actor.apply(ts.actor, _normalise(ts.obs_norm, obs))
+        greedy = actor.apply(ts.actor.params, _normalise(ts.obs_norm, obs))
         noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
         uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
         return jnp.where(random, uniform, noisy)
@@ -231,25 +166,21 @@ def _build(env, h):
 
     def actor_loss(ap, ts, batch):
         obs = _normalise(ts.obs_norm, batch["obs"])
-        q1, _ = critic.apply(ts.critic, obs, actor.apply(ap, obs))
+        q1, _ = critic.apply(ts.critic.params, obs, actor.apply(ap, obs))
         return -jnp.mean(q1)
-
-    def soft(target, online):
-        return jax.tree.map(lambda t, o: (1 - tau) * t + tau * o, target, online)
 
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
         key, k_noise = jax.random.split(ts.key)
-        closs, grads = jax.value_and_grad(critic_loss)(ts.critic, ts, batch, k_noise)
-        upd, copt = critic_tx.update(grads, ts.critic_opt)
-        ts = ts._replace(critic=optax.apply_updates(ts.critic, upd), critic_opt=copt, buffer=buf, key=key)
+        closs, grads = jax.value_and_grad(critic_loss)(ts.critic.params, ts, batch, k_noise)
+        ts = ts._replace(critic=ts.critic.apply_gradients(grads=grads), buffer=buf, key=key)
 
         def actor_step(ts):
-            aloss, g = jax.value_and_grad(actor_loss)(ts.actor, ts, batch)
-            u, aopt = actor_tx.update(g, ts.actor_opt)
-            ap = optax.apply_updates(ts.actor, u)
-            return ts._replace(actor=ap, actor_opt=aopt, actor_target=soft(ts.actor_target, ap),
-                               critic_target=soft(ts.critic_target, ts.critic)), aloss
+            aloss, g = jax.value_and_grad(actor_loss)(ts.actor.params, ts, batch)
+            new_actor = ts.actor.apply_gradients(grads=g)
+            return ts._replace(actor=new_actor,
+                               actor_target=optax.incremental_update(new_actor.params, ts.actor_target, tau),
+                               critic_target=optax.incremental_update(ts.critic.params, ts.critic_target, tau)), aloss
 
         ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step,
                                  lambda ts: (ts, jnp.float32(jnp.nan)), ts)
@@ -259,11 +190,11 @@ def _build(env, h):
         def body(ts, _):
             key, k = jax.random.split(ts.key)
             ts, tr = env_step(ts._replace(key=key), k, random)
-            return ts._replace(buffer=buffer.insert(ts.buffer, tr)), tr["reward"]
+            return ts._replace(buffer=buffer.insert(ts.buffer, tr)), (tr["reward"], tr["obs"])
         return jax.lax.scan(body, ts, None, length=h["unroll"])
 
     def iteration(ts, _):
-        ts, reward = collect(ts, False)
+        ts, (reward, _) = collect(ts, False)
         ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=h["updates_per_iter"])
         return ts, dict(reward=reward.mean(), critic_loss=closs.mean(), actor_loss=jnp.nanmean(aloss))
 
@@ -272,8 +203,13 @@ def _build(env, h):
         return ts, jax.tree.map(jnp.mean, m)
 
     def warmup(ts, length):
-        ts, _ = jax.lax.scan(lambda ts, _: collect(ts, True), ts, None, length=length)
-        return ts
+        """``length`` iterations of random actions; returns the state and their observations (T, D)."""
+        def body(ts, _):
+            ts, (_, obs) = collect(ts, True)
+            return ts, obs
+
+        ts, obs = jax.lax.scan(body, ts, None, length=length)
+        return ts, obs.reshape(-1, d)
 
     def init(key, env_params):
         k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
@@ -281,25 +217,27 @@ def _build(env, h):
         ap = actor.init(k_a, dummy_obs)
         cp = critic.init(k_c, dummy_obs, dummy_act)
         obs, env_state = env.reset_batch(jax.random.split(k_env, b), env_params)
-        return TrainState(ap, cp, ap, cp, actor_tx.init(ap), critic_tx.init(cp),
-                          {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buffer.init(k_buf), env_state, obs, k_run,
-                          jnp.int32(0), env_params)
+        def state(net, params, tx):  # an array step count (vmapped over seeds like every leaf)
+            return TrainState.create(apply_fn=net.apply, params=params, tx=tx).replace(step=jnp.int32(0))
 
-    def fit_norm(ts):
-        """Freeze the observation statistics from the buffer's warm-up data (std floored at 1e-2)."""
+        return TD3State(state(actor, ap, actor_tx), state(critic, cp, critic_tx), ap, cp,
+                        {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buffer.init(k_buf), env_state, obs, k_run,
+                        jnp.int32(0), env_params)
+
+    def fit_norm(ts, obs):
+        """Freeze the observation statistics from the warm-up's observations ``obs`` (T, D) that
+        the buffer holds (the last ``buffer_size``); std floored at 1e-2."""
         if not h["normalize_obs"]:
             return ts
-        data = buffer._unflatten_fn(ts.buffer.data)["obs"]
-        valid = (jnp.arange(data.shape[0]) < ts.buffer.insert_position)[:, None]
-        count = jnp.maximum(valid.sum(), 1)
-        mean = jnp.where(valid, data, 0).sum(0) / count
-        var = jnp.where(valid, (data - mean) ** 2, 0).sum(0) / count
-        return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(jnp.sqrt(var), 1e-2)})
+        kept = obs[-h["buffer_size"]:]
+        mean = kept.mean(0)
+        std = jnp.sqrt(((kept - mean) ** 2).mean(0))
+        return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(std, 1e-2)})
 
     return dict(init=init, warmup=warmup, fit_norm=fit_norm, train_chunk=train_chunk)
 
 
-def _seed_axes(ts: TrainState) -> TrainState:
+def _seed_axes(ts: TD3State) -> TD3State:
     """vmap axes of a seed-batched ``TrainState``: 0 for every per-seed leaf; ``None`` for what
     all seeds share (the step counts and buffer positions, which advance identically, and the
     environment parameters). Shared counters keep ``lax.cond`` a real branch under vmap (the
@@ -309,7 +247,12 @@ def _seed_axes(ts: TrainState) -> TrainState:
     return axes._replace(buffer=buffer, updates=None, env_params=None)
 
 
-def _over_seeds(fns: dict, evaluate_fn, ts_shape: TrainState, num_seeds: int, sharding) -> dict:
+def _placed_first(place, out):
+    """``(place(ts), rest)`` of a ``(ts, rest)`` pair."""
+    return place(out[0]), out[1]
+
+
+def _over_seeds(fns: dict, evaluate_fn, ts_shape: TD3State, num_seeds: int, sharding) -> dict:
     """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
     the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
     measured ~10% slower on CPU). With a ``sharding`` of the seed axis, every returned state is
@@ -344,8 +287,9 @@ def _over_seeds(fns: dict, evaluate_fn, ts_shape: TrainState, num_seeds: int, sh
 
     return dict(
         init=jax.jit(lambda k, p: place(over(fns["init"], (0, None), axes)(k, p))),
-        warmup=jax.jit(lambda ts, n: place(over(lambda t: fns["warmup"](t, n), (axes,), axes)(ts)), static_argnums=1),
-        fit_norm=jax.jit(lambda ts: place(over(fns["fit_norm"], (axes,), axes)(ts))),
+        warmup=jax.jit(lambda ts, n: _placed_first(place, over(lambda t: fns["warmup"](t, n), (axes,), (axes, 0))(ts)),
+                       static_argnums=1),
+        fit_norm=jax.jit(lambda ts, obs: place(over(fns["fit_norm"], (axes, 0), axes)(ts, obs))),
         train_chunk=jax.jit(train_chunk, static_argnums=1, donate_argnums=0),
         evaluate=jax.jit(over(evaluate_fn, (0, None, 0, None), 0)),
     )
@@ -393,18 +337,20 @@ def _check_seed(seed):
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
-          progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> base.TrainResult:
+          progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
+          **hyper) -> base.TrainResult:
     """Train TD3 on ``ops_jax.make(**env_config)`` (phasor model unless set) for ``total_steps`` env
-    steps (default: the config's). ``hyper``: ``config`` ("fast" default | "paper") and overrides of
-    its keys (see ``CONFIGS``). ``progress_fn(step, metrics)`` is called after every evaluation
+    steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
+    "paper"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every evaluation
     with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Env steps are rounded
     up to whole training chunks; the curve's 'step' holds the true counts."""
     return train_seeds(env_config, seeds=[_check_seed(seed)], total_steps=total_steps, progress_fn=progress_fn,
-                       **hyper)[0]
+                       config=config, **hyper)[0]
 
 
 def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | None = None,
-                progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> list[base.TrainResult]:
+                progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
+                **hyper) -> list[base.TrainResult]:
     """``train`` for several seeds at once: one jitted call vmapped over the seeds (sharded over the
     local devices when they divide the seed count). Each seed makes the same random draws as when
     trained alone, but the batched matrix products round differently and training amplifies the
@@ -417,11 +363,10 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
     seeds = [_check_seed(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
-    h = resolve_hyper(hyper)
+    c = TD3Config.make(config, **hyper)
     if total_steps is not None:
-        if isinstance(total_steps, bool) or not isinstance(total_steps, (int, np.integer)) or total_steps < 0:
-            raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
-        h["total_steps"] = int(total_steps)
+        c = dataclasses.replace(c, total_steps=total_steps)
+    h = c.to_hyper()
     fns, env_params = _cached_build(env_config, h, len(seeds))
     eval_ids = jnp.arange(h["eval_episodes"])
 
@@ -441,16 +386,16 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
     t0 = time.perf_counter()
     warmup = fns["compiled"]("warmup", ts, warm_iters)
     t1 = time.perf_counter()
-    ts = jax.block_until_ready(warmup(ts))
+    ts, warm_obs = jax.block_until_ready(warmup(ts))
     t2 = time.perf_counter()
     jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
     sim_per_iter = min(t2 - t1, time.perf_counter() - t2) / warm_iters
     timing["compile"] += t1 - t0
     timing["simulation"] += t2 - t1
-    ts = fns["fit_norm"](ts)
+    ts = fns["fit_norm"](ts, warm_obs)
 
     def params_of(ts):
-        return {"actor": ts.actor, "obs_norm": ts.obs_norm}
+        return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
 
     t0 = time.perf_counter()
     evaluate_fn = fns["compiled"]("evaluate", params_of(ts), env_params, k_eval, eval_ids)

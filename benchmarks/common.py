@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
+
+from agents.io import write_json_atomic  # noqa: F401  (re-exported for the benchmark scripts)
 
 
 VENDORED_REFERENCE = Path(__file__).resolve().parent / "reference"
@@ -28,13 +29,3 @@ def load_reference_timing() -> dict:
     if not path.exists():
         return {}
     return json.loads(path.read_text())["timing"]
-
-
-def write_json_atomic(path: Path, data) -> None:
-    """Write JSON to a temporary file in the same folder, then rename it into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(data, f, indent=1, default=float)
-    os.replace(tmp, path)

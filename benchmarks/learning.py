@@ -36,11 +36,9 @@ def run_key(algo: str, mode: str, seed: int) -> str:
 
 def expected_hyper(algo: str, steps, config) -> dict:
     """The hyperparameters a run with these arguments trains with, in the stored (JSON) form."""
-    from agents.base import algo_module
+    from agents.config import CONFIG_TYPES
 
-    module = algo_module(algo)
-    resolve = getattr(module, "resolve_hyper", None) or module.check_hyper
-    h = resolve({} if config is None else {"config": config})
+    h = CONFIG_TYPES[algo].make(config).to_hyper()
     if steps is not None and "total_steps" in h:
         h["total_steps"] = int(steps)
     return json.loads(json.dumps(h))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.sweep import MODES, PAPER_TABLE1, PAPER_TABLE2
+from benchmarks.paper import MODES, PAPER_TABLE1, PAPER_TABLE2
 
 ENVS = ("training", "testing")
 NAMES = {"spgd": "SPGD", "ppo": "PPO", "sac": "SAC", "td3": "TD3", "physics": "Physics"}

@@ -5,12 +5,8 @@ All pictures use the exact field model (``physics.measure(model="field")``): int
 2^N - 1 oscilloscope samples marked, and P / P_max of that measurement. matplotlib (Agg canvas,
 no display needed) and Pillow are imported here only.
 
-Command line (``python -m ops_jax.render [episode|frame|landscape] ...``; default ``episode``)::
+Command line (the policy episodes and their GIFs are ``python -m agents.episode``)::
 
-    # animated GIF of a controlled episode (policy: zero | random | spgd | a checkpoint folder)
-    python -m ops_jax.render --stages 5 --mode hard --policy zero --steps 100 --out episode.gif
-    # one oscilloscope frame (PNG) after --steps steps of the policy
-    python -m ops_jax.render frame --stages 5 --mode hard --policy random --steps 0 --out scope.png
     # P/Pmax along one stage's delay (one --stage: line plot; paper Fig. 2a is N=2, stage 1) ...
     python -m ops_jax.render landscape --stages 2 --stage 1 --out landscape_1d.png
     # ... or over two stages' delays (two --stage values: heat map, paper Fig. 2b)
@@ -18,10 +14,8 @@ Command line (``python -m ops_jax.render [episode|frame|landscape] ...``; defaul
 
 With the default "total" detector the LAST stage's carrier phase is invisible (physics.md section
 4): a heat map over stages 1 and 2 at N = 2 is flat along stage 2, so the README uses N = 3 (or
-``--detector polariser``). Stages are numbered from 1; landscape offsets span ``[-span, span]`` wl (default 1) with the other
-stages at their optimal lengths. Episodes start as the 10th reset (hard mode's drift fully on),
-like ``agents.evaluate``. ``--policy PATH`` loads an ``agents.save`` checkpoint and runs on the
-checkpoint's own environment configuration.
+``--detector polariser``). Stages are numbered from 1; landscape offsets span ``[-span, span]`` wl
+(default 1) with the other stages at their optimal lengths.
 """
 
 from __future__ import annotations
@@ -35,7 +29,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ops_jax import physics
@@ -180,80 +173,6 @@ class Episode(NamedTuple):
     env_config: dict
 
 
-def get_policy(name: str, env_config: dict, seed: int = 0):
-    """(Policy, params, env_config) for ``name``: "zero", "random", "spgd" (``agents.train``) or a
-    checkpoint folder (``agents.load``; its own env_config is used)."""
-    if name in ("zero", "random"):
-        return _builtin_policy(name, env_config["stages"]), None, env_config
-    try:
-        import agents
-    except ImportError as exc:
-        raise RuntimeError(f"--policy {name!r} needs the agents package ({exc}); use zero or random") from exc
-    if name in agents.ALGOS:
-        try:
-            result = agents.train(name, env_config, seed=seed)
-        except (ImportError, AttributeError) as exc:
-            raise RuntimeError(f"--policy {name!r}: agents.{name} is not available ({exc})") from exc
-        return result.policy(), result.params, env_config
-    path = Path(name)
-    if not path.exists():
-        raise ValueError(f"policy must be zero, random, one of {sorted(agents.ALGOS)} or a checkpoint folder; "
-                         f"{name!r} is none of these")
-    result = agents.load(path)
-    return result.policy(), result.params, dict(result.env_config)
-
-
-class _Builtin(NamedTuple):
-    init: object
-    act: object
-
-
-def _builtin_policy(kind: str, stages: int):
-    """Zero or uniform random actions, following the agents.base Policy contract."""
-
-    def init(key, obs):
-        return jnp.zeros(())
-
-    def act(params, carry, obs, key, probe):
-        shape = (obs.shape[0], stages)
-        if kind == "zero":
-            return jnp.zeros(shape), carry
-        return jax.random.uniform(key, shape, minval=-1.0, maxval=1.0), carry
-
-    return _Builtin(init, act)
-
-
-def run_episode(env_config: dict, policy, params=None, *, steps: int | None = None, seed: int = 0,
-                episode: int = 10) -> Episode:
-    """Run one episode of ``policy`` (agents.base contract, batch of 1, probes allowed) without
-    auto-reset in one jitted scan; returns the offsets after every step and the exact P / P_max."""
-    env, env_params = make(**env_config)
-    steps = int(env.config.max_steps if steps is None else steps)
-    if steps < 0:
-        raise ValueError(f"steps must be >= 0, got {steps}")
-
-    @jax.jit
-    def run(params, key):
-        k_reset, k_init, k_run = jax.random.split(key, 3)
-        obs, state = env.reset(k_reset, env_params, episode)
-        carry = policy.init(k_init, obs[None])
-
-        def body(c, t):
-            obs, state, carry = c
-            k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
-            probe = lambda offsets: env.probe(state, offsets[0], env_params)[None]
-            action, carry = policy.act(params, carry, obs[None], k_act, probe)
-            obs, state, *_ = env.step_env(k_env, state, action[0], env_params)
-            return (obs, state, carry), state.deltas
-
-        _, deltas = jax.lax.scan(body, (obs, state, carry), jnp.arange(steps))
-        return jnp.concatenate([state.deltas[None], deltas])
-
-    deltas = np.asarray(run(params, jax.random.key(seed)))
-    p, _ = measure_frames(deltas, env.config.stages, env.config.detector)
-    return Episode(deltas, p, dict(env_config))
-
-
 def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: int = 80) -> list:
     """Oscilloscope frames of every ``every``-th step of an episode (the last step always included)."""
     from tqdm import tqdm
@@ -376,56 +295,25 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", nargs="?", default="episode", choices=("episode", "frame", "landscape"))
+    ap.add_argument("command", choices=("landscape",))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
-    ap.add_argument("--mode", default="hard", help="easy | medium | hard | custom")
     ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
-    ap.add_argument("--policy", default="zero", help="zero | random | spgd (or another agents algo) | checkpoint folder")
-    ap.add_argument("--steps", type=int, default=None, help="control steps (episode: max_steps; frame: 0)")
-    ap.add_argument("--every", type=int, default=1, help="GIF: keep every k-th step")
-    ap.add_argument("--fps", type=float, default=10.0, help="GIF frames per second")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--stage", type=int, nargs="+", default=[1], help="landscape: 1 or 2 stages (1-based)")
-    ap.add_argument("--span", type=float, default=1.0, help="landscape: offsets in [-span, span] wl")
-    ap.add_argument("--points", type=int, default=None, help="landscape: grid points per axis (401 / 201)")
-    ap.add_argument("--dpi", type=int, default=None)
-    ap.add_argument("--out", required=True, help="output file (.gif for episode, .png otherwise)")
+    ap.add_argument("--stage", type=int, nargs="+", default=[1], help="1 or 2 stages (1-based)")
+    ap.add_argument("--span", type=float, default=1.0, help="offsets in [-span, span] wl")
+    ap.add_argument("--points", type=int, default=None, help="grid points per axis (401 / 201)")
+    ap.add_argument("--dpi", type=int, default=120)
+    ap.add_argument("--out", required=True, help="output PNG")
     return ap
 
 
 def main(argv=None) -> Path:
     args = _parser().parse_args(argv)
     out = Path(args.out)
-    if args.command == "landscape":
-        points = args.points or (401 if len(args.stage) == 1 else 201)
-        fig = plot_landscape(args.stages, args.stage, span=args.span, points=points, detector=args.detector,
-                             dpi=args.dpi or 120)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out)
-        print(f"wrote {out}")
-        return out
-    env_config = dict(stages=args.stages, mode=args.mode, detector=args.detector)
-    policy, params, env_config = get_policy(args.policy, env_config, args.seed)
-    if env_config.get("stages", 5) != args.stages:
-        print(f"note: the checkpoint's env_config {env_config} is used", file=sys.stderr)
-    steps = args.steps if args.steps is not None else (None if args.command == "episode" else 0)
-    ep = run_episode(env_config, policy, params, steps=steps, seed=args.seed)
-    if args.command == "frame":
-        env, _ = make(**env_config)
-        fig_dpi = args.dpi or 120
-        scope = Oscilloscope(env.config.stages, env.config.detector, dpi=fig_dpi)
-        frame = scope.draw(measure_frames(ep.deltas_wl[-1:], env.config.stages, env.config.detector)[1][0],
-                           float(ep.normalized_power[-1]), len(ep.deltas_wl) - 1)
-        from PIL import Image
-
-        out.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(frame).save(out)
-    else:
-        if args.every < 1:
-            raise ValueError(f"--every must be >= 1, got {args.every}")
-        frames = episode_frames(ep, every=args.every, dpi=args.dpi or 80)
-        write_gif(frames, out, fps=args.fps)
-    print(f"wrote {out}  (final P/Pmax = {ep.normalized_power[-1]:.3f})")
+    points = args.points or (401 if len(args.stage) == 1 else 201)
+    fig = plot_landscape(args.stages, args.stage, span=args.span, points=points, detector=args.detector, dpi=args.dpi)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    print(f"wrote {out}")
     return out
 
 

@@ -1,16 +1,42 @@
+import contextlib
 import json
+import os
+from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
-from benchmarks.common import reference_dir
+REFERENCE_DIR = Path(__file__).resolve().parents[1] / "benchmarks" / "reference"
 
 
 @pytest.fixture(scope="session")
 def reference():
-    """The paper implementation's numbers (../shared/reference): physics arrays and constants."""
-    ref = reference_dir()
+    """The paper implementation's numbers (benchmarks/reference, or OPS_REFERENCE_DIR): physics
+    arrays and constants."""
+    ref = Path(os.environ.get("OPS_REFERENCE_DIR") or REFERENCE_DIR)
     assert (ref / "ops_reference_physics.npz").exists(), f"reference data not found in {ref}"
     physics = dict(np.load(ref / "ops_reference_physics.npz"))
     constants = json.loads((ref / "ops_reference_constants.json").read_text())["stages"]
     return physics, constants
+
+
+@contextlib.contextmanager
+def _count_compiles():
+    n = [0]
+
+    def listen(event, duration, **kwargs):
+        n[0] += event == "/jax/core/compile/backend_compile_duration"
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield n
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
+@pytest.fixture
+def compiles():
+    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``
+    (``jax.monitoring``'s compile events): a check that nothing is traced or compiled again."""
+    return _count_compiles

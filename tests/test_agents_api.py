@@ -1,6 +1,7 @@
 """The shared agents API: evaluate (probes counted, deterministic, device-count independent),
 checkpoints (round trip, missing, corrupt), bad input."""
 
+import json
 import os
 import subprocess
 import sys
@@ -90,30 +91,25 @@ def test_bad_input(call, exc, words):
         call()
 
 
-def test_evaluate_compiles_once_per_policy_and_static_config():
+def test_evaluate_compiles_once_per_policy_and_static_config(compiles):
     """Seeds, testing environments and other modes with the same static configuration reuse one
     compiled evaluation program; another static configuration (feedback_k) gets its own."""
-    from agents import base
-
     env = {"stages": 3, "mode": "easy", "model": "phasor"}
     result = agents.train("spgd", env, seed=0)  # evaluates itself once (32 episodes)
-    before = len(base._EVALUATORS)
-    ident = base._source_ident(result, None)
-    (run, _, _), = [v for k, v in base._EVALUATORS.items() if k[0] == ident and k[1].feedback_k == 1]
-    traced = run._cache_size()
-    for mode, seed in (("easy", 1), ("easy", 2), ("hard", 1), ("medium", 3)):
-        agents.evaluate(result, {**env, "mode": mode}, episodes=32, seed=seed, steps=200)
+    with compiles() as n:
+        for mode, seed in (("easy", 1), ("easy", 2), ("hard", 1), ("medium", 3)):
+            agents.evaluate(result, {**env, "mode": mode}, episodes=32, seed=seed, steps=200)
+    assert n[0] == 0
     for algo, hyper in (("spgd", {}), ("physics", {"starts": 3, "iters": 2})):  # trained in another mode
         first = agents.train(algo, env, seed=0, **hyper)
-        n = len(base._EVALUATORS)
-        agents.evaluate(agents.train(algo, {**env, "mode": "medium"}, seed=0, **hyper), env, episodes=32, seed=1)
-        assert len(base._EVALUATORS) == n, algo
+        with compiles() as n:
+            agents.evaluate(agents.train(algo, {**env, "mode": "medium"}, seed=0, **hyper), env, episodes=32, seed=1)
+        assert n[0] == 0, algo
         if algo == "physics":  # its numbers from the environment are parameters, not constants
             assert set(first.params) == {"action_scale", "window"}
-    assert len(base._EVALUATORS) == before + 1  # + the physics controller's
-    assert run._cache_size() == traced  # 32 episodes of 200 steps throughout: no new trace or compile
-    agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
-    assert len(base._EVALUATORS) == before + 2
+    with compiles() as n:
+        agents.evaluate(result, {**env, "feedback_k": 3}, episodes=32, seed=1)
+    assert n[0] >= 1  # another static configuration: its own program
 
 
 def test_repeated_evaluation_is_served_from_memory():
@@ -124,3 +120,39 @@ def test_repeated_evaluation_is_served_from_memory():
     assert other is not a and not np.array_equal(other.normalized_power, a.normalized_power)
     assert agents.evaluate(pair, {**ENV, "mode": "easy"}, episodes=4, seed=11, steps=10) is not a
     assert agents.evaluate(pair, ENV, episodes=4, seed=12, steps=10) is not a
+
+
+def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
+    """``python -m agents.train`` (here SPGD, whose training is one evaluation): a progress line
+    with the evaluation P/Pmax, and summary.json with the evaluation it returns."""
+    out = tmp_path / "spgd"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
+    res = subprocess.run([sys.executable, "-m", "agents.train", "--algo", "spgd", "--stages", "2", "--mode", "easy",
+                          "--episodes", "4", "--out", str(out)], env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["algo"] == "spgd" and summary["evaluation"]["episodes"] == 4
+    assert 0 < summary["evaluation"]["final_mean"] <= 1
+    assert "P_Pmax=" in res.stderr  # the progress line's evaluation metric
+
+
+@pytest.mark.parametrize("algo", sorted(agents.ALGOS))
+def test_every_algorithm_has_one_config_type(algo):
+    """Presets build and round-trip through the stored form; one error style for every algorithm."""
+    import dataclasses
+
+    from agents.config import CONFIG_TYPES
+
+    cls = CONFIG_TYPES[algo]
+    for name in cls.PRESETS:
+        config = cls.preset(name)
+        assert cls.from_hyper(config.to_hyper()) == config
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            config.total_steps = 1
+    field = next(f for f in cls.names() if isinstance(getattr(config, f), float))
+    changed = cls.preset(None, **{field: getattr(config, field) / 2})
+    assert getattr(changed, field) == getattr(config, field) / 2
+    with pytest.raises(ValueError, match=rf"^{field} must be a finite number in [\[(].*got -1"):
+        cls.preset(None, **{field: -1.0})
+    with pytest.raises(TypeError, match=r"unknown .* hyperparameter\(s\) \['nope'\]; accepted: config, \["):
+        agents.train(algo, ENV, nope=1)

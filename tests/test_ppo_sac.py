@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import ppo, sac
+from agents import PPOConfig, SACConfig
 from agents.base import Policy
 
 ENV = {"stages": 2, "mode": "easy", "max_steps": 50}
@@ -21,7 +21,9 @@ def baseline():
     return agents.evaluate((zero, None), ENV, episodes=64, seed=5).summary["final_mean"]
 
 
-def _check(result, baseline, margin, tmp_path):
+def _check(result, baseline, margin, tmp_path, reported):
+    assert [step for step, _ in reported] == result.curve["step"].tolist()  # progress_fn(step, metrics)
+    np.testing.assert_array_equal([m["normalized_power"] for _, m in reported], result.curve["normalized_power"])
     assert result.curve["step"][-1] >= result.hyper["total_steps"]
     assert np.isfinite(result.curve["normalized_power"]).all()
     assert set(result.wall_time) == {"simulation", "optimisation", "total"}
@@ -42,33 +44,36 @@ def _check(result, baseline, margin, tmp_path):
 
 
 def test_ppo_learns_small(baseline, tmp_path):
-    r = agents.train("ppo", ENV, seed=0, total_steps=20_000, num_envs=64, batch_size=64, num_minibatches=4,
+    reported = []
+    r = agents.train("ppo", ENV, seed=0, total_steps=20_000, progress_fn=lambda *a: reported.append(a), num_envs=64, batch_size=64, num_minibatches=4,
                      unroll_length=8, num_updates_per_batch=2, learning_rate=1e-3, discounting=0.95,
                      entropy_cost=1e-3, init_noise_std=1.0, **SMALL)
-    _check(r, baseline, 0.1, tmp_path)
+    _check(r, baseline, 0.1, tmp_path, reported)
 
 
 def test_sac_learns_small(baseline, tmp_path):
-    r = agents.train("sac", ENV, seed=0, total_steps=8_000, num_envs=32, grad_updates_per_step=4,
+    reported = []
+    r = agents.train("sac", ENV, seed=0, total_steps=8_000, progress_fn=lambda *a: reported.append(a), num_envs=32, grad_updates_per_step=4,
                      batch_size=256, min_replay_size=1024, **SMALL)
-    _check(r, baseline, 0.06, tmp_path)
+    _check(r, baseline, 0.06, tmp_path, reported)
 
 
 def test_configs_and_bad_hyper():
-    assert ppo.resolve_hyper({"config": "paper"})["learning_rate"] == 3e-4
-    assert sac.resolve_hyper({"config": "paper"})["tau"] == 0.002
-    assert sac.resolve_hyper({"config": "paper"})["max_replay_size"] == 10_000
+    assert PPOConfig.preset("paper").learning_rate == 3e-4
+    assert SACConfig.preset("paper").tau == 0.002
+    assert SACConfig.preset("paper", max_replay_size=20_000).max_replay_size == 20_000
+    assert PPOConfig.from_hyper(PPOConfig.preset("fast", learning_rate=1e-3).to_hyper()).learning_rate == 1e-3
     with pytest.raises(ValueError, match="config"):
-        ppo.resolve_hyper({"config": "slow"})
-    with pytest.raises(TypeError, match="unknown PPO"):
-        ppo.resolve_hyper({"lr": 1.0})
-    with pytest.raises(ValueError, match="discounting"):
-        sac.resolve_hyper({"discounting": 1.5})
+        PPOConfig.preset("slow")
+    with pytest.raises(TypeError, match="unknown PPO.*accepted: config, .*learning_rate"):
+        PPOConfig.preset("fast", lr=1.0)
+    with pytest.raises(ValueError, match=r"discounting must be a finite number in \(0, 1\]"):
+        SACConfig.preset("fast", discounting=1.5)
     with pytest.raises(ValueError, match="num_envs"):
-        ppo.resolve_hyper({"num_envs": 0})
+        PPOConfig.preset("fast", num_envs=0)
     with pytest.raises(ValueError, match="divisible"):
-        ppo.resolve_hyper({"num_envs": 3})
+        PPOConfig.preset("fast", num_envs=3)
     with pytest.raises(ValueError, match="hidden"):
-        sac.resolve_hyper({"hidden": ()})
+        SACConfig.preset("fast", hidden=())
     with pytest.raises(ValueError, match="min_replay_size"):
         agents.train("sac", ENV, total_steps=100, min_replay_size=1000)

@@ -1,13 +1,12 @@
 """Pictures: oscilloscope frames (env.render), the episode GIF CLI, the objective landscape."""
 
-import sys
-
 import gymnasium
 import numpy as np
 import pytest
 from PIL import Image
 
 import ops_jax  # noqa: F401  (registers the gymnasium env)
+from agents import episode
 from ops_jax import physics, render
 
 
@@ -64,7 +63,7 @@ def test_vector_render_one_frame_per_instance():
 
 def test_episode_gif_cli(tmp_path):
     out = tmp_path / "ep.gif"
-    render.main(["--stages", "3", "--mode", "hard", "--policy", "random", "--steps", "5", "--out", str(out)])
+    episode.main(["--stages", "3", "--mode", "hard", "--policy", "random", "--steps", "5", "--out", str(out)])
     im = Image.open(out)
     assert im.n_frames == 6  # reset + 5 steps
     im.seek(3)
@@ -73,20 +72,17 @@ def test_episode_gif_cli(tmp_path):
 
 def test_frame_cli_and_zero_policy(tmp_path):
     out = tmp_path / "scope.png"
-    render.main(["frame", "--stages", "3", "--mode", "easy", "--policy", "zero", "--steps", "2", "--out", str(out)])
+    episode.main(["frame", "--stages", "3", "--mode", "easy", "--policy", "zero", "--steps", "2", "--out", str(out)])
     _not_blank(np.asarray(Image.open(out).convert("RGB")))
-    policy, params, cfg = render.get_policy("zero", dict(stages=3, mode="easy", obs_noise=0.0, step_sigma=0.0))
-    ep = render.run_episode(cfg, policy, params, steps=4)
+    policy, params, cfg = episode.get_policy("zero", dict(stages=3, mode="easy", obs_noise=0.0, step_sigma=0.0))
+    ep = episode.run_episode(cfg, policy, params, steps=4)
     assert ep.deltas_wl.shape == (5, 3)
     np.testing.assert_allclose(ep.deltas_wl[1:], ep.deltas_wl[:1].repeat(4, 0), atol=1e-6)  # no noise, no action
 
 
-def test_policy_errors(tmp_path, monkeypatch):
+def test_policy_errors(tmp_path):
     with pytest.raises(ValueError, match="checkpoint"):
-        render.get_policy(str(tmp_path / "missing"), dict(stages=3))
-    monkeypatch.setitem(sys.modules, "agents", None)  # the agents package missing
-    with pytest.raises(RuntimeError, match="agents"):
-        render.get_policy("spgd", dict(stages=3))
+        episode.get_policy(str(tmp_path / "missing"), dict(stages=3))
 
 
 def test_landscape_periodic_and_peaked():

@@ -30,7 +30,7 @@ def test_train_same_seed_same_result_and_params_are_gains():
     a = agents.train("spgd", ENV, seed=3, kp=8.0)
     b = agents.train("spgd", ENV, seed=3, kp=8.0)
     np.testing.assert_array_equal(a.curve["normalized_power"], b.curve["normalized_power"])
-    assert set(a.params) == set(spgd.DEFAULTS) | {"action_scale"} and float(a.params["kp"]) == 8.0
+    assert set(a.params) == set(spgd.SPGDConfig.names()) | {"action_scale"} and float(a.params["kp"]) == 8.0
     assert a.params["action_scale"] == np.float32(0.01)  # the environment's default
     assert a.wall_time["optimisation"] == 0.0 and a.wall_time["total"] > 0
     # the result's policy with its params (and None -> hyper) gives the same actions
@@ -47,11 +47,16 @@ def test_train_same_seed_same_result_and_params_are_gains():
 
 @pytest.mark.parametrize("hyper, word", [
     ({"delta": 0.0}, "delta"), ({"kp": -1.0}, "kp"), ({"leak": 2.0}, "leak"), ({"ki": "x"}, "ki"),
-    ({"gain": 1.0}, "gain"), ({"jump": 0.6}, "jump"), ({"patience": 0.0}, "patience"), ({"kp_pow": -1.0}, "kp_pow"),
+    ({"jump": 0.6}, "jump"), ({"patience": 0.0}, "patience"), ({"kp_pow": -1.0}, "kp_pow"),
 ])
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
         spgd.make_policy(ENV, hyper)
+
+
+def test_unknown_hyperparameter_lists_the_accepted_ones():
+    with pytest.raises(TypeError, match=r"unknown SPGD hyperparameter\(s\) \['gain'\]; accepted: .*'kp'"):
+        agents.train("spgd", ENV, gain=1.0)
 
 
 def test_bad_action_scale_raises():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import td3
+from agents import TD3Config, td3
 from agents.base import Policy
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,17 +40,20 @@ def test_td3_beats_doing_nothing(trained):
 
 
 def test_same_seed_same_result(trained):
-    again = agents.train("td3", ENV, seed=3, total_steps=STEPS, **HYPER)
+    reported = []
+    again = agents.train("td3", ENV, seed=3, total_steps=STEPS, progress_fn=lambda *a: reported.append(a), **HYPER)
+    assert [step for step, _ in reported] == again.curve["step"].tolist()  # progress_fn(step, metrics)
+    np.testing.assert_array_equal([m["normalized_power"] for _, m in reported], again.curve["normalized_power"])
     np.testing.assert_array_equal(trained.curve["normalized_power"], again.curve["normalized_power"])
     jax.tree.map(np.testing.assert_array_equal, trained.params, again.params)
 
 
-def test_modes_share_one_build(trained):
+def test_modes_share_one_build(trained, compiles):
     """Another mode reuses the compiled training programs (EnvParams are arguments) and still
     trains on its own dynamics."""
-    builds = len(td3._BUILDS)
-    hard = agents.train("td3", {**ENV, "mode": "hard"}, seed=3, total_steps=STEPS, **HYPER)
-    assert len(td3._BUILDS) == builds
+    with compiles() as n:
+        hard = agents.train("td3", {**ENV, "mode": "hard"}, seed=3, total_steps=STEPS, **HYPER)
+    assert n[0] == 0
     assert not np.array_equal(hard.curve["normalized_power"], trained.curve["normalized_power"])
 
 
@@ -66,17 +69,17 @@ def test_checkpoint_round_trip_identical_actions(trained, tmp_path):
 
 def test_bad_hyperparameters():
     with pytest.raises(TypeError, match="unknown TD3 hyperparameter"):
-        td3.resolve_hyper({"learning_rate": 1e-3})
+        TD3Config.preset("fast", learning_rate=1e-3)
     with pytest.raises(ValueError, match="gamma"):
-        td3.resolve_hyper({"gamma": 1.5})
+        TD3Config.preset("fast", gamma=1.5)
     with pytest.raises(ValueError, match="config"):
-        td3.resolve_hyper({"config": "slow"})
+        TD3Config.make("slow")
+    with pytest.raises(ValueError, match="learning_starts"):
+        agents.train("td3", ENV, config=TD3Config.preset("fast", batch_size=128), learning_starts=64)
 
 
-def test_cli_end_to_end(tmp_path, capsys):
-    import importlib
-
-    cli = importlib.import_module("agents.train")
+def test_cli_end_to_end(tmp_path):
+    from agents import cli
 
     # Same setting as the fixture and a budget of one training chunk of the same length (1024
     # warm-up steps + 234 iterations of 32 envs), so the compiled functions are reused.
@@ -84,14 +87,12 @@ def test_cli_end_to_end(tmp_path, capsys):
     argv = ["--algo", "td3", "--stages", "3", "--mode", "easy", "--out", str(out), "--steps", "8512", "--seed", "1",
             "--episodes", "4", "--env", "model='phasor'", "--set"] + [f"{k}={v!r}" for k, v in HYPER.items()]
     summary = cli.main(argv)
-    printed = capsys.readouterr()
-    assert "testing P/Pmax" in printed.out and "P_Pmax=" in printed.err  # final line and tqdm postfix
+    assert summary["hyper"]["hidden"] == [64, 64] and summary["train_steps"] >= 8512
     assert (out / "checkpoint" / "meta.json").exists() and (out / "curve.png").stat().st_size > 1000
     rows = list(csv.DictReader(open(out / "curve.csv")))
     assert len(rows) == 2 and int(rows[-1]["step"]) >= 8512
     assert json.loads((out / "summary.json").read_text())["evaluation"]["episodes"] == summary["evaluation"]["episodes"] == 4
     assert agents.load(out / "checkpoint").algo == "td3"
-    assert callable(agents.train)  # importing the CLI module must not break agents.train(...)
     res = subprocess.run([sys.executable, "-m", "agents.train", "--help"], cwd=REPO, capture_output=True, text=True,
                          env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=60)
     assert res.returncode == 0 and "--algo" in res.stdout
@@ -106,10 +107,10 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path):
     any gradient step, equal to float rounding after 80), the seeds differ; with two (forced CPU)
     devices (a subprocess, started first to overlap) the seed axis is split across them."""
     code = (
-        "import json, sys, numpy as np, jax; from agents import td3;"
+        "import json, sys, numpy as np, jax, agents; from agents import td3;"
         f"both = td3.train_seeds({ENV!r}, seeds=[3, 5], total_steps={FEW_STEPS}, **{FEW!r});"
         "np.savez(sys.argv[1], *[np.ravel(x) for r in both for x in jax.tree.leaves(r.params)]);"
-        "sharded = [str(f['sharding'].spec) for f in td3._BUILDS.values() if f['sharding'] is not None];"
+        "sharded = [str(agents.base.split_over_devices(2, 'seeds').spec)];"
         "print(json.dumps(dict(devices=jax.device_count(), sharded=sharded)))"
     )
     env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}

@@ -1,0 +1,118 @@
+"""Train one controller from the command line and write its checkpoint, curve and evaluation.
+
+Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
+
+    python -m agents.train --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
+                           [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
+
+Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
+``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
+the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
+plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import csv
+from pathlib import Path
+
+import numpy as np
+
+import agents
+from agents import base
+from agents.config import CONFIG_TYPES
+from agents.io import write_json_atomic
+from ops_jax.progress import progress
+
+
+def parse_set(items) -> dict:
+    """``key=value`` strings -> dict (values parsed as Python literals when possible)."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ValueError(f"--set expects key=value, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k] = ast.literal_eval(v)
+        except (ValueError, SyntaxError):
+            out[k] = v
+    return out
+
+
+def write_curve_csv(path: Path, curve: dict) -> None:
+    cols = [k for k, v in curve.items() if np.ndim(v) == 1 and len(v) == len(curve["step"])]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for row in zip(*(np.asarray(curve[c]).tolist() for c in cols)):
+            w.writerow(row)
+
+
+def plot_curve(path: Path, curve: dict, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(curve["step"], curve["normalized_power"], marker="o", ms=3)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("evaluation P / P_max")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
+    ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS))
+    ap.add_argument("--stages", type=int, default=5)
+    ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"])
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default runs/<algo>)")
+    ap.add_argument("--steps", type=int, default=None, help="env steps (default: the algorithm's)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--config", default=None, help="hyperparameter set, e.g. fast | paper")
+    ap.add_argument("--episodes", type=int, default=50, help="final evaluation episodes")
+    ap.add_argument("--eval-seed", type=int, default=1, help="seed of the testing environment")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="hyperparameter overrides")
+    ap.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options")
+    args = ap.parse_args(argv)
+
+    out = args.out or Path("runs") / args.algo
+    env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
+    config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+    total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
+    bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
+
+    def show(step: int, metrics: dict) -> None:
+        bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
+        bar.update(max(0, int(step) - bar.n))
+
+    try:
+        result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
+                            config=config)
+    finally:
+        bar.close()
+
+    out.mkdir(parents=True, exist_ok=True)
+    agents.save(out / "checkpoint", result)
+    write_curve_csv(out / "curve.csv", result.curve)
+    plot_curve(out / "curve.png", result.curve, f"{args.algo}, {args.stages}-stage {args.mode}, seed {args.seed}")
+    ev = agents.evaluate(result, env_config, episodes=args.episodes, seed=args.eval_seed)
+    summary = dict(algo=args.algo, env_config=env_config, seed=args.seed, hyper=result.hyper,
+                   wall_time=result.wall_time, evaluation=ev.summary,
+                   train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0)
+    write_json_atomic(out / "summary.json", summary)
+    s = ev.summary
+    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing P/Pmax "
+          f"{s['final_mean']:.4f} +- {s['final_std']:.4f} (last 10 steps {s['mean_last10']:.4f}), "
+          f"steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
+          f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
+          f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
+          f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}")
+    return summary

@@ -1,0 +1,325 @@
+"""The hyperparameters of every algorithm: one frozen dataclass per algorithm, named presets
+overridable per field, validated in one place.
+
+    PPOConfig.preset("fast", learning_rate=1e-3)   # a preset with one field changed
+    TD3Config.make("paper")                        # make(config, **overrides): a preset name or a config
+    SPGDConfig.from_hyper(result.hyper)            # back from the stored dict (``to_hyper``)
+
+A value out of range raises ValueError naming the field and its accepted range; an unknown field
+raises TypeError listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``,
+checkpoints): the fields (tuples as lists) and, for the learners, ``config``, the preset's name.
+The presets' tuning is described in each algorithm's module (``agents.ppo``, ``agents.sac``, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """A number in [lo, hi] (``lo_open`` / ``hi_open``: an open end), an integer when ``integer``."""
+
+    lo: float
+    hi: float = math.inf
+    integer: bool = False
+    lo_open: bool = False
+
+    def __call__(self, name: str, v):
+        kinds = (int, np.integer) if self.integer else (int, float, np.integer, np.floating)
+        ok = not isinstance(v, (bool, np.bool_)) and isinstance(v, kinds) and math.isfinite(v)
+        if not ok or not ((self.lo < v) if self.lo_open else (self.lo <= v)) or not v <= self.hi:
+            what = "an integer" if self.integer else "a finite number"
+            hi = "inf)" if math.isinf(self.hi) else f"{self.hi:g}]"
+            raise ValueError(f"{name} must be {what} in {'(' if self.lo_open else '['}{self.lo:g}, {hi}, got {v!r}")
+        return int(v) if self.integer else float(v)
+
+
+def _flag(name: str, v):
+    if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {v!r}")
+    return bool(v)
+
+
+def _widths(name: str, v):
+    if (not isinstance(v, (list, tuple)) or not v
+            or not all(isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in v)):
+        raise ValueError(f"{name} must be a non-empty sequence of layer widths >= 1, got {v!r}")
+    return tuple(int(h) for h in v)
+
+
+def _choice(*options):
+    def check(name: str, v):
+        if v not in options:
+            raise ValueError(f"{name} must be one of {list(options)}, got {v!r}")
+        return v
+    return check
+
+
+def field(check):
+    """A dataclass field validated by ``check(name, value) -> normalised value``."""
+    return dataclasses.field(metadata={"check": check})
+
+
+COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
+POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgoConfig:
+    """Base of the algorithms' configurations: presets, overrides, validation, stored form."""
+
+    NAME: ClassVar[str] = ""
+    PRESETS: ClassVar[dict] = {}
+    DEFAULT_PRESET: ClassVar[str] = "fast"
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, f.metadata["check"](f.name, getattr(self, f.name)))
+        self.check()
+
+    def check(self) -> None:
+        """Constraints between fields (ValueError naming them)."""
+
+    @classmethod
+    def names(cls) -> list:
+        """The fields that can be set (``config``, the preset's name, is not one of them)."""
+        return [f.name for f in dataclasses.fields(cls) if f.name != "config"]
+
+    @classmethod
+    def _check_names(cls, overrides: dict) -> None:
+        unknown = set(overrides) - set(cls.names())
+        if unknown:
+            raise TypeError(f"unknown {cls.NAME} hyperparameter(s) {sorted(unknown)}; accepted: config, "
+                            f"{sorted(cls.names())}")
+
+    @classmethod
+    def preset(cls, name: str | None = None, **overrides):
+        """The preset ``name`` (default ``DEFAULT_PRESET``) with ``overrides`` of its fields."""
+        name = cls.DEFAULT_PRESET if name is None else name
+        if name not in cls.PRESETS:
+            raise ValueError(f"config must be one of {sorted(cls.PRESETS)}, got {name!r}")
+        cls._check_names(overrides)
+        named = {"config": name} if "config" in {f.name for f in dataclasses.fields(cls)} else {}
+        return cls(**{**cls.PRESETS[name], **overrides, **named})
+
+    @classmethod
+    def make(cls, config=None, **overrides):
+        """``config``: a preset name (None: the default preset) or a config of this type; plus overrides."""
+        if isinstance(config, cls):
+            cls._check_names(overrides)
+            return dataclasses.replace(config, **overrides)
+        return cls.preset(config, **overrides)
+
+    @classmethod
+    def from_hyper(cls, hyper: dict | None):
+        """The config of a stored ``to_hyper()`` dict (or any ``{"config": name, field: value}``)."""
+        hyper = dict(hyper or {})
+        return cls.make(hyper.pop("config", None), **hyper)
+
+    def to_hyper(self) -> dict:
+        """The stored form: field -> value (tuples as lists), with ``config`` for the learners."""
+        return {f.name: list(v) if isinstance(v, tuple) else v
+                for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
+
+
+@dataclasses.dataclass(frozen=True)
+class SPGDConfig(AlgoConfig):
+    """SPGD-PID (``agents.spgd``): dither (wl), gain schedule, PID and the stall escape."""
+
+    NAME: ClassVar[str] = "SPGD"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {"default": dict(
+        delta=0.002, delta0=0.04, anneal=20.0, kp=16.0, kp_min=0.1, kp_pow=2.0, ki=0.0, kd=0.0, leak=0.9,
+        jump=0.25, patience=10.0, p_stall=0.9, margin=0.005)}
+
+    delta: float = field(Range(1e-6, 0.25))
+    delta0: float = field(Range(1e-6, 0.25))
+    anneal: float = field(Range(0, 1e6))
+    kp: float = field(Range(0, 1e6))
+    kp_min: float = field(Range(0, 1e6))
+    kp_pow: float = field(Range(0, 10))
+    ki: float = field(Range(0, 1e6))
+    kd: float = field(Range(0, 1e6))
+    leak: float = field(Range(0, 1))
+    jump: float = field(Range(0, 0.5))
+    patience: float = field(Range(1, 1e6))
+    p_stall: float = field(Range(0, 1))
+    margin: float = field(Range(0, 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsConfig(AlgoConfig):
+    """The physics-informed controller (``agents.physics_informed``): the fit and the control gain."""
+
+    NAME: ClassVar[str] = "physics"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {"default": dict(
+        starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
+        lengths_only=False)}
+
+    starts: int = field(Range(0, 4096, integer=True))
+    iters: int = field(Range(1, 1000, integer=True))
+    damping: float = field(Range(0, 1e6))
+    w_hist: float = field(Range(0, 1e6))
+    gain: float = field(Range(0, 10))
+    drift_gain: float = field(Range(0, 1))
+    use_lengths: bool = field(_flag)
+    lengths_only: bool = field(_flag)
+
+    def check(self):
+        if self.starts == 0 and not self.use_lengths:
+            raise ValueError("starts must be >= 1 unless use_lengths=True (nothing to start the fit from)")
+
+
+_ACTIVATION = _choice("tanh", "relu", "swish", "elu")
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig(AlgoConfig):
+    """PPO (``agents.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and "fast"."""
+
+    NAME: ClassVar[str] = "PPO"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=8, unroll_length=64, batch_size=1, num_minibatches=8, num_updates_per_batch=10,
+            learning_rate=3e-4, entropy_cost=1e-3, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=False,
+            hidden=(256, 256), activation="tanh", init_noise_std=1.0, bootstrap_on_timeout=True,
+            total_steps=300_000, num_evals=10, num_eval_envs=64,
+        ),
+        "fast": dict(
+            num_envs=256, unroll_length=16, batch_size=32, num_minibatches=32, num_updates_per_batch=8,
+            learning_rate=3e-4, entropy_cost=0.0, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=True,
+            hidden=(128, 128), activation="tanh", init_noise_std=0.3, bootstrap_on_timeout=True,
+            total_steps=8_000_000, num_evals=10, num_eval_envs=64,
+        ),
+    }
+
+    config: str = field(_choice("paper", "fast"))
+    num_envs: int = field(COUNT)
+    unroll_length: int = field(COUNT)
+    batch_size: int = field(COUNT)
+    num_minibatches: int = field(COUNT)
+    num_updates_per_batch: int = field(COUNT)
+    learning_rate: float = field(POSITIVE)
+    entropy_cost: float = field(NONNEG)
+    discounting: float = field(UNIT)
+    gae_lambda: float = field(UNIT)
+    clipping_epsilon: float = field(NONNEG)
+    vf_loss_coefficient: float = field(NONNEG)
+    max_grad_norm: float = field(NONNEG)
+    reward_scaling: float = field(NONNEG)
+    normalize_observations: bool = field(_flag)
+    hidden: tuple = field(_widths)
+    activation: str = field(_ACTIVATION)
+    init_noise_std: float = field(POSITIVE)
+    bootstrap_on_timeout: bool = field(_flag)
+    total_steps: int = field(COUNT0)
+    num_evals: int = field(COUNT)
+    num_eval_envs: int = field(COUNT)
+
+    def check(self):
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(f"batch_size * num_minibatches must be divisible by num_envs, got "
+                             f"{self.batch_size} * {self.num_minibatches} and {self.num_envs}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig(AlgoConfig):
+    """SAC (``agents.sac``, brax's trainer): presets "paper" (the paper's Table 6) and "fast"."""
+
+    NAME: ClassVar[str] = "SAC"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=1, batch_size=256, grad_updates_per_step=1, learning_rate=3e-4, discounting=0.99, tau=0.002,
+            max_replay_size=10_000, min_replay_size=1000, reward_scaling=1.0, normalize_observations=False,
+            hidden=(256, 256), activation="relu", total_steps=300_000, num_evals=10, num_eval_envs=64,
+        ),
+        "fast": dict(
+            num_envs=64, batch_size=256, grad_updates_per_step=16, learning_rate=1e-3, discounting=0.95, tau=0.005,
+            max_replay_size=200_000, min_replay_size=8192, reward_scaling=1.0, normalize_observations=True,
+            hidden=(128, 128), activation="relu", total_steps=400_000, num_evals=10, num_eval_envs=64,
+        ),
+    }
+
+    config: str = field(_choice("paper", "fast"))
+    num_envs: int = field(COUNT)
+    batch_size: int = field(COUNT)
+    grad_updates_per_step: int = field(COUNT)
+    learning_rate: float = field(POSITIVE)
+    discounting: float = field(UNIT)
+    tau: float = field(UNIT)
+    max_replay_size: int = field(COUNT)
+    min_replay_size: int = field(COUNT0)
+    reward_scaling: float = field(NONNEG)
+    normalize_observations: bool = field(_flag)
+    hidden: tuple = field(_widths)
+    activation: str = field(_ACTIVATION)
+    total_steps: int = field(COUNT0)
+    num_evals: int = field(COUNT)
+    num_eval_envs: int = field(COUNT)
+
+    def check(self):
+        if self.min_replay_size > self.max_replay_size:
+            raise ValueError(f"min_replay_size must be <= max_replay_size, got {self.min_replay_size} > "
+                             f"{self.max_replay_size}")
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config(AlgoConfig):
+    """TD3 (``agents.td3``): presets "paper" (the paper's Table 4) and "fast"."""
+
+    NAME: ClassVar[str] = "TD3"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
+            actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
+            expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
+            total_steps=300_000, eval_every=10_000, eval_episodes=16,
+        ),
+        "fast": dict(
+            num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
+            actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
+            expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
+            total_steps=300_000, eval_every=20_000, eval_episodes=16,
+        ),
+    }
+
+    config: str = field(_choice("paper", "fast"))
+    num_envs: int = field(COUNT)
+    unroll: int = field(COUNT)
+    updates_per_iter: int = field(COUNT)
+    batch_size: int = field(COUNT)
+    hidden: tuple = field(_widths)
+    actor_lr: float = field(POSITIVE)
+    critic_lr: float = field(POSITIVE)
+    gamma: float = field(UNIT)
+    tau: float = field(UNIT)
+    buffer_size: int = field(COUNT)
+    learning_starts: int = field(COUNT0)
+    expl_std: float = field(NONNEG)
+    target_noise: float = field(NONNEG)
+    noise_clip: float = field(NONNEG)
+    policy_delay: int = field(COUNT)
+    normalize_obs: bool = field(_flag)
+    total_steps: int = field(COUNT0)
+    eval_every: int = field(COUNT)
+    eval_episodes: int = field(COUNT)
+
+    def check(self):
+        if self.buffer_size < self.num_envs * self.unroll:
+            raise ValueError(f"buffer_size must be >= num_envs * unroll = {self.num_envs * self.unroll}, "
+                             f"got {self.buffer_size}")
+        if self.learning_starts < self.batch_size:
+            raise ValueError(f"learning_starts must be >= batch_size = {self.batch_size}, got {self.learning_starts}")
+        if self.batch_size > self.buffer_size:
+            raise ValueError(f"batch_size must be <= buffer_size = {self.buffer_size}, got {self.batch_size}")
+
+
+CONFIG_TYPES = {"spgd": SPGDConfig, "physics": PhysicsConfig, "ppo": PPOConfig, "sac": SACConfig, "td3": TD3Config}

@@ -1,0 +1,108 @@
+"""The packages import only downwards (ops_jax <- agents <- benchmarks) and no project modules
+import each other in a cycle, counting every import statement (function-local ones included)."""
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+LAYERS = {"ops_jax": 0, "agents": 1, "benchmarks": 2}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph() -> dict:
+    """{module: {project modules it imports}}. ``from pkg import name`` counts as an import of
+    ``pkg.name`` when that is a module, else of ``pkg``."""
+    files = {module_name(p): p for layer in LAYERS for p in (REPO / layer).rglob("*.py")}
+    graph = {}
+    for name, path in files.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join(up + ([node.module] if node.module else []))
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in files else base for a in node.names]
+            else:
+                continue
+            for target in targets:
+                while target and target not in files:  # `import a.b.c` of a non-module: its package
+                    target = target.rpartition(".")[0]
+                if target and target != name:
+                    edges.add(target)
+        graph[name] = edges
+    return graph
+
+
+def cycles(graph: dict) -> list:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_graph_sees_function_local_imports():
+    graph = import_graph()
+    assert "benchmarks.sweep_report" in graph["benchmarks.sweep"]  # imported inside Sweep.run
+    assert "ops_jax.render" in graph["ops_jax.gym_env"]  # imported inside render()
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_layers_import_only_downwards():
+    upward = [(m, t) for m, targets in import_graph().items() for t in targets
+              if LAYERS[t.split(".")[0]] > LAYERS[m.split(".")[0]]]
+    assert upward == []
+
+
+def test_no_import_cycles():
+    assert cycles(import_graph()) == []
+
+
+def test_no_module_hides_a_function_of_its_package():
+    """A package's exported name that is also a module file is that module, or the module refuses
+    a plain import (``agents/train.py`` is the command line; ``agents.train`` stays the function)."""
+    import agents
+
+    with pytest.raises(ImportError, match="agents.train"):
+        importlib.import_module("agents.train")
+    assert agents.train is agents.base.train
+    for pkg in LAYERS:
+        package = importlib.import_module(pkg)
+        for name in set(getattr(package, "__all__", ())) & {p.stem for p in (REPO / pkg).glob("*.py")}:
+            if not isinstance(getattr(package, name), type(package)):
+                with pytest.raises(ImportError):
+                    importlib.import_module(f"{pkg}.{name}")
