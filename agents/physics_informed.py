@@ -25,18 +25,10 @@ adds them as one more start of the fit (and, with ``lengths_only=True``, the con
 them: legitimate but trivial, and useless when the channel is noisy or absent). The default
 ``use_lengths=False`` never looks at them: it is the physics-informed controller proper.
 ``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
-added to the prediction and pre-compensated in the action (off by default: at feedback_k = 1 it
-slows the approach, 19 -> 23 steps to 0.95 on hard; at feedback_k = 20 it helps, 0.50 -> 0.59).
+added to the prediction and pre-compensated in the action (off by default: it slows the approach at
+feedback_k = 1 and helps only at long feedback delays).
 
-Measured (agents.evaluate, 5-stage, field model, 100 episodes x 200 steps, seed 7, default hyper;
-2-core shared CPU, timings noisy): final P/Pmax easy 0.9995 +- 0.0006, medium 0.9995 +- 0.0006,
-hard 0.9994 +- 0.0006; median steps to 0.9 / 0.95: 9/10, 15.5/16, 18/19; 1 measurement per step.
-Hard with use_lengths=True 0.9994 +- 0.0009; lengths_only 0.9999 +- 0.0001 (trivial reader).
-Hard with obs_noise 1e-2: default 0.979 +- 0.019, lengths_only 0.943 +- 0.039. Polariser
-detector hard 0.9972 +- 0.0035. feedback_k = 20 hard 0.50 +- 0.42, feedback_k = 100 hard
-0.22 +- 0.28 (the drift, 20-100 x mu per step with |mu| <= 5e-4 wl, reaches or exceeds the
-0.01 wl action bound: not trackable; medium, no drift, k = 100: 0.975 +- 0.020). Cost: act alone,
-one instance, ~1.1 ms (N = 5) and ~4.6 ms (N = 7) per control step on the loaded CPU.
+Measured scores and costs: docs/results.md (the physics-informed controller).
 """
 
 from __future__ import annotations

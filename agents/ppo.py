@@ -12,17 +12,7 @@ Presets of ``agents.config.PPOConfig`` (``config="paper" | "fast"``; any field m
   32 minibatches of 32 x 16 transitions and 8 epochs per 16,384 env steps (256 gradient steps),
   8M env steps, observation normalisation, time-outs bootstrapped, lr 3e-4, gamma 0.99, no entropy
   bonus, initial policy std 0.3 (brax's default 1.0 on a tanh-Gaussian makes the first policies
-  random walks of +-1 action units that wipe out the start). Settings tried on 5-stage hard,
-  1M steps, one seed, testing P/Pmax: lr 1e-3 / gamma 0.95 / entropy 1e-3 / std 1.0: 0.17 (even
-  after 1.56M); std 0.3 + lr 3e-4: 0.36; that + gamma 0.99 + entropy 0: 0.55. With 2 x 256
-  networks and 4 minibatches x 4 epochs (16 gradient steps per 16,384 env steps), 3.1M steps gave
-  medium 0.648 / hard 0.616 in ~400 s. Sixteen times the gradient steps on 2 x 64 networks
-  (seed 0, 50 episodes): medium 0.682 after 2M steps (47 s), 0.914 after 8M (132 s);
-  hard 0.899 after 8M (129 s). Those 2 x 64 networks settled, on some hard seeds, on a fixed point
-  ~0.02 wl off the optimum on every line (P/Pmax ~0.85, 6-16% of episodes reaching 0.9); one change
-  at a time on hard, 8M steps, tuning seeds 10 / 11 (testing P/Pmax, median steps to 0.9): 2 x 64
-  0.871 / 0.846, 41 / 128.5; gamma 0.95 0.940 / 0.828, 23 / 45.5; entropy 1e-3 0.887 / 0.903, 49 / 40;
-  2 x 128 (chosen) 0.946 / 0.944, 35 / 37.5, its evaluation curve still rising at 8M (178 s per run).
+  random walks of +-1 action units that wipe out the start). Measured results: docs/results.md.
 
 Both train on ``model="phasor"`` (unless env_config names a model) with ``episode_length =
 max_steps``; brax evaluates (``num_evals`` times, ``num_eval_envs`` episodes, deterministic

@@ -9,12 +9,7 @@ Presets of ``agents.config.SACConfig`` (``config="paper" | "fast"``; any field m
   counterpart (brax samples a tanh-Gaussian each step).
 - "fast": tuned for wall clock on a 2-core CPU: 64 parallel envs, 16 gradient steps per batched
   env step (1 update per 4 env steps), 2 x 128 ReLU networks, batch 256, replay 2e5, observation
-  normalisation, gamma 0.95, lr 1e-3, tau 0.005, 400k env steps. Measured on 5-stage hard, seed 0,
-  testing P/Pmax (50 episodes) and training wall time on a 2-core CPU, one session: 2 x 256 / batch
-  256 / 200k 0.935 in 143 s (partly beside another run); 2 x 128 / batch 256 / 200k 0.930 in 64 s,
-  the same with 32 gradient steps 0.926 in 116 s; 2 x 128 / batch 256 / 400k 0.974 in 132 s
-  (chosen). The earlier default, 2 x 256 / batch 512 / 200k, gave 0.935 in ~500 s on a slower
-  host of the same kind (not timed side by side).
+  normalisation, gamma 0.95, lr 1e-3, tau 0.005, 400k env steps (measured: docs/results.md).
 
 brax's SAC masks the critic loss on time-limit steps (``truncation``), so time-outs are not
 treated as terminations.

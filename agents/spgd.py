@@ -6,7 +6,7 @@ Each control step, per instance (B of them):
 2. P(tau) is read from the current observation (obs[:, 0] = 2 P/Pmax - 1 + obs noise, no extra
    measurement) and P(tau + d) is one counted ``probe``: 2 measurements per control step;
 3. gradient estimate g = [P(tau + d) - P(tau)] * s / amp  (P in units of P/Pmax, g in 1/wl;
-   this is the issue's [P(tau+d) - P(tau)] * d rescaled by 1/amp^2, an estimate of dP/dx);
+   this is the classic [P(tau+d) - P(tau)] * d rescaled by 1/amp^2, an estimate of dP/dx);
 4. PID on g: i <- leak * i + g, u = Kp(P) g + Ki i + Kd (g - g_prev), action = clip(u, -1, 1)
    (one unit of action moves a delay line by the environment's ``action_scale``, 0.01 wl). The PID
    state lives in the carry; ``leak`` in [0, 1] bounds the integral (anti-windup).
@@ -31,21 +31,9 @@ at full action speed (0.25 wl: 25 steps at 0.01 wl per step) while the other lin
 If none passes, the controller waits ``patience`` steps and tests again. Pairs matter: the most
 common trap (P/Pmax ~0.24, lines 1 and 3 at pi, line 2 near wl/8) is left by no single-line jump.
 
-Search (5-stage, model "phasor", 200-step episodes, tuning seed 1000; final evaluations use other
-seeds). First (128 episodes): Kp in {0.5 .. 256} x delta in {0.01, 0.03}, annealing, and a 48-point
-PID grid with a fixed Kp: easy 0.78-0.84 at best (Kp 16), integral and derivative terms within the
-seed noise. Then the gain schedule (128 episodes, easy), kp in {4, 16} x kp_min in {0.1, 0.2} x
-kp_pow in {1, 2} x delta in {0.002, 0.005}: kp 16, kp_min 0.1, kp_pow 2, delta 0.002 best, easy
-0.917 with 87.5% of episodes above 0.99 (every episode in the global basin converges; the rest sit on
-local maxima). Then the escape with single-line candidates only (128 episodes), patience in {5, 10,
-15, 20} x margin in {0.005, 0.02}: best easy / medium / hard 0.999 / 0.969 / 0.964 (patience 40:
-0.980 / 0.846 / 0.764: waiting costs the episode). With pairs added (1024 episodes), patience in {6,
-10, 14} x margin in {0.002, 0.005, 0.01}: all within 0.995-0.997 / 0.989-0.992 / 0.984-0.992;
-chosen patience 10, margin 0.005: 0.997 / 0.991 / 0.990. Last, for speed (1024 episodes), delta0 in
-{0.04, 0.08} x anneal in {20, 40} x kp in {16, 64} and five smaller dithers: final P/Pmax within
-+-0.003 of each other; delta0 0.04, anneal 20 cut the median steps to 0.9 from 59 / 68 / 73 to 34 /
-53 / 69 (0.998 / 0.994 / 0.987); a dither of delta0 <= 0.04 or none at all does as well. ``SPGDConfig``'s
-preset holds the chosen values; ``python -m agents.spgd --search`` reruns the patience x margin grid.
+``SPGDConfig``'s preset holds values chosen by a grid search (5-stage, phasor, tuning seed 1000; other
+seeds for evaluation); ``python -m agents.spgd --search`` reruns the patience x margin grid. Measured
+results: docs/results.md.
 """
 
 from __future__ import annotations

@@ -13,14 +13,9 @@ VENDORED_REFERENCE = Path(__file__).resolve().parent / "reference"
 
 
 def reference_dir() -> Path:
-    """The folder of the paper implementation's numbers: ``OPS_REFERENCE_DIR`` if set, else
-    ../shared/reference beside the checkout, else the copy vendored in benchmarks/reference (so a
-    bare clone, e.g. CI's, still tests against them)."""
-    env = os.environ.get("OPS_REFERENCE_DIR")
-    if env:
-        return Path(env)
-    shared = Path(__file__).resolve().parents[2] / "shared" / "reference"
-    return shared if shared.exists() else VENDORED_REFERENCE
+    """The folder of the paper implementation's numbers: ``OPS_REFERENCE_DIR`` if set, else the copy
+    in benchmarks/reference."""
+    return Path(os.environ.get("OPS_REFERENCE_DIR") or VENDORED_REFERENCE)
 
 
 def load_reference_timing() -> dict:
