@@ -11,8 +11,9 @@ the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on one m
 ``feedback`` (train at k = 1, test at k = 1..100). Everything lands in ``results/<name>/``: tables
 (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored in ``cells/`` the
 moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them. The
-command runs the work in ``--jobs`` worker processes (default 2), each computing the cells of its
-own algorithms, then one more that writes the reports (``supervise``).
+work is cut into units (``Sweep.units``) that Ray actors compute, on a local Ray instance with
+``--jobs`` workers by default or on a cluster with ``--ray ADDRESS`` (benchmarks/sweep_ray.py); this
+process stores what they return and then writes the reports (docs/sweep.md).
 
 Evaluation as in the paper: P/Pmax at the end of 200-step test episodes. The training environment
 uses the training seed's draws; the testing environment another seed, so in hard mode it has a
@@ -22,22 +23,17 @@ different drift realisation.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
 import os
 import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from tqdm import tqdm
 
 from benchmarks.cells import CellStore, config_hash
-from benchmarks.common import write_json_atomic
 
 MODES = ("easy", "medium", "hard")
 SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")
@@ -91,35 +87,39 @@ TEST_SEED_OFFSET = 10_000
 LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperparameter config
 
 
-# Relative wall time of one algorithm's cells: how ``partition`` balances workers. The resulting split
-# (PPO + TD3 | SAC + physics + SPGD) measured 1,312 s against 1,038 s for the default preset (PPO 2M
-# steps, 2 x 128 networks; 1,171 against 1,143 s with stop 14's 2 x 64) and 74 s against 82 s for the quick one
-# (2026-11-24).
-ALGO_COST = {"ppo": 3.0, "sac": 3.0, "td3": 2.0, "physics": 1.5, "spgd": 0.5}
+# Seconds of one cell on one worker of a 2-core CPU (compilation shared over an algorithm's cells): a
+# training cell costs TRAIN_FIXED_S + TRAIN_S_PER_STEP x its budget, an evaluation cell EVAL_S. Fitted
+# to the default preset's measured run (docs/sweep.md: PPO 2M steps ~80 s, SAC 100k ~40 s, TD3 60k
+# ~6 s per seed of a 5-seed call, physics-informed ~8 s, SPGD ~2 s; evaluations 0.05-2 s). They weight
+# the progress bar, so its remaining time follows cost rather than cell count, and order the work.
+TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 8.0, "spgd": 2.0}
+TRAIN_S_PER_STEP = {"ppo": 4e-5, "sac": 4e-4, "td3": 1e-4}
+EVAL_S = 1.0
 
 
-def partition(algos, jobs: int) -> list:
-    """``algos`` split over at most ``jobs`` workers: heaviest first (``ALGO_COST``) onto the least
-    loaded. An algorithm's cells all go to one worker, since its transfer and feedback cells use the
-    checkpoints its table-1 cells write."""
-    parts = [[] for _ in range(max(1, min(jobs, len(algos))))]
-    load = [0.0] * len(parts)
-    for algo in sorted(algos, key=lambda a: -ALGO_COST.get(a, 1.0)):
-        i = load.index(min(load))
-        parts[i].append(algo)
-        load[i] += ALGO_COST.get(algo, 1.0)
-    return parts
+def cell_seconds(algo: str, steps: int) -> float:
+    """Estimated seconds of one training cell of ``algo`` with a budget of ``steps`` env steps."""
+    return TRAIN_FIXED_S.get(algo, 5.0) + TRAIN_S_PER_STEP.get(algo, 0.0) * steps
+
+
+class _Silent:
+    """A progress bar that shows nothing (for workers and the report pass)."""
+
+    def set_description(self, desc: str = "") -> None:
+        pass
+
+    def update(self, n: float = 1) -> None:
+        pass
 
 
 class Sweep:
-    def __init__(self, preset: dict, out: Path, log, algos=None, bar_position: int = 0):
-        """``algos``: the algorithms this process computes (a worker's part; default all)."""
+    def __init__(self, preset: dict, out: Path, log, meta: dict | None = None):
+        """``meta``: keys stored in each cell computed here (``CellStore``)."""
         self.p = preset
         self.out = out
         self.log = log
-        self.algos = list(algos or preset["algos"])
-        self.bar_position = bar_position
-        self.cells = CellStore(out / "cells", log)
+        self.algos = list(preset["algos"])
+        self.cells = CellStore(out / "cells", log, meta)
         self.ckpt_dir = out / "checkpoints"
         self.timing = {}
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
@@ -180,7 +180,7 @@ class Sweep:
             record = self.cells.get(label, config, compute)
         return record
 
-    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar) -> dict:
+    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar=_Silent()) -> dict:
         """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
         train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
@@ -208,8 +208,7 @@ class Sweep:
     def evaluated(self, label: str, record: dict, env_config: dict, seed: int) -> dict:
         import agents
 
-        config = dict(kind="eval", checkpoint=record["checkpoint"], env=env_config, seed=seed,
-                      episodes=self.p["episodes"])
+        config = self._eval_config(record["checkpoint"], env_config, seed)
         return self.cells.get(label, config, lambda: _eval_record(
             agents.evaluate(self.policy(record), env_config, episodes=config["episodes"], seed=seed)))
 
@@ -226,46 +225,90 @@ class Sweep:
     def _stage_algos(self) -> list:
         return [a for a in self.p["stage_algos"] if a in self.algos]
 
-    def count(self, sections) -> int:
+    def units(self, sections) -> list:
+        """The cells of ``sections`` as work units, in order: dicts with ``key``, ``algo``, ``kind``
+        ("train": one ``trained_seeds`` call of ``seeds``, labels ``prefix``-s<seed>; "eval": the
+        transfer and feedback evaluations (``evals``: label, env, seed) of one table-1 controller
+        ``train`` (label, config)), ``cells`` [(label, config)], ``deps`` (keys of the units whose
+        checkpoints it needs) and ``cost`` (estimated seconds, ``cell_seconds``)."""
+        import agents
+
+        units, producer = [], {}
+
+        def train(prefix, algo, env, seeds):
+            groups = [list(seeds)] if hasattr(agents.base.algo_module(algo), "train_seeds") else [[s] for s in seeds]
+            for group in groups:
+                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s)) for s in group]
+                key = prefix if len(groups) == 1 else cells[0][0]
+                units.append(dict(key=key, algo=algo, kind="train", env=env, seeds=group, prefix=prefix, cells=cells,
+                                  deps=[], cost=len(group) * cell_seconds(algo, self.p["budgets"][algo])))
+                producer.update({label: key for label, _ in cells})
+
         p = self.p
-        n1 = len(MODES) * len(self.algos) * p["seeds"]
-        n_stages = p["stage_range"][1] - p["stage_range"][0] + 1
-        nst = n_stages * len(p["stage_modes"]) * len(self._stage_algos()) * p["stage_seeds"]
-        total = 0
-        if {"table1", "table2", "transfer", "feedback"} & set(sections):
-            total += n1
-        if "stages" in sections:
-            total += nst
-        if "transfer" in sections:
-            total += len(self.algos) * self.aux_seeds * len(MODES) * len(MODES)
-        if "feedback" in sections:
-            total += len(self.algos) * self.aux_seeds * len(p["feedback_ks"])
-        return total
+        table1 = {"table1", "table2", "transfer", "feedback"} & set(sections)
+        for mode in MODES if table1 else ():
+            for algo in self.algos:
+                train(f"table1-{mode}-{algo}", algo, {"stages": 5, "mode": mode}, range(p["seeds"]))
+        lo, hi = p["stage_range"]
+        for n in range(lo, hi + 1) if "stages" in sections else ():
+            for mode in p["stage_modes"]:
+                for algo in self._stage_algos():
+                    train(f"stages-N{n}-{mode}-{algo}", algo, {"stages": n, "mode": mode}, range(p["stage_seeds"]))
+        for mode in MODES:
+            for algo in self.algos:
+                for seed in range(self.aux_seeds):
+                    evals = [(f"transfer-{mode}-{test}-{algo}-s{seed}", {"stages": 5, "mode": test},
+                              seed + TEST_SEED_OFFSET) for test in MODES if "transfer" in sections]
+                    evals += [(f"feedback-k{k}-{algo}-s{seed}", {"stages": 5, "mode": "hard", "feedback_k": k},
+                               seed + TEST_SEED_OFFSET) for k in p["feedback_ks"] if "feedback" in sections and mode == "hard"]
+                    if not evals:
+                        continue
+                    label = f"table1-{mode}-{algo}-s{seed}"
+                    config = self._train_config(algo, {"stages": 5, "mode": mode}, seed)
+                    ckpt = f"checkpoints/{label}-{config_hash(config)}"
+                    cells = [(lab, self._eval_config(ckpt, env, s)) for lab, env, s in evals]
+                    units.append(dict(key=f"evals-{mode}-{algo}-s{seed}", algo=algo, kind="eval", train=(label, config),
+                                      evals=evals, cells=cells, deps=[producer[label]], cost=len(cells) * EVAL_S))
+        return units
 
-    def compute(self, sections):
-        """A worker's part: every cell of ``self.algos`` in ``sections``, no reports. Returns the
-        wall time per section."""
-        self._sections(sections, report=None)
-        return self.timing
+    def todo(self, unit: dict):
+        """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
+        if unit["kind"] == "eval":
+            return unit if any(self.cells.load(label, config, quiet=True) is None for label, config in unit["cells"]) \
+                else None
+        left = [(label, config) for label, config in unit["cells"] if not self._finished(label, config)]
+        if not left:
+            return None
+        seeds = [config["seed"] for _, config in left]
+        per_seed = unit["cost"] / len(unit["seeds"])
+        return {**unit, "cells": left, "seeds": seeds, "cost": per_seed * len(seeds)}
 
-    def run(self, sections, workers=(), started=float("nan")):
-        """Every cell (computing those not stored), then the tables, figures and summary; returns
-        (cells computed, cells reused). ``workers``: the records (algos, timing, computed) of
-        the part workers that computed cells for this run before this process; ``started``: the
-        command's start (time.time()), if known."""
+    def compute_unit(self, unit: dict, record: dict | None = None) -> None:
+        """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's
+        table-1 ``record`` (and checkpoint in this folder)."""
+        if unit["kind"] == "train":
+            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}")
+        else:
+            for label, env, seed in unit["evals"]:
+                self.evaluated(label, record, env, seed)
+
+    def run(self, sections, workers=(), computed=0, started=float("nan")):
+        """Load every cell (computing any not stored), then write the tables, figures and summary;
+        returns (cells computed, cells reused). ``workers``: a record (algos, timing) per worker
+        that computed ``computed`` cells for this run before; ``started``: the command's start
+        (time.time()), if known."""
         from benchmarks import sweep_report as report
 
         self._sections(sections, report)
-        # The part workers' cells were computed in this run; this process only loaded them.
-        counts = (self.cells.computed + sum(w["computed"] for w in workers),
-                  self.cells.reused - sum(w["computed"] for w in workers))
+        counts = (self.cells.computed + computed, self.cells.reused - computed)
         report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
         return counts
 
-    def _sections(self, sections, report):
+    def _eval_config(self, checkpoint: str, env_config: dict, seed: int) -> dict:
+        return dict(kind="eval", checkpoint=checkpoint, env=env_config, seed=seed, episodes=self.p["episodes"])
+
+    def _sections(self, sections, report, bar=_Silent()):
         """Compute (or load) the cells of ``sections``, then write their reports unless ``report`` is None."""
-        bar = tqdm(total=self.count(sections), unit="cell", dynamic_ncols=True, position=self.bar_position,
-                   desc="sweep" if self.algos == list(self.p["algos"]) else f"sweep {'+'.join(self.algos)}")
         t0 = time.perf_counter()
         runs = self.table1_runs(bar) if {"table1", "table2", "transfer", "feedback"} & set(sections) else {}
         self.timing["table1 training + evaluation"] = time.perf_counter() - t0
@@ -276,7 +319,6 @@ class Sweep:
                 t = time.perf_counter()
                 results[name] = compute()
                 self.timing[name] = time.perf_counter() - t
-        bar.close()
         if report is not None:
             t = time.perf_counter()
             if "table1" in sections:
@@ -338,18 +380,17 @@ def _eval_record(ev) -> dict:
     )
 
 
-def _crash_injection(sweep: Sweep, out: Path):
-    """Tests of ``supervise``: with OPS_SWEEP_CRASH_AFTER=K the process kills itself with SIGSEGV
-    once it has computed K cells, once per output folder (marker file ``.crash-injected``)."""
+def crash_injection(sweep: Sweep, marker: Path):
+    """Tests of crash recovery: with OPS_SWEEP_CRASH_AFTER=K the process kills itself with SIGSEGV
+    once it has computed K cells, once per ``marker`` file (created first)."""
     after = int(os.environ.get("OPS_SWEEP_CRASH_AFTER", "0"))
-    marker = out / ".crash-injected"
     if after <= 0 or marker.exists():
         return
     get = sweep.cells.get
 
     def get_then_crash(*args, **kw):
         record = get(*args, **kw)
-        if sweep.cells.computed >= after:
+        if sweep.cells.computed >= after and not marker.exists():
             marker.touch()
             os.kill(os.getpid(), signal.SIGSEGV)
         return record
@@ -369,79 +410,6 @@ def enable_compilation_cache():
 
 
 QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
-WORKER_ENV = "OPS_SWEEP_WORKER"  # set in the worker processes that supervise() starts
-STARTED_ENV = "OPS_SWEEP_STARTED"  # the command's start (time.time()), for the summary's wall time
-PARTS_ENV = "OPS_SWEEP_PARTS"  # in the report worker: how many part workers computed cells before it
-PART_TIMING_DIR = ".parts"  # in the output folder: each part worker's algorithms, cells computed and timing
-CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
-
-
-def _die_with_parent():  # Linux: the worker gets SIGKILL when the supervising process dies
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-def _supervised(cmd: list, env: dict, restarts: int, procs: list, name: str) -> int:
-    """Run ``cmd`` and start it again, up to ``restarts`` times, when it dies of a crash signal;
-    each process is appended to ``procs`` (for interruption). Returns the exit code."""
-    for attempt in range(restarts + 1):
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_parent if sys.platform == "linux" else None)
-        procs.append(proc)
-        code = proc.wait()
-        if code >= 0 or -code not in CRASH_SIGNALS:
-            return code if code >= 0 else 128 - code
-        then = (f"resuming from the stored cells (restart {attempt + 1} of {restarts})" if attempt < restarts
-                else "no restarts left (re-run the command to resume from the stored cells)")
-        print(f"{name} died with {signal.Signals(-code).name} after {time.perf_counter() - t0:.0f} s; {then}",
-              file=sys.stderr)
-    return 128 - code
-
-
-def supervise(argv: list, restarts: int, parts: list, out: Path) -> int:
-    """Run the sweep in worker processes (``python -X faulthandler``, so a crash prints the Python
-    stack), each restarted up to ``restarts`` times when it dies of a crash signal (SIGSEGV, SIGBUS,
-    SIGABRT, SIGILL, SIGFPE): finished cells are stored, so a restart resumes. With several
-    ``parts`` (lists of algorithms), one worker per part computes its cells, all at once; then one
-    more worker finds every cell stored and writes the tables, figures and summary. Returns the
-    exit code (the first failing worker's)."""
-    cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.sweep", *argv]
-    env = {**os.environ, WORKER_ENV: "1", STARTED_ENV: str(time.time())}
-    procs = []
-    try:
-        if len(parts) > 1:
-            timing_dir = out / PART_TIMING_DIR
-            for stale in timing_dir.glob("part*.json"):
-                stale.unlink()
-            # Workers sharing one accelerator must not each reserve most of its memory up front.
-            part_env = {**env, "XLA_PYTHON_CLIENT_PREALLOCATE": os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "false")}
-            codes = [1] * len(parts)  # a thread that raised (e.g. could not start its worker) counts as failed
-
-            def work(i):
-                codes[i] = _supervised([*cmd, "--part", f"{i}/{len(parts)}"], part_env, restarts, procs,
-                                       f"sweep worker {i + 1} ({'+'.join(parts[i])})")
-
-            threads = [threading.Thread(target=work, args=(i,), daemon=True) for i in range(len(parts))]
-            for t in threads:
-                t.start()
-            for t in threads:
-                while t.is_alive():
-                    t.join(0.5)
-            if any(codes):
-                i = next(i for i, c in enumerate(codes) if c)
-                print(f"sweep worker {i + 1} ({'+'.join(parts[i])}) exited with code {codes[i]}; the other workers' "
-                      "cells are stored (re-run the command to resume)", file=sys.stderr)
-                return codes[i]
-            env[PARTS_ENV] = str(len(parts))
-        return _supervised(cmd, env, restarts, procs, "sweep worker")
-    except KeyboardInterrupt:
-        for proc in procs:
-            proc.terminate()
-        for proc in procs:
-            proc.wait()
-        return 130
 
 
 def quick_compilation():
@@ -477,45 +445,39 @@ def main(argv=None):
     ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
     ap.add_argument("--only", nargs="+", choices=SECTIONS, help="sections to run (default: all)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
+    ap.add_argument("--ray", metavar="ADDRESS",
+                    help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or HOST:PORT); "
+                         "default: a local Ray instance with --jobs workers")
+    ap.add_argument("--jobs", type=int,
+                    help="workers computing units at once (default: 2 locally, or 1 on a 1-CPU machine; with --ray, "
+                         "one per CPU of the cluster); times in table2 are then measured beside the other workers")
     ap.add_argument("--restarts", type=int, default=2,
-                    help="times to resume from the stored cells after a worker process crashes (default 2; 0 with "
-                         "--jobs 1: run in this process)")
-    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                    help="worker processes computing cells at once, each for its own algorithms (default: 2, or "
-                         "1 on a 1-CPU machine); times in table2 are then measured beside the other workers")
-    ap.add_argument("--part", help=argparse.SUPPRESS)  # I/J: this worker computes part I of J (see supervise)
+                    help="times Ray restarts a worker that died (crash signal, killed, node lost) and retries its "
+                         "unit (default 2); a later run resumes from the stored cells in any case")
+    ap.add_argument("--worker-gpus", type=float, default=0.0,
+                    help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)")
     args = ap.parse_args(argv)
+    if args.worker_gpus < 0:
+        raise SystemExit(f"--worker-gpus must be >= 0, got {args.worker_gpus}")
     if args.restarts < 0:
         raise SystemExit(f"--restarts must be >= 0, got {args.restarts}")
-    if args.jobs < 1:
+    if args.jobs is not None and args.jobs < 1:
         raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     preset = build_preset(args)
-    out = args.out or Path("results") / preset["name"]
+    out = (args.out or Path("results") / preset["name"]).resolve()
     out.mkdir(parents=True, exist_ok=True)
     sections = args.only or list(SECTIONS)
-    parts = partition(preset["algos"], args.jobs)
-    if (args.restarts or len(parts) > 1) and os.environ.get(WORKER_ENV) != "1":
-        raise SystemExit(supervise(sys.argv[1:] if argv is None else list(argv), args.restarts, parts, out))
     # Before jax is first imported (enable_compilation_cache): XLA's C++ log lines, e.g. one error
     # line per program loaded from the persistent cache, would drown the progress bar.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     if args.quick:
         quick_compilation()
     enable_compilation_cache()
-    log = lambda msg: tqdm.write(msg, file=sys.stderr)  # noqa: E731
-    if args.part:
-        i, n = (int(v) for v in args.part.split("/"))
-        sweep = Sweep(preset, out, log, algos=partition(preset["algos"], n)[i], bar_position=i)
-        _crash_injection(sweep, out)
-        timing = sweep.compute(sections)
-        write_json_atomic(out / PART_TIMING_DIR / f"part{i}.json",
-                          dict(algos=sweep.algos, timing=timing, computed=sweep.cells.computed))
-        return out
-    sweep = Sweep(preset, out, log)
-    _crash_injection(sweep, out)
-    workers = [json.loads((out / PART_TIMING_DIR / f"part{i}.json").read_text())
-               for i in range(int(os.environ.get(PARTS_ENV, "0")))]
-    computed, reused = sweep.run(sections, workers, started=float(os.environ.get(STARTED_ENV, "nan")))
+    from benchmarks import sweep_ray
+
+    jobs = args.jobs or (None if args.ray else min(2, os.cpu_count() or 1))
+    computed, reused = sweep_ray.run(preset, out, sections, address=args.ray, jobs=jobs, restarts=args.restarts,
+                                       worker_gpus=args.worker_gpus)
     print(f"wrote {out}/summary.md ({computed} cells computed, {reused} reused)")
     return out
 

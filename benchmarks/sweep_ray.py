@@ -1,0 +1,213 @@
+"""The sweep's work units on Ray actors (a local Ray instance or a cluster); this process stores the cells.
+
+Each actor computes whole units (``Sweep.units``) in a scratch folder of its own node and returns
+the files they wrote (cell JSON, checkpoints): no shared filesystem is needed, and this process
+writes them into the output folder, so the cell store stays the one record (atomic, keyed by
+configuration, resumable). A unit goes to an idle actor, preferably one that last ran the same
+algorithm (its compiled programs are warm), and only once the units whose checkpoints it needs are
+stored. A worker that dies (crash signal, killed, node lost) is restarted by Ray, which retries its
+unit (``--restarts``).
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+from benchmarks.sweep import Sweep, crash_injection, enable_compilation_cache
+from ops_jax.progress import progress
+
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS")
+CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
+OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+class Worker:
+    """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
+
+    def __init__(self, preset: dict, env: dict, crash_marker: str):
+        """``env``: variables set before jax starts (XLA_FLAGS, ...); ``crash_marker``: see ``crash_injection``."""
+        import ray
+
+        faulthandler.enable()  # a crash prints the Python stack into the worker's log (shown by the driver)
+        os.environ.update(env)
+        enable_compilation_cache()
+        self.where = dict(node_id=ray.get_runtime_context().get_node_id(), hostname=socket.gethostname())
+        self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
+        self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
+        crash_injection(self.sweep, Path(crash_marker))
+
+    def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
+        """Compute ``unit`` (an eval unit gets its controller's table-1 ``record`` and ``checkpoint``
+        files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
+        "node_id", "hostname"}."""
+        t0 = time.perf_counter()
+        for rel, blob in (checkpoint or {}).items():
+            (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
+            (self.scratch / rel).write_bytes(blob)
+        computed = self.sweep.cells.computed
+        self.sweep.compute_unit(unit, record)
+        files = {}
+        for label, config in unit["cells"]:
+            path = self.sweep.cells.path(label, config)
+            files[path.relative_to(self.scratch).as_posix()] = blob = path.read_bytes()
+            if unit["kind"] == "train":
+                ckpt = self.scratch / json.loads(blob)["result"]["checkpoint"]
+                files.update({f.relative_to(self.scratch).as_posix(): f.read_bytes() for f in ckpt.iterdir()})
+        for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
+            shutil.rmtree(child)
+        self.sweep.cells.folder.mkdir()
+        return dict(files=files, computed=self.sweep.cells.computed - computed, seconds=time.perf_counter() - t0,
+                    **self.where)
+
+    def close(self) -> None:
+        shutil.rmtree(self.scratch, ignore_errors=True)
+
+
+def checkpoint_files(out: Path, record: dict) -> dict:
+    """The files of ``record``'s checkpoint under ``out``, {path relative to ``out``: bytes}."""
+    return {f.relative_to(out).as_posix(): f.read_bytes() for f in (out / record["checkpoint"]).iterdir()}
+
+
+def store_files(out: Path, files: dict) -> None:
+    """Write a unit's returned files under ``out``: each checkpoint folder renamed into place whole,
+    then each cell file renamed into place, so a stored cell always has its checkpoint."""
+    folders = {}
+    for rel, blob in files.items():
+        if not rel.startswith("cells/"):
+            folders.setdefault(Path(rel).parent, {})[Path(rel).name] = blob
+    for folder, content in folders.items():
+        dest = out / folder
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=dest.parent, prefix=dest.name + ".tmp"))
+        for name, blob in content.items():
+            (tmp / name).write_bytes(blob)
+        if dest.exists():
+            shutil.rmtree(dest)
+        os.replace(tmp, dest)
+    for rel, blob in files.items():
+        if rel.startswith("cells/"):
+            fd, tmp = tempfile.mkstemp(dir=out / "cells", prefix=Path(rel).name, suffix=".tmp")
+            with os.fdopen(fd, "wb") as f:
+                f.write(blob)
+            os.replace(tmp, out / rel)
+
+
+def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
+    """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran last
+    (warm programs), else of the algorithm with the most remaining cost that no other worker runs,
+    else of the one with the most remaining cost."""
+    if not ready:
+        return None
+    same = [u for u in ready if u["algo"] == last_algo]
+    if same:
+        return same[0]
+    free = [u for u in ready if not running_algos[u["algo"]]] or ready
+    return max(free, key=lambda u: remaining[u["algo"]])  # max keeps the first of equals: plan order
+
+
+def connect(address: str | None, jobs: int | None):
+    """``ray.init``: the cluster at ``address`` (the project's packages shipped to its workers), or a
+    local instance with ``jobs`` CPUs."""
+    import ray
+
+    import agents
+    import benchmarks
+    import ops_jax
+
+    if address:
+        ray.init(address=address, runtime_env={"py_modules": [ops_jax, agents, benchmarks]}, log_to_driver=True)
+    else:
+        ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True)
+
+
+def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int | None = None, restarts: int = 2,
+        worker_gpus: float = 0.0):
+    """Compute the cells of ``sections`` not stored in ``out`` on Ray workers (``jobs``, default one per
+    CPU of the cluster), then write the reports. Returns (cells computed, cells reused)."""
+    started = time.time()
+    sweep = Sweep(preset, out, _stderr)
+    units = sweep.units(sections)
+    todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
+    done = {u["key"] for u in units} - set(todo)
+    workers, computed = [], 0
+    if todo:
+        import ray
+
+        connect(address, jobs)
+        try:
+            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset)
+        finally:
+            ray.shutdown()
+    return Sweep(preset, out, _stderr).run(sections, workers, computed, started)
+
+
+def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
+             preset: dict):
+    """The scheduling loop: units to idle workers, returned files into the store. Returns (cells
+    computed, a record per worker for the summary)."""
+    n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
+    env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+    actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(Worker)
+    actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
+    remaining = Counter()
+    for u in todo.values():
+        remaining[u["algo"]] += u["cost"]
+    cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
+    bar = progress(total=round(sum(remaining.values()), 1), desc=f"sweep on {n} workers", unit="work-s", smoothing=0)
+    bar.set_postfix_str(f"cells 0/{cells_total}")
+    idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
+    busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
+    try:
+        while todo or running:
+            for i in list(idle):
+                ready = [u for u in todo.values() if all(d in done for d in u["deps"])]
+                unit = pick(ready, last_algo[i], running_algos, remaining)
+                if unit is None:
+                    break
+                del todo[unit["key"]]
+                record = checkpoint = None
+                if unit["kind"] == "eval":
+                    record = sweep.cells.load(*unit["train"])
+                    checkpoint = checkpoint_files(out, record)
+                running[actors[i].run.remote(unit, record, checkpoint)] = (i, unit)
+                idle.remove(i)
+                last_algo[i] = unit["algo"]
+                running_algos[unit["algo"]] += 1
+            bar.set_description(f"sweep on {n} workers: " + ", ".join(u["key"] for _, u in running.values()))
+            [ref], _ = ray.wait(list(running), num_returns=1)
+            i, unit = running.pop(ref)
+            try:
+                result = ray.get(ref)
+            except (ray.exceptions.RayError, OSError) as exc:
+                raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
+                                 f"stored in {out}/cells (re-run the command to resume)") from exc
+            store_files(out, result["files"])
+            done.add(unit["key"])
+            idle.append(i)
+            running_algos[unit["algo"]] -= 1
+            remaining[unit["algo"]] -= unit["cost"]
+            busy[i] += result["seconds"]
+            algos[i].add(unit["algo"])
+            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
+            computed += result["computed"]
+            cells_done += len(unit["cells"])
+            bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
+            bar.update(unit["cost"])
+    finally:
+        bar.close()
+    ray.get([a.close.remote() for a in actors])
+    bar.write("cells computed per node: " + ", ".join(f"{k}: {v}" for k, v in where.items()))
+    return computed, [dict(algos=sorted(algos[i]), timing={"computing": busy[i]}) for i in range(n)]
