@@ -23,7 +23,7 @@ from collections import Counter
 from pathlib import Path
 
 from benchmarks.sweep import Sweep, crash_injection, enable_compilation_cache
-from ops_jax.progress import progress
+from ops_jax.progress import is_terminal, progress
 
 FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS")
 CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
@@ -34,7 +34,7 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-class Worker:
+class SweepWorker:
     """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
 
     def __init__(self, preset: dict, env: dict, crash_marker: str):
@@ -127,9 +127,14 @@ def connect(address: str | None, jobs: int | None):
     import benchmarks
     import ops_jax
 
+    if not is_terminal(sys.stderr):  # the workers' forwarded lines without colour codes in a log
+        os.environ.setdefault("RAY_COLOR_PREFIX", "0")
     if address:
         ray.init(address=address, runtime_env={"py_modules": [ops_jax, agents, benchmarks]}, log_to_driver=True)
     else:
+        # Ray starts workers at nice 15 (for the raylet's sake); on a shared machine they would then
+        # get a small share of the CPU, which the sweep's workers do not take today.
+        os.environ.setdefault("RAY_worker_niceness", "0")
         ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True)
 
 
@@ -160,7 +165,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     computed, a record per worker for the summary)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
-    actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(Worker)
+    actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
     actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
     remaining = Counter()
     for u in todo.values():
