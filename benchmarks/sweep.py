@@ -241,7 +241,7 @@ class Sweep:
                 cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s)) for s in group]
                 key = prefix if len(groups) == 1 else cells[0][0]
                 units.append(dict(key=key, algo=algo, kind="train", env=env, seeds=group, prefix=prefix, cells=cells,
-                                  deps=[], cost=len(group) * cell_seconds(algo, self.p["budgets"][algo])))
+                                  deps=[], cost=round(len(group) * cell_seconds(algo, self.p["budgets"][algo]), 1)))
                 producer.update({label: key for label, _ in cells})
 
         p = self.p
@@ -281,7 +281,7 @@ class Sweep:
             return None
         seeds = [config["seed"] for _, config in left]
         per_seed = unit["cost"] / len(unit["seeds"])
-        return {**unit, "cells": left, "seeds": seeds, "cost": per_seed * len(seeds)}
+        return {**unit, "cells": left, "seeds": seeds, "cost": round(per_seed * len(seeds), 1)}
 
     def compute_unit(self, unit: dict, record: dict | None = None) -> None:
         """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's

@@ -25,7 +25,7 @@ from pathlib import Path
 from benchmarks.sweep import Sweep, crash_injection, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
-FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS")
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE")
 CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
@@ -165,6 +165,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     computed, a record per worker for the summary)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+    env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
     actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
     actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
     remaining = Counter()
