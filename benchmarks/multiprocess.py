@@ -117,7 +117,8 @@ def check(processes: int, instances: int, steps: int, seed: int) -> dict:
         data = np.load(result)
         multi = data["npow"]
         per_instance = np.all(multi == single, axis=1)
-        return dict(equal=bool(per_instance.all()), instances=int(per_instance.size), equal_instances=int(per_instance.sum()),
+        return dict(equal=bool(per_instance.all()), instances=int(per_instance.size),
+                    equal_instances=int(per_instance.sum()),
                     max_abs_diff=float(np.max(np.abs(multi - single))), seconds_multi=float(data["seconds"]),
                     seconds_single=seconds_single, devices=int(data["devices"]))
 

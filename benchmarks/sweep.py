@@ -131,9 +131,10 @@ class Sweep:
         return dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
                     hyper=hyper, episodes=self.p["episodes"])
 
-    def _finished(self, label: str, config: dict) -> bool:
-        record = self.cells.load(label, config, quiet=True)
-        return record is not None and self._loads(record, quiet=True)
+    def _finished(self, label: str, config: dict, quiet: bool = True) -> bool:
+        """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
+        record = self.cells.load(label, config, quiet=quiet)
+        return record is not None and self._loads(record, quiet=quiet)
 
     def _loads(self, record: dict, quiet: bool = False) -> bool:
         """Whether a cell's checkpoint is there and loads (not truncated, corrupt or of an older format)."""
@@ -260,7 +261,8 @@ class Sweep:
                     evals = [(f"transfer-{mode}-{test}-{algo}-s{seed}", {"stages": 5, "mode": test},
                               seed + TEST_SEED_OFFSET) for test in MODES if "transfer" in sections]
                     evals += [(f"feedback-k{k}-{algo}-s{seed}", {"stages": 5, "mode": "hard", "feedback_k": k},
-                               seed + TEST_SEED_OFFSET) for k in p["feedback_ks"] if "feedback" in sections and mode == "hard"]
+                               seed + TEST_SEED_OFFSET)
+                              for k in p["feedback_ks"] if "feedback" in sections and mode == "hard"]
                     if not evals:
                         continue
                     label = f"table1-{mode}-{algo}-s{seed}"
@@ -274,9 +276,8 @@ class Sweep:
     def todo(self, unit: dict):
         """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
         if unit["kind"] == "eval":
-            return unit if any(self.cells.load(label, config, quiet=True) is None for label, config in unit["cells"]) \
-                else None
-        left = [(label, config) for label, config in unit["cells"] if not self._finished(label, config)]
+            return unit if any(self.cells.load(label, config) is None for label, config in unit["cells"]) else None
+        left = [(label, config) for label, config in unit["cells"] if not self._finished(label, config, quiet=False)]
         if not left:
             return None
         seeds = [config["seed"] for _, config in left]

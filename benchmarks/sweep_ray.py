@@ -25,7 +25,8 @@ from pathlib import Path
 from benchmarks.sweep import Sweep, crash_injection, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
-FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE")
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS",
+                 "XLA_PYTHON_CLIENT_PREALLOCATE")
 CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
@@ -105,6 +106,19 @@ def store_files(out: Path, files: dict) -> None:
             os.replace(tmp, out / rel)
 
 
+def _kind(unit: dict) -> str:
+    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), or evaluation."""
+    return f"train {unit['algo']}" if unit["kind"] == "train" else "eval"
+
+
+def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
+    """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's measured
+    seconds (``spent``) per estimated second of its finished units (``est_done``), or by all kinds' ratio
+    for a kind not seen finish yet (1 before any)."""
+    overall = sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
+    return sum(left * (spent[k] / est_done[k] if est_done[k] else overall) for k, left in est_left.items())
+
+
 def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
     """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran last
     (warm programs), else of the algorithm with the most remaining cost that no other worker runs,
@@ -168,11 +182,13 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
     actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
     actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
-    remaining = Counter()
+    remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
     for u in todo.values():
         remaining[u["algo"]] += u["cost"]
+        est_left[_kind(u)] += u["cost"]
     cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
-    bar = progress(total=round(sum(remaining.values()), 1), desc=f"sweep on {n} workers", unit="work-s", smoothing=0)
+    bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=f"sweep on {n} workers",
+                   unit="worker-s", smoothing=0)
     bar.set_postfix_str(f"cells 0/{cells_total}")
     idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
     busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
@@ -205,13 +221,17 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             idle.append(i)
             running_algos[unit["algo"]] -= 1
             remaining[unit["algo"]] -= unit["cost"]
+            est_left[_kind(unit)] -= unit["cost"]
+            est_done[_kind(unit)] += unit["cost"]
+            spent[_kind(unit)] += result["seconds"]
             busy[i] += result["seconds"]
             algos[i].add(unit["algo"])
             where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
             computed += result["computed"]
             cells_done += len(unit["cells"])
             bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
-            bar.update(unit["cost"])
+            bar.total = round(bar.n + result["seconds"] + projected_seconds(est_left, est_done, spent), 1)
+            bar.update(round(result["seconds"], 1))
     finally:
         bar.close()
     ray.get([a.close.remote() for a in actors])

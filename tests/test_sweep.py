@@ -161,3 +161,18 @@ def test_worker_crash_is_resumed(tmp_path):
     assert "(6 cells computed, 0 reused)" in stdout
     assert len(list((out / "cells").glob("*.json"))) == 6  # 3 modes x 2 seeds
     assert (out / "table1.md").exists()
+
+
+def test_remaining_work_follows_measured_cost_per_kind():
+    from collections import Counter
+
+    from benchmarks.sweep_ray import projected_seconds
+
+    left = Counter({"train ppo": 100.0, "eval": 10.0})
+    assert projected_seconds(left, Counter(), Counter()) == 110.0  # the estimates before anything finished
+    # PPO units took twice their estimate, evaluations a tenth: each kind scaled by its own ratio.
+    assert projected_seconds(left, Counter({"train ppo": 50.0, "eval": 10.0}),
+                             Counter({"train ppo": 100.0, "eval": 1.0})) == 201.0
+    # A kind not seen finish yet takes the overall ratio (here 101 / 60).
+    assert abs(projected_seconds(Counter({"train sac": 60.0}), Counter({"train ppo": 50.0, "eval": 10.0}),
+                                 Counter({"train ppo": 100.0, "eval": 1.0})) - 101.0) < 1e-9
