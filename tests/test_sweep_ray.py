@@ -86,7 +86,7 @@ def two_node_cluster():
             os.killpg(p.pid, signal.SIGTERM)
         for p in reversed(procs):
             try:
-                p.wait(timeout=20)
+                p.wait(timeout=5)
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait(timeout=20)
