@@ -187,7 +187,8 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
         remaining[u["algo"]] += u["cost"]
         est_left[_kind(u)] += u["cost"]
     cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
-    bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=f"sweep on {n} workers",
+    on = f"sweep on {n} worker{'s' if n > 1 else ''}"
+    bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
                    unit="worker-s", smoothing=0)
     bar.set_postfix_str(f"cells 0/{cells_total}")
     idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
@@ -208,7 +209,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
                 idle.remove(i)
                 last_algo[i] = unit["algo"]
                 running_algos[unit["algo"]] += 1
-            bar.set_description(f"sweep on {n} workers: " + ", ".join(u["key"] for _, u in running.values()))
+            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u in running.values()))
             [ref], _ = ray.wait(list(running), num_returns=1)
             i, unit = running.pop(ref)
             try:
