@@ -146,8 +146,8 @@ def connect(address: str | None, jobs: int | None):
     if address:
         ray.init(address=address, runtime_env={"py_modules": [ops_jax, agents, benchmarks]}, log_to_driver=True)
     else:
-        # Ray starts workers at nice 15 (for the raylet's sake); on a shared machine they would then
-        # get a small share of the CPU, which the sweep's workers do not take today.
+        # Ray starts workers at nice 15 (for the raylet's sake): on a machine running other work they
+        # would get a small share of the CPU (measured: a several-fold slower sweep).
         os.environ.setdefault("RAY_worker_niceness", "0")
         ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True)
 
