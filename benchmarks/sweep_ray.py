@@ -28,6 +28,7 @@ from ops_jax.progress import is_terminal, progress
 FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS",
                  "XLA_PYTHON_CLIENT_PREALLOCATE")
 CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
+PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
 
@@ -115,8 +116,22 @@ def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> f
     """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's measured
     seconds (``spent``) per estimated second of its finished units (``est_done``), or by all kinds' ratio
     for a kind not seen finish yet (1 before any)."""
-    overall = sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
-    return sum(left * (spent[k] / est_done[k] if est_done[k] else overall) for k, left in est_left.items())
+    return sum(left * cost_ratio(k, est_done, spent) for k, left in est_left.items())
+
+
+def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
+    """Measured seconds per estimated second of ``kind``'s finished units (all kinds' if none, 1 before any)."""
+    if est_done[kind]:
+        return spent[kind] / est_done[kind]
+    return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
+
+
+def _show(bar, spent: Counter, in_flight: float, left: float) -> None:
+    """Progress in worker-seconds: finished units' measured seconds plus the running units' time so
+    far, out of that plus the projected work left beyond what is running."""
+    done = sum(spent.values()) + in_flight
+    bar.total = round(done + max(left - in_flight, 0.0), 1)
+    bar.update(round(done - bar.n, 1))
 
 
 def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
@@ -205,13 +220,23 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
                 if unit["kind"] == "eval":
                     record = sweep.cells.load(*unit["train"])
                     checkpoint = checkpoint_files(out, record)
-                running[actors[i].run.remote(unit, record, checkpoint)] = (i, unit)
+                running[actors[i].run.remote(unit, record, checkpoint)] = (i, unit, time.monotonic())
                 idle.remove(i)
                 last_algo[i] = unit["algo"]
                 running_algos[unit["algo"]] += 1
-            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u in running.values()))
-            [ref], _ = ray.wait(list(running), num_returns=1)
-            i, unit = running.pop(ref)
+            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u, _ in running.values()))
+            finished, _ = ray.wait(list(running), num_returns=1, timeout=PROGRESS_EVERY_S)
+            # Work in flight counts as done for as long as it has run, up to 90% of its projected cost (a
+            # unit running over its estimate holds the line back instead of showing nothing left): the rate
+            # is then the number of busy workers from the start, not only what finished units show.
+            in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
+                            for _, u, t in running.values())
+            if not finished:
+                _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+                continue
+            ref = finished[0]
+            i, unit, t = running.pop(ref)
+            in_flight -= min(time.monotonic() - t, 0.9 * unit["cost"] * cost_ratio(_kind(unit), est_done, spent))
             try:
                 result = ray.get(ref)
             except (ray.exceptions.RayError, OSError) as exc:
@@ -231,8 +256,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             computed += result["computed"]
             cells_done += len(unit["cells"])
             bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
-            bar.total = round(bar.n + result["seconds"] + projected_seconds(est_left, est_done, spent), 1)
-            bar.update(round(result["seconds"], 1))
+            _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
     finally:
         bar.close()
     ray.get([a.close.remote() for a in actors])
