@@ -23,10 +23,12 @@ def config_hash(config: dict) -> str:
 
 
 class CellStore:
-    def __init__(self, folder: Path, log: Callable[[str], None] = print):
+    def __init__(self, folder: Path, log: Callable[[str], None] = print, meta: dict | None = None):
+        """``meta``: keys written beside ``config`` and ``result`` in each cell computed here (e.g. where)."""
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.log = log
+        self.meta = dict(meta or {})
         self.computed = 0
         self.reused = 0
 
@@ -57,6 +59,6 @@ class CellStore:
             self.reused += 1
             return result
         result = compute()
-        write_json_atomic(self.path(label, config), {"config": config, "result": result})
+        write_json_atomic(self.path(label, config), {"config": config, "result": result, **self.meta})
         self.computed += 1
         return result

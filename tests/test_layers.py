@@ -77,7 +77,7 @@ def cycles(graph: dict) -> list:
 
 def test_graph_sees_function_local_imports():
     graph = import_graph()
-    assert "benchmarks.sweep_report" in graph["benchmarks.sweep"]  # imported inside Sweep.run
+    assert "benchmarks.sweep_report" in graph["benchmarks.sweep_units"]  # imported inside Sweep.run
     assert "ops_jax.render" in graph["ops_jax.gym_env"]  # imported inside render()
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 

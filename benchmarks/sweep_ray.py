@@ -1,0 +1,264 @@
+"""The sweep's work units on Ray actors (a local Ray instance or a cluster); this process stores the cells.
+
+Each actor computes whole units (``Sweep.units``) in a scratch folder of its own node and returns
+the files they wrote (cell JSON, checkpoints): no shared filesystem is needed, and this process
+writes them into the output folder, so the cell store stays the one record (atomic, keyed by
+configuration, resumable). A unit goes to an idle actor, preferably one that last ran the same
+algorithm (its compiled programs are warm), and only once the units whose checkpoints it needs are
+stored. A worker that dies (crash signal, killed, node lost) is restarted by Ray, which retries its
+unit (``--restarts``).
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+from benchmarks.sweep_units import Sweep, crash_injection, enable_compilation_cache
+from ops_jax.progress import is_terminal, progress
+
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS",
+                 "XLA_PYTHON_CLIENT_PREALLOCATE")
+CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
+PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
+OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+class SweepWorker:
+    """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
+
+    def __init__(self, preset: dict, env: dict, crash_marker: str):
+        """``env``: variables set before jax starts (XLA_FLAGS, ...); ``crash_marker``: see ``crash_injection``."""
+        import ray
+
+        faulthandler.enable()  # a crash prints the Python stack into the worker's log (shown by the driver)
+        os.environ.update(env)
+        enable_compilation_cache()
+        self.where = dict(node_id=ray.get_runtime_context().get_node_id(), hostname=socket.gethostname())
+        self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
+        self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
+        crash_injection(self.sweep, Path(crash_marker))
+
+    def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
+        """Compute ``unit`` (an eval unit gets its controller's table-1 ``record`` and ``checkpoint``
+        files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
+        "node_id", "hostname"}."""
+        t0 = time.perf_counter()
+        for rel, blob in (checkpoint or {}).items():
+            (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
+            (self.scratch / rel).write_bytes(blob)
+        computed = self.sweep.cells.computed
+        self.sweep.compute_unit(unit, record)
+        files = {}
+        for label, config in unit["cells"]:
+            path = self.sweep.cells.path(label, config)
+            files[path.relative_to(self.scratch).as_posix()] = blob = path.read_bytes()
+            if unit["kind"] == "train":
+                ckpt = self.scratch / json.loads(blob)["result"]["checkpoint"]
+                files.update({f.relative_to(self.scratch).as_posix(): f.read_bytes() for f in ckpt.iterdir()})
+        for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
+            shutil.rmtree(child)
+        self.sweep.cells.folder.mkdir()
+        return dict(files=files, computed=self.sweep.cells.computed - computed, seconds=time.perf_counter() - t0,
+                    **self.where)
+
+    def close(self) -> None:
+        shutil.rmtree(self.scratch, ignore_errors=True)
+
+
+def checkpoint_files(out: Path, record: dict) -> dict:
+    """The files of ``record``'s checkpoint under ``out``, {path relative to ``out``: bytes}."""
+    return {f.relative_to(out).as_posix(): f.read_bytes() for f in (out / record["checkpoint"]).iterdir()}
+
+
+def store_files(out: Path, files: dict) -> None:
+    """Write a unit's returned files under ``out``: each checkpoint folder renamed into place whole,
+    then each cell file renamed into place, so a stored cell always has its checkpoint."""
+    folders = {}
+    for rel, blob in files.items():
+        if not rel.startswith("cells/"):
+            folders.setdefault(Path(rel).parent, {})[Path(rel).name] = blob
+    for folder, content in folders.items():
+        dest = out / folder
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=dest.parent, prefix=dest.name + ".tmp"))
+        for name, blob in content.items():
+            (tmp / name).write_bytes(blob)
+        if dest.exists():
+            shutil.rmtree(dest)
+        os.replace(tmp, dest)
+    for rel, blob in files.items():
+        if rel.startswith("cells/"):
+            fd, tmp = tempfile.mkstemp(dir=out / "cells", prefix=Path(rel).name, suffix=".tmp")
+            with os.fdopen(fd, "wb") as f:
+                f.write(blob)
+            os.replace(tmp, out / rel)
+
+
+def _kind(unit: dict) -> str:
+    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), or evaluation."""
+    return f"train {unit['algo']}" if unit["kind"] == "train" else "eval"
+
+
+def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
+    """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's measured
+    seconds (``spent``) per estimated second of its finished units (``est_done``), or by all kinds' ratio
+    for a kind not seen finish yet (1 before any)."""
+    return sum(left * cost_ratio(k, est_done, spent) for k, left in est_left.items())
+
+
+def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
+    """Measured seconds per estimated second of ``kind``'s finished units (all kinds' if none, 1 before any)."""
+    if est_done[kind]:
+        return spent[kind] / est_done[kind]
+    return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
+
+
+def _show(bar, spent: Counter, in_flight: float, left: float) -> None:
+    """Progress in worker-seconds: finished units' measured seconds plus the running units' time so
+    far, out of that plus the projected work left beyond what is running."""
+    done = sum(spent.values()) + in_flight
+    bar.total = round(done + max(left - in_flight, 0.0), 1)
+    bar.update(round(done - bar.n, 1))
+
+
+def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
+    """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran last
+    (warm programs), else of the algorithm with the most remaining cost that no other worker runs,
+    else of the one with the most remaining cost."""
+    if not ready:
+        return None
+    same = [u for u in ready if u["algo"] == last_algo]
+    if same:
+        return same[0]
+    free = [u for u in ready if not running_algos[u["algo"]]] or ready
+    return max(free, key=lambda u: remaining[u["algo"]])  # max keeps the first of equals: plan order
+
+
+def connect(address: str | None, jobs: int | None):
+    """``ray.init``: the cluster at ``address`` (the project's packages shipped to its workers), or a
+    local instance with ``jobs`` CPUs."""
+    import ray
+
+    import agents
+    import benchmarks
+    import ops_jax
+
+    if not is_terminal(sys.stderr):  # the workers' forwarded lines without colour codes in a log
+        os.environ.setdefault("RAY_COLOR_PREFIX", "0")
+    if address:
+        ray.init(address=address, runtime_env={"py_modules": [ops_jax, agents, benchmarks]}, log_to_driver=True)
+    else:
+        # Ray starts workers at nice 15 (for the raylet's sake): on a machine running other work they
+        # would get a small share of the CPU (measured: a several-fold slower sweep).
+        os.environ.setdefault("RAY_worker_niceness", "0")
+        ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True)
+
+
+def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int | None = None, restarts: int = 2,
+        worker_gpus: float = 0.0):
+    """Compute the cells of ``sections`` not stored in ``out`` on Ray workers (``jobs``, default one per
+    CPU of the cluster), then write the reports. Returns (cells computed, cells reused)."""
+    started = time.time()
+    sweep = Sweep(preset, out, _stderr)
+    units = sweep.units(sections)
+    todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
+    done = {u["key"] for u in units} - set(todo)
+    workers, computed = [], 0
+    if todo:
+        import ray
+
+        connect(address, jobs)
+        try:
+            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset)
+        finally:
+            ray.shutdown()
+    return Sweep(preset, out, _stderr).run(sections, workers, computed, started)
+
+
+def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
+             preset: dict):
+    """The scheduling loop: units to idle workers, returned files into the store. Returns (cells
+    computed, a record per worker for the summary)."""
+    n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
+    env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+    env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
+    actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
+    actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
+    remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
+    for u in todo.values():
+        remaining[u["algo"]] += u["cost"]
+        est_left[_kind(u)] += u["cost"]
+    cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
+    on = f"sweep on {n} worker{'s' if n > 1 else ''}"
+    bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
+                   unit="worker-s", smoothing=0)
+    bar.set_postfix_str(f"cells 0/{cells_total}")
+    idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
+    busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
+    try:
+        while todo or running:
+            for i in list(idle):
+                ready = [u for u in todo.values() if all(d in done for d in u["deps"])]
+                unit = pick(ready, last_algo[i], running_algos, remaining)
+                if unit is None:
+                    break
+                del todo[unit["key"]]
+                record = checkpoint = None
+                if unit["kind"] == "eval":
+                    record = sweep.cells.load(*unit["train"])
+                    checkpoint = checkpoint_files(out, record)
+                running[actors[i].run.remote(unit, record, checkpoint)] = (i, unit, time.monotonic())
+                idle.remove(i)
+                last_algo[i] = unit["algo"]
+                running_algos[unit["algo"]] += 1
+            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u, _ in running.values()))
+            finished, _ = ray.wait(list(running), num_returns=1, timeout=PROGRESS_EVERY_S)
+            # Work in flight counts as done for as long as it has run, up to 90% of its projected cost (a
+            # unit running over its estimate holds the line back instead of showing nothing left): the rate
+            # is then the number of busy workers from the start, not only what finished units show.
+            in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
+                            for _, u, t in running.values())
+            if not finished:
+                _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+                continue
+            ref = finished[0]
+            i, unit, t = running.pop(ref)
+            in_flight -= min(time.monotonic() - t, 0.9 * unit["cost"] * cost_ratio(_kind(unit), est_done, spent))
+            try:
+                result = ray.get(ref)
+            except (ray.exceptions.RayError, OSError) as exc:
+                raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
+                                 f"stored in {out}/cells (re-run the command to resume)") from exc
+            store_files(out, result["files"])
+            done.add(unit["key"])
+            idle.append(i)
+            running_algos[unit["algo"]] -= 1
+            remaining[unit["algo"]] -= unit["cost"]
+            est_left[_kind(unit)] -= unit["cost"]
+            est_done[_kind(unit)] += unit["cost"]
+            spent[_kind(unit)] += result["seconds"]
+            busy[i] += result["seconds"]
+            algos[i].add(unit["algo"])
+            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
+            computed += result["computed"]
+            cells_done += len(unit["cells"])
+            bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
+            _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+    finally:
+        bar.close()
+    ray.get([a.close.remote() for a in actors])
+    bar.write("cells computed per node: " + ", ".join(f"{k}: {v}" for k, v in where.items()))
+    return computed, [dict(algos=sorted(algos[i]), timing={"computing": busy[i]}) for i in range(n)]

@@ -1,0 +1,150 @@
+"""The sweep on a real two-node Ray cluster (two raylets on this machine), one worker killed mid-run."""
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from benchmarks import sweep
+
+REPO = Path(__file__).resolve().parents[1]
+START_TIMEOUT_S = 180
+# Loopback test cluster: no token; workers at the normal priority (Ray's default nice 15 starves
+# them on a busy machine).
+CLUSTER_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_worker_niceness": "0", "RAY_USAGE_STATS_ENABLED": "0"}
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _descendants(pids) -> set:
+    children = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(stat.parent.name))
+    found, stack = set(), list(pids)
+    while stack:
+        for child in children.get(stack.pop(), []):
+            found.add(child)
+            stack.append(child)
+    return found
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
+    """``ray start ARGS --block`` in its own process group; returns once it reports the node started."""
+    proc = subprocess.Popen(["ray", "start", *args, "--num-cpus", "1", "--block", "--disable-usage-stats"],
+                            stdout=open(log, "w"), stderr=subprocess.STDOUT, env=env, start_new_session=True)
+    deadline = time.time() + START_TIMEOUT_S
+    while "Ray runtime started" not in log.read_text():
+        if proc.poll() is not None or time.time() > deadline:
+            raise RuntimeError(f"ray start {' '.join(args)} failed:\n{log.read_text()[-3000:]}")
+        time.sleep(0.5)
+    return proc
+
+
+@pytest.fixture
+def two_node_cluster():
+    """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn down
+    by process group (SIGTERM, then SIGKILL), never by name."""
+    if shutil.which("ray") is None:
+        pytest.skip("ray is not installed")
+    tmp = Path(tempfile.mkdtemp(prefix="ojr-", dir="/tmp"))  # short: Ray's socket paths have a length limit
+    port = _free_port()
+    env = {**os.environ, "PYTHONPATH": str(REPO), **CLUSTER_ENV}
+    procs = []
+    try:
+        procs.append(_ray_start(["--head", "--port", str(port), "--include-dashboard", "false",
+                                 "--temp-dir", str(tmp / "ray")], tmp / "head.log", env))
+        procs.append(_ray_start(["--address", f"127.0.0.1:{port}"], tmp / "node.log", env))
+        yield f"127.0.0.1:{port}", env, procs
+    finally:
+        spawned = _descendants([p.pid for p in procs])
+        for p in reversed(procs):
+            os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(timeout=20)
+        for pid in spawned:  # a worker outside the process groups
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cluster):
+    address, env, cluster = two_node_cluster
+    out = tmp_path / "quick"
+    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.sweep", "--quick", "--ray", address, "--out", str(out)],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        killed = None
+        deadline = time.time() + 600
+        while killed is None and time.time() < deadline and proc.poll() is None:
+            if list((out / "cells").glob("*.json")):  # mid-run: cells stored, workers computing more
+                running = [pid for pid in _descendants([p.pid for p in cluster])
+                           if _cmdline(pid).startswith("ray::SweepWorker.run")]
+                if running:
+                    killed = running[0]
+                    os.kill(killed, signal.SIGKILL)
+            time.sleep(0.5)
+        stdout, stderr = proc.communicate(timeout=900)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert killed is not None, f"no worker computing a unit was found to kill\n{stderr[-3000:]}"
+    assert proc.returncode == 0, stderr[-3000:]
+    assert "\x1b[" not in stderr and "\r" not in stderr  # a log file: plain lines, no control codes
+    assert stderr.count("sweep on 2 workers") >= 1
+    preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=None))
+    units = sweep.Sweep(preset, tmp_path / "plan", print).units(sweep.SECTIONS)
+    expected = {label for u in units for label, _ in u["cells"]}
+    cells = {}
+    for path in (out / "cells").glob("*.json"):
+        data = json.loads(path.read_text())
+        cells[path.name.rsplit("-", 1)[0]] = data
+    assert set(cells) == expected  # every cell, once
+    for label, data in cells.items():
+        result = data["result"]
+        finals = result.get("final") or result["test_env"]["final"]
+        assert finals and all(0.0 <= v <= 1.0 for v in finals), label
+        if "checkpoint" in result:
+            assert (out / result["checkpoint"] / "params.msgpack").stat().st_size > 0, label
+        assert data["hostname"] and len(data["node_id"]) >= 16, label
+    assert len({data["node_id"] for data in cells.values()}) == 2  # computed on both nodes
+    td3 = [d for label, d in cells.items() if label.startswith("table1-") and "-td3-" in label]
+    assert len(td3) == 6 and all(d["result"]["wall_time"]["seeds_in_call"] == 2 for d in td3)
+    summary = (out / "summary.md").read_text()
+    assert "worker 1 (" in summary and "worker 2 (" in summary and "whole command:" in summary
+    for name in ["table1.md", "table1.csv", "table2.md", "stages.md", "transfer.md", "feedback.md",
+                 "training_curves.png", "testing_curves.png", "stages.png", "transfer.png", "feedback.png"]:
+        assert (out / name).stat().st_size > 0, name
+    rows = list(__import__("csv").DictReader(open(out / "table1.csv")))
+    assert {r["algo"] for r in rows} == {"spgd", "physics", "ppo", "sac", "td3"}
+    assert all(0.0 <= float(r["mean"]) <= 1.0 for r in rows)
