@@ -56,7 +56,7 @@ def _cmdline(pid: int) -> str:
 def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
     """``ray start ARGS --block`` in its own process group; returns once it reports the node started."""
     proc = subprocess.Popen(["ray", "start", *args, "--num-cpus", "1", "--block", "--disable-usage-stats"],
-                            stdout=open(log, "w"), stderr=subprocess.STDOUT, env=env, start_new_session=True)
+                            stdout=open(log, "w"), stderr=subprocess.STDOUT, env=env, preexec_fn=os.setsid)
     deadline = time.time() + START_TIMEOUT_S
     while "Ray runtime started" not in log.read_text():
         if proc.poll() is not None or time.time() > deadline:
