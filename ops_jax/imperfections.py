@@ -181,6 +181,16 @@ def from_options(stages: int, options: dict):
     return build(stages, **values), bool(values)
 
 
+def observation_bounds(lab: Imperfections, x_max):
+    """(bound of the P / sample observation entries, bound of the length readout in wl) given the
+    ideal largest offset ``x_max``: detector readings lie in [0, saturation], the readout adds its
+    calibration error and up to 6 RMS of vibration."""
+    sat = float(np.max(lab.detector_saturation))
+    vib = 6.0 * float(np.max(lab.vib_rms) + np.max(np.sum(lab.resonance_rms, axis=-1)))
+    x = (x_max + vib) * (1 + float(np.max(np.abs(lab.readout_gain_error)))) + float(np.max(np.abs(lab.readout_offset)))
+    return max(1.0, 2 * sat - 1), x
+
+
 def batch_axes(lab: Imperfections) -> Imperfections:
     """vmap in_axes of ``lab``: 0 for leaves with a batch axis, None for shared ones."""
     base = lambda name: 1 if name in PER_STAGE + PER_RESONANCE else 0

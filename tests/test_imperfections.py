@@ -243,3 +243,19 @@ def test_lab_info_reports_both_scores():
     _, _, _, _, _, info = jax.jit(env.step)(jax.random.key(1), state, jnp.zeros(3), params)
     np.testing.assert_allclose(info["normalized_power_best"] * params.lab.p_best,
                                info["normalized_power"] * env.p_max, rtol=1e-5)
+
+
+def test_options_pass_through_gymnasium_and_agents():
+    import gymnasium
+
+    import agents.base
+
+    cfg = dict(stages=3, mode="hard", model="phasor", imperfections="lab", imperfection_scale=2.0)
+    assert agents.base.check_env_config(cfg) == cfg
+    env = gymnasium.make("ops_jax/OPS-v0", stages=3, mode="hard", model="phasor", imperfections="lab")
+    assert env.unwrapped.env.config.imperfect
+    obs, _ = env.reset(seed=0)
+    obs2, reward, *_ = env.step(np.zeros(3, np.float32))
+    assert obs2.shape == obs.shape and np.isfinite(reward)
+    with pytest.raises(ValueError, match="imperfections"):
+        gymnasium.make("ops_jax/OPS-v0", stages=3, imperfections="moon")
