@@ -176,7 +176,7 @@ class OPSEnv:
         if not self.config.imperfect:
             m = self._measure(deltas)
             return m, m, deltas
-        return imperfections.sense(self.config, deltas, lab, params.lab, self.p_max, self.peak)
+        return imperfections.sense(self.config, deltas, lab, self.p_max, self.peak)
 
     def _mu(self, state, params):
         drift = noise.piecewise_linear(state.knots[0], state.knots[1], state.t, params.drift_segment)
@@ -250,7 +250,7 @@ class OPSEnv:
         deltas = state.deltas + noise.free_run(d["run"], mu, params.step_sigma)
         move, lab = action * params.action_scale, state.lab
         if c.imperfect:
-            lab, move = imperfections.advance(key, lab, move, params.lab)
+            lab, move = imperfections.advance(key, lab, move)
         deltas = deltas + move
         t = state.t + 1
         # Advance the piecewise-linear drift to the next segment when one ends.

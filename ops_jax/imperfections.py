@@ -43,6 +43,8 @@ class Imperfections:
     Vibration: vib_rms (wl RMS) of a 1/f^vib_alpha background; resonance_freq (R,) cycles per
     step, resonance_q (R,), resonance_rms (R,) wl RMS.
     p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``; 0: P_max).
+    randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``)
+    is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
     """
 
     waveplate_error_deg: Any = 0.0
@@ -66,6 +68,7 @@ class Imperfections:
     resonance_q: Any = (20.0, 20.0)
     resonance_rms: Any = (0.0, 0.0)
     p_best: Any = 0.0
+    randomize: Any = 0.0
 
 
 PER_STAGE = ("waveplate_error_deg", "pbs_leakage", "readout_offset", "readout_gain_error", "actuator_gain_error")
@@ -95,6 +98,7 @@ RANGES = {
     "resonance_q": (0.5, 1e4),
     "resonance_rms": (0.0, 1.0),
     "p_best": (0.0, math.inf),
+    "randomize": (0.0, 1.0),
 }
 
 # The "lab" preset (docs/imperfections.md: sources and assumptions). Per-stage patterns repeat
@@ -122,7 +126,7 @@ _LAB = dict(
     resonance_rms=(0.003, 0.002),
 )
 # Fields scaled by ``imperfection_scale`` (error magnitudes); bits, span, saturation, shapes are not.
-_SCALED = ("waveplate_error_deg", "pbs_leakage", "pulse_amplitude_noise", "pulse_phase_noise", "readout_offset",
+SCALED = ("waveplate_error_deg", "pbs_leakage", "pulse_amplitude_noise", "pulse_phase_noise", "readout_offset",
            "readout_gain_error", "actuator_gain_error", "backlash_wl", "lag_steps", "detector_offset",
            "detector_gain_error", "vib_rms", "resonance_rms")
 
@@ -137,7 +141,7 @@ def preset(name: str, stages: int, scale: float = 1.0) -> dict:
     out = {}
     for k, v in _LAB.items():
         v = np.resize(np.asarray(v, float), stages) if k in PER_STAGE else np.asarray(v, float)
-        out[k] = v * scale if k in _SCALED else v
+        out[k] = v * scale if k in SCALED else v
     return out
 
 
@@ -202,7 +206,7 @@ def batch_axes(lab: Imperfections) -> Imperfections:
 class LabState:
     """command, play, position (N,): the actuator chain (wl, since the episode start); fir
     (FIR_TAPS, N), osc (2, R, N): the vibration filters; pulses (2, 2^N): this step's input pulse
-    weights (re, im)."""
+    weights (re, im); values: this episode's ``Imperfections`` (randomised at reset)."""
 
     command: jax.Array
     play: jax.Array
@@ -210,6 +214,7 @@ class LabState:
     fir: jax.Array
     osc: jax.Array
     pulses: jax.Array
+    values: Imperfections
 
 
 def _draws(key, stages, fresh):
@@ -227,16 +232,25 @@ def _pulses(z, lab):
     return jnp.stack([amp * jnp.cos(phase), amp * jnp.sin(phase)])
 
 
+def episode_values(key, lab: Imperfections) -> Imperfections:
+    """This episode's imperfections: each ``SCALED`` entry v becomes v (1 + randomize u)."""
+    u = noise.draws(jax.random.fold_in(key, _TAG + 1), uniform={k: jnp.shape(getattr(lab, k)) for k in SCALED})
+    return dataclasses.replace(lab, **{k: getattr(lab, k) * (1 + lab.randomize * u[k]) for k in SCALED})
+
+
 def reset(key, stages, lab: Imperfections) -> LabState:
-    """Episode start: actuators at rest, vibration drawn from its stationary law."""
+    """Episode start: actuators at rest, vibration drawn from its stationary law, the episode's
+    imperfections drawn (``randomize``)."""
     d = _draws(key, stages, True)
+    lab = episode_values(key, lab)
     zero = jnp.zeros((stages,), jnp.float32)
     osc = vibration.stationary_lags(d["osc"], jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q))
-    return LabState(zero, zero, zero, d["fir"], osc, _pulses(d["pulse"], lab))
+    return LabState(zero, zero, zero, d["fir"], osc, _pulses(d["pulse"], lab), lab)
 
 
-def advance(key, state: LabState, move, lab: Imperfections):
+def advance(key, state: LabState, move):
     """One control step for a commanded move (N,) wl. Returns (state, actual length change (N,))."""
+    lab = state.values
     d = _draws(key, state.command.shape[-1], False)
     command, play, position = hardware.actuate(
         state.command, state.play, state.position, move, lab.actuator_gain_error, lab.backlash_wl,
@@ -244,13 +258,14 @@ def advance(key, state: LabState, move, lab: Imperfections):
     fir, osc, _ = vibration.step(state.fir, state.osc, d["bg"], d["res"], lab.vib_alpha, lab.vib_rms,
                                  jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q),
                                  jnp.asarray(lab.resonance_rms))
-    new = LabState(command, play, position, fir, osc, _pulses(d["pulse"], lab))
+    new = LabState(command, play, position, fir, osc, _pulses(d["pulse"], lab), lab)
     return new, position - state.position
 
 
-def sense(config, deltas, state: LabState, lab: Imperfections, p_max, peak):
+def sense(config, deltas, state: LabState, p_max, peak):
     """What happens and what is seen at slow offsets ``deltas`` (N,) wl: (true Measurement,
     detected Measurement, length readout (N,) wl). Vibration adds to the lengths."""
+    lab = state.values
     x = deltas + vibration.displacement(state.fir, state.osc, lab.vib_alpha, lab.vib_rms,
                                         jnp.asarray(lab.resonance_rms))
     m = optics.measure(x, optics.rotation(lab.waveplate_error_deg), lab.pbs_leakage, state.pulses,

@@ -259,3 +259,21 @@ def test_options_pass_through_gymnasium_and_agents():
     assert obs2.shape == obs.shape and np.isfinite(reward)
     with pytest.raises(ValueError, match="imperfections"):
         gymnasium.make("ops_jax/OPS-v0", stages=3, imperfections="moon")
+
+
+def test_randomize_draws_each_episodes_imperfections():
+    env, p0 = ops_jax.make(3, "hard", imperfections="lab", model="phasor")
+    _, p1 = ops_jax.make(3, "hard", imperfections="lab", model="phasor", randomize=1.0)
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    keys = jax.random.split(jax.random.key(0), 256)
+    fixed = reset(keys, p0)[1].lab.values
+    drawn = reset(keys, p1)[1].lab.values
+    for name in imperfections.SCALED:
+        v = np.asarray(getattr(p0.lab, name))
+        np.testing.assert_array_equal(getattr(fixed, name), np.broadcast_to(v, getattr(fixed, name).shape))
+        d = np.asarray(getattr(drawn, name))
+        assert np.all(np.abs(d) <= 2 * np.abs(v) * (1 + 1e-6)) and np.all(d * v >= 0)
+        if np.any(v != 0):
+            assert np.std(d, axis=0).max() > 0.3 * np.abs(v).max()  # U[-1, 1) spread: std 0.58 v
+    with pytest.raises(ValueError, match="randomize"):
+        ops_jax.make(3, "hard", imperfections="lab", randomize=1.5)
