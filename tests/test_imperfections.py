@@ -257,6 +257,7 @@ def test_options_pass_through_gymnasium_and_agents():
     obs, _ = env.reset(seed=0)
     obs2, reward, *_ = env.step(np.zeros(3, np.float32))
     assert obs2.shape == obs.shape and np.isfinite(reward)
+    assert env.observation_space.contains(obs) and env.observation_space.contains(obs2)
     with pytest.raises(ValueError, match="imperfections"):
         gymnasium.make("ops_jax/OPS-v0", stages=3, imperfections="moon")
 
@@ -277,3 +278,16 @@ def test_randomize_draws_each_episodes_imperfections():
             assert np.std(d, axis=0).max() > 0.3 * np.abs(v).max()  # U[-1, 1) spread: std 0.58 v
     with pytest.raises(ValueError, match="randomize"):
         ops_jax.make(3, "hard", imperfections="lab", randomize=1.5)
+
+
+def test_reality_report_writes_table_csv_and_figure(tmp_path):
+    from benchmarks import reality
+
+    results = {"spgd/ideal": {"none": [0.99, 0.98], "lab": [0.97, 0.96], "2x lab": [0.9, 0.91]},
+               "ppo/randomised": {"none": [0.9, 0.7], "lab": [0.5, 0.6], "2x lab": [0.4, 0.45]}}
+    reality.report(tmp_path, results, dict(seeds=2, episodes=8), "python -m benchmarks.sweep --only reality", 60.0)
+    md = (tmp_path / "reality.md").read_text()
+    assert "| SPGD (ideal) | **0.9850 ± 0.0050** |" in md and "PPO (randomised)" in md
+    rows = (tmp_path / "reality.csv").read_text().splitlines()
+    assert rows[0] == "controller,trained,level,mean,std,seeds" and len(rows) == 7
+    assert (tmp_path / "reality.png").stat().st_size > 1000
