@@ -291,3 +291,19 @@ def test_reality_report_writes_table_csv_and_figure(tmp_path):
     rows = (tmp_path / "reality.csv").read_text().splitlines()
     assert rows[0] == "controller,trained,level,mean,std,seeds" and len(rows) == 7
     assert (tmp_path / "reality.png").stat().st_size > 1000
+
+
+def test_imperfection_levels_share_one_compiled_step():
+    env, p1 = ops_jax.make(3, "hard", imperfections="lab", model="phasor")
+    _, p2 = ops_jax.make(3, "hard", imperfections="lab", imperfection_scale=2.0, model="phasor", randomize=0.5)
+    traces = []
+
+    @jax.jit
+    def step(key, state, params):
+        traces.append(1)
+        return env.step(key, state, jnp.zeros(3), params)
+
+    for p in (p1, p2, p1):
+        _, state = env.reset(jax.random.key(0), p)
+        step(jax.random.key(1), state, p)
+    assert len(traces) == 1
