@@ -11,6 +11,8 @@ mapped affinely to about [-1, 1]:
 - with ``include_noise``: ``mu_t / 5e-4 wl``, the current free-running mean per stage (the
   paper's POMDP noise state e),
 then Gaussian observation noise of std ``obs_noise`` on every entry (the reference adds 1e-4).
+With ``EnvConfig.imperfect`` the P and sample entries are what the detector reads and the lengths
+what the calibrated readout reports (docs/imperfections.md); the reward uses the read P.
 Frames are stacked oldest first; at reset every frame is the first observation.
 
 Non-finite actions (inside jit): every non-finite entry is replaced by 0 before clipping to
@@ -171,7 +173,7 @@ class OPSEnv:
         c = self.config
         return physics.measure(deltas, stages=c.stages, model=c.model, detector=c.detector)
 
-    def _sense(self, deltas, lab, params):
+    def _sense(self, deltas, lab):
         """(true measurement, detected measurement, length readout (N,) wl) at offsets ``deltas``."""
         if not self.config.imperfect:
             m = self._measure(deltas)
@@ -219,7 +221,7 @@ class OPSEnv:
                         jnp.asarray(p_init, jnp.float32), frames, lab)
 
     def _observe_reset(self, z, state, params):
-        _, m, x_seen = self._sense(state.deltas, state.lab, params)
+        _, m, x_seen = self._sense(state.deltas, state.lab)
         frame = self._frame(z, m, x_seen, self._mu(state, params), params)
         frames = jnp.broadcast_to(frame, state.frames.shape)
         p_init = jnp.where(state.p_init < 0, m.power, state.p_init).astype(jnp.float32)
@@ -257,7 +259,7 @@ class OPSEnv:
         new_knot = noise.drift_knot(d["knot"], params.drift_amplitude)
         seg_end = (t % params.drift_segment) == 0
         knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
-        m_true, m, x_seen = self._sense(deltas, lab, params)
+        m_true, m, x_seen = self._sense(deltas, lab)
         frame = self._frame(d["obs"], m, x_seen, mu, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
         state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames, lab=lab)
@@ -303,7 +305,8 @@ class OPSEnv:
     def probe(self, state: EnvState, offsets, params: EnvParams):
         """P / P_max measured at the current lengths plus ``offsets`` (N,) wl, without moving them:
         one extra detector reading (a dither probe, e.g. SPGD's). Agents count each call."""
-        return self._sense(state.deltas + offsets, state.lab, params)[1].power / self.p_max
+        del params
+        return self._sense(state.deltas + offsets, state.lab)[1].power / self.p_max
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""
