@@ -63,7 +63,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
     ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
-    ap.add_argument("--only", nargs="+", choices=SECTIONS, help="sections to run (default: all)")
+    ap.add_argument("--only", nargs="+", choices=(*SECTIONS, "reality"),
+                    help="sections to run (default: all but reality, which runs alone: benchmarks/reality.py)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
     ap.add_argument("--ray", metavar="ADDRESS",
                     help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or HOST:PORT); "
@@ -86,6 +87,12 @@ def main(argv=None):
     preset = build_preset(args)
     out = (args.out or Path("results") / preset["name"]).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    if args.only and "reality" in args.only:
+        from benchmarks import reality
+
+        command = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
+        print(f"wrote {reality.run(preset, out, command)}")
+        return out
     sections = args.only or list(SECTIONS)
     if args.quick:
         quick_compilation()

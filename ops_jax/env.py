@@ -11,6 +11,8 @@ mapped affinely to about [-1, 1]:
 - with ``include_noise``: ``mu_t / 5e-4 wl``, the current free-running mean per stage (the
   paper's POMDP noise state e),
 then Gaussian observation noise of std ``obs_noise`` on every entry (the reference adds 1e-4).
+With ``EnvConfig.imperfect`` the P and sample entries are what the detector reads and the lengths
+what the calibrated readout reports (docs/imperfections.md); the reward uses the read P.
 Frames are stacked oldest first; at reset every frame is the first observation.
 
 Non-finite actions (inside jit): every non-finite entry is replaced by 0 before clipping to
@@ -28,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ops_jax import noise, physics
+from ops_jax import imperfections, noise, physics
 
 MODES = ("easy", "medium", "hard", "custom")
 REWARDS = ("paper", "reference")
@@ -48,7 +50,8 @@ class EnvConfig:
     stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
     reward: "paper" (Eq. 3) | "reference" (the code's). max_steps: truncation length.
     feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
-    stacked. include_noise: append the noise state to the observation.
+    stacked. include_noise: append the noise state to the observation. imperfect: apply
+    ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
     """
 
     stages: int = 5
@@ -59,6 +62,7 @@ class EnvConfig:
     feedback_k: int = 1
     frame_stack: int = 1
     include_noise: bool = False
+    imperfect: bool = False
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -72,6 +76,7 @@ class EnvParams:
     drift_segment (steps): within-episode piecewise-linear mean mu_t with knots every segment
     drawn in +-amplitude; amplitude 0 disables it. action_scale: wl per unit action.
     obs_noise: std of the observation noise. window: termination bound |x_i| > window.
+    lab: the lab imperfections (``imperfections.Imperfections``), used when ``imperfect``.
     """
 
     init_spread: Any = 0.13
@@ -83,6 +88,7 @@ class EnvParams:
     action_scale: Any = 0.01
     obs_noise: Any = 1e-4
     window: Any = 3.0
+    lab: Any = dataclasses.field(default_factory=imperfections.Imperfections)
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -90,7 +96,8 @@ class EnvParams:
 class EnvState:
     """deltas: offsets (N,) wl. mu_episode: per-episode free-running mean (N,) wl. knots: the
     current drift segment's start and end knots (2, N). t: step in episode. episode: resets so
-    far. p_init: P at the first reset (reference reward). frames: stacked observations."""
+    far. p_init: P at the first reset (reference reward). frames: stacked observations. lab: the
+    imperfections' state (``imperfections.LabState``; () when the config is ideal)."""
 
     deltas: jax.Array
     mu_episode: jax.Array
@@ -99,6 +106,7 @@ class EnvState:
     episode: jax.Array
     p_init: jax.Array
     frames: jax.Array
+    lab: Any = ()
 
 
 class _Range(NamedTuple):
@@ -205,6 +213,13 @@ class OPSEnv:
         c = self.config
         return physics.measure(deltas, stages=c.stages, model=c.model, detector=c.detector)
 
+    def _sense(self, deltas, lab):
+        """(true measurement, detected measurement, length readout (N,) wl) at offsets ``deltas``."""
+        if not self.config.imperfect:
+            m = self._measure(deltas)
+            return m, m, deltas
+        return imperfections.sense(self.config, deltas, lab, self.p_max, self.peak)
+
     def _mu(self, state, params):
         drift = noise.piecewise_linear(state.knots[0], state.knots[1], state.t, params.drift_segment)
         return state.mu_episode + drift
@@ -228,8 +243,9 @@ class OPSEnv:
 
     def _reset_draws(self, key):
         n = self.config.stages
-        return noise.draws(key, normal={"init": (n,), "obs": (self.frame_size,)},
-                           uniform={"drift": (), "knots": (2, n)})
+        d = noise.draws(key, normal={"init": (n,), "obs": (self.frame_size,)},
+                        uniform={"drift": (), "knots": (2, n)})
+        return {**d, "key": key} if self.config.imperfect else d
 
     def _reset_state(self, d, params, episode, p_init):
         """New episode state (offsets, drift) from ``_reset_draws`` ``d``, without measuring;
@@ -240,12 +256,13 @@ class OPSEnv:
         knots = noise.drift_knot(d["knots"], params.drift_amplitude)
         mu_episode = jnp.full((n,), r * params.step_sigma)
         frames = jnp.zeros((self.config.frame_stack, self.frame_size), jnp.float32)
+        lab = imperfections.reset(d["key"], n, params.lab) if self.config.imperfect else ()
         return EnvState(deltas, mu_episode, knots, jnp.int32(0), jnp.asarray(episode, jnp.int32),
-                        jnp.asarray(p_init, jnp.float32), frames)
+                        jnp.asarray(p_init, jnp.float32), frames, lab)
 
     def _observe_reset(self, z, state, params):
-        m = self._measure(state.deltas)
-        frame = self._frame(z, m, state.deltas, self._mu(state, params), params)
+        _, m, x_seen = self._sense(state.deltas, state.lab)
+        frame = self._frame(z, m, x_seen, self._mu(state, params), params)
         frames = jnp.broadcast_to(frame, state.frames.shape)
         p_init = jnp.where(state.p_init < 0, m.power, state.p_init).astype(jnp.float32)
         return frames.reshape(-1), dataclasses.replace(state, frames=frames, p_init=p_init)
@@ -273,21 +290,25 @@ class OPSEnv:
         action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
         mu = self._mu(state, params)
         deltas = state.deltas + noise.free_run(d["run"], mu, params.step_sigma)
-        deltas = deltas + action * params.action_scale
+        move, lab = action * params.action_scale, state.lab
+        if c.imperfect:
+            lab, move = imperfections.advance(key, lab, move)
+        deltas = deltas + move
         t = state.t + 1
         # Advance the piecewise-linear drift to the next segment when one ends.
         new_knot = noise.drift_knot(d["knot"], params.drift_amplitude)
         seg_end = (t % params.drift_segment) == 0
         knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
-        m = self._measure(deltas)
-        frame = self._frame(d["obs"], m, deltas, mu, params)
+        m_true, m, x_seen = self._sense(deltas, lab)
+        frame = self._frame(d["obs"], m, x_seen, mu, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
-        state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames)
+        state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames, lab=lab)
         terminated = jnp.any(jnp.abs(deltas) > params.window)
         truncated = (t >= c.max_steps) & ~terminated
         info = {
-            "power": m.power,
-            "normalized_power": m.power / self.p_max,
+            "power": m_true.power,
+            "normalized_power": m_true.power / self.p_max,
+            "normalized_power_best": m_true.power / jnp.where(params.lab.p_best > 0, params.lab.p_best, self.p_max),
             "deltas_wl": deltas,
             "action_nonfinite": ~jnp.all(finite),
         }
@@ -302,7 +323,8 @@ class OPSEnv:
 
     @staticmethod
     def _params_axes(params):
-        return jax.tree.map(lambda x: 0 if jnp.ndim(x) > 0 else None, params)
+        axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) > 0 else None, dataclasses.replace(params, lab=None))
+        return dataclasses.replace(axes, lab=imperfections.batch_axes(params.lab))
 
     def step(self, key, state: EnvState, action, params: EnvParams):
         """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
@@ -324,7 +346,7 @@ class OPSEnv:
         """P / P_max measured at the current lengths plus ``offsets`` (N,) wl, without moving them:
         one extra detector reading (a dither probe, e.g. SPGD's). Agents count each call."""
         del params
-        return self._measure(state.deltas + offsets).power / self.p_max
+        return self._sense(state.deltas + offsets, state.lab)[1].power / self.p_max
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""
@@ -355,13 +377,20 @@ class OPSEnv:
 def make(stages: int = 5, mode: str = "hard", **overrides):
     """Build ``(env, params)``. ``mode`` in easy / medium / hard (reference values) or custom
     (medium values unless overridden). ``overrides`` may set any ``EnvConfig`` or ``EnvParams``
-    field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``."""
+    field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``. Lab imperfections:
+    ``imperfections="lab"`` (or "none"), ``imperfection_scale`` (x the preset's errors) and any
+    ``imperfections.Imperfections`` field; setting any turns ``imperfect`` on and fills in p_best."""
     physics._check_choice("mode", mode, MODES)
+    physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
     par_fields = {f.name for f in dataclasses.fields(EnvParams)}
-    unknown = set(overrides) - cfg_fields - par_fields
+    unknown = set(overrides) - cfg_fields - par_fields - set(imperfections.OPTIONS)
     if unknown:
-        raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {sorted(cfg_fields | par_fields)}")
+        accepted = sorted(cfg_fields | par_fields | set(imperfections.OPTIONS))
+        raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {accepted}")
+    overrides = dict(overrides)
+    lab, any_lab = imperfections.from_options(stages, overrides)
+    overrides.setdefault("imperfect", any_lab)
     config = EnvConfig(stages=stages, **{k: v for k, v in overrides.items() if k in cfg_fields})
     base = dict(MODE_PARAMS.get(mode, {}))
     base.update({k: v for k, v in overrides.items() if k in par_fields})
@@ -369,8 +398,12 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     _validate_params(params)
     # Fixed dtypes (not Python scalars): a jitted step then never retraces on a weak-type change.
     params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
-                          for k, v in vars(params).items()})
-    return OPSEnv(config), params
+                          for k, v in vars(params).items() if k != "lab"}, lab=lab)
+    env = OPSEnv(config)
+    if config.imperfect:
+        lab = dataclasses.replace(lab, p_best=imperfections.best_power(config, lab).astype(np.float32))
+        params = dataclasses.replace(params, lab=lab)
+    return env, params
 
 
 class Rollout(NamedTuple):

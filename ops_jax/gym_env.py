@@ -46,7 +46,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ops_jax import noise
+from ops_jax import imperfections, noise
 from ops_jax.env import make
 
 ENV_ID = "ops_jax/OPS-v0"
@@ -137,14 +137,17 @@ def _picklable_device(device):
 def _observation_bounds(env, params) -> np.ndarray:
     """Per-entry bound B (obs in [-B, B]) of one frame, from the physics and the noise parameters."""
     n = env.config.stages
-    p = {k: float(np.max(np.asarray(v))) for k, v in vars(params).items()}
+    p = {k: float(np.max(np.asarray(v))) for k, v in vars(params).items() if k != "lab"}
     margin = 10.0 * p["obs_noise"] + 1e-3
     k = env.config.feedback_k
     mu_max = p["drift_cap"] * p["step_sigma"] + p["drift_amplitude"]
     # Largest |offset| seen: a reset ((cap + 2) s0) or the step that leaves the window.
     x_max = max((p["drift_cap"] + 2.0) * p["init_spread"],
                 p["window"] + p["action_scale"] + k * (mu_max + 3.0 * p["step_sigma"]))
-    parts = [np.full(2**n, 1.0 + margin), np.full(n, x_max / p["window"] + margin)]
+    signal = 1.0
+    if env.config.imperfect:
+        signal, x_max = imperfections.observation_bounds(params.lab, x_max)
+    parts = [np.full(2**n, signal + margin), np.full(n, x_max / p["window"] + margin)]
     if env.config.include_noise:
         parts.append(np.full(n, mu_max / noise.REFERENCE_SIGMA_WL + margin))
     return np.tile(np.concatenate(parts), env.config.frame_stack).astype(np.float32)

@@ -167,11 +167,7 @@ def _field_spectra(x, stages, xp):
     The stage-i delay factor exp(-i w_k delta_i) is the outer product of a per-block and a
     per-offset phase vector (the phase is linear in k)."""
     c = _field_constants(stages)
-    dtype = x.dtype
-    as_x = lambda a: xp.asarray(a, dtype)
-    theta = c["theta"] * x[..., None]  # (..., N, 1)
-    aq = _expi(as_x(c["phase_q"]) + theta * as_x(c["Q"]) + 4 * np.pi * x[..., None], xp)
-    ar = _expi(as_x(c["phase_r"]) + theta * as_x(c["r"]), xp)
+    as_x = lambda a: xp.asarray(a, x.dtype)
     p = tuple(xp.broadcast_to(as_x(v), (*x.shape[:-1], *c["Ep"].shape)) for v in (c["Ep"].real, c["Ep"].imag))
     s = tuple(xp.broadcast_to(as_x(v), p[0].shape) for v in (c["Es"].real, c["Es"].imag))
 
@@ -181,10 +177,20 @@ def _field_spectra(x, stages, xp):
         S = _cmul(_cmul(s, (ar_re[..., None, :], ar_im[..., None, :])), (aq_re[..., :, None], aq_im[..., :, None]))
         return _stage(p, S), None
 
-    # Stage axis first; scanned so that XLA fuses within a stage only (fused across stages, each
-    # output recomputes every earlier stage once per use: 2^N-fold work).
-    per_stage = tuple(xp.moveaxis(a, -2, 0) for a in (*aq, *ar))
-    return _over_stages(stage, (p, s), per_stage, xp)
+    # Scanned so that XLA fuses within a stage only (fused across stages, each output recomputes
+    # every earlier stage once per use: 2^N-fold work).
+    return _over_stages(stage, (p, s), _field_delays(x, stages, xp), xp)
+
+
+def _field_delays(x, stages, xp):
+    """Per-stage delay factors of offsets x (..., N) wl, stage axis first: (aq_re, aq_im) of shape
+    (N, ..., 2^N) per block and (ar_re, ar_im) of shape (N, ..., 40) per offset in the block."""
+    c = _field_constants(stages)
+    as_x = lambda a: xp.asarray(a, x.dtype)
+    theta = c["theta"] * x[..., None]  # (..., N, 1)
+    aq = _expi(as_x(c["phase_q"]) + theta * as_x(c["Q"]) + 4 * np.pi * x[..., None], xp)
+    ar = _expi(as_x(c["phase_r"]) + theta * as_x(c["r"]), xp)
+    return tuple(xp.moveaxis(a, -2, 0) for a in (*aq, *ar))
 
 
 def _over_stages(fn, carry, xs, xp):
@@ -274,6 +280,14 @@ def _phasor_measure(x, stages, detector):
     # Scanned, not unrolled: see _field_spectra.
     shifts = jnp.asarray(2 ** np.arange(stages - 1), jnp.int32)
     p, s = _over_stages(stage, (p, s), (shifts, *(jnp.moveaxis(a[..., 1:], -1, 0) for a in d)), jnp)
+    return _phasor_detect(p, s, stages, detector)
+
+
+def _phasor_detect(p, s, stages, detector):
+    """Measurement from the output slot amplitudes p, s ((re, im) pairs (..., 2^N), unit: one
+    pulse's peak field)."""
+    c = _phasor_constants(stages)
+    half = 2 ** (stages - 1)
     fields = (s, p) if detector == "total" else (s,)
     nxt = lambda a: jnp.roll(a, -1, axis=-1)
     I_slot = sum(f[0] ** 2 + f[1] ** 2 for f in fields)  # unit: one pulse's peak intensity

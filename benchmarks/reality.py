@@ -1,0 +1,121 @@
+"""The ``reality`` section of ``benchmarks.sweep``: every controller trained on the ideal system (the
+learners also with domain randomisation: lab imperfections, ``randomize=1``, i.e. 0 to 2x the lab
+errors per episode) and tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
+docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
+reachable with the level's static optics). Writes reality.md / .csv / .json and reality.png.
+
+    python -m benchmarks.sweep --quick --only reality --out results/quick
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+LEVELS = (("none", 0.0), ("lab", 1.0), ("2x lab", 2.0))
+BASE_ENV = dict(stages=5, mode="hard", model="phasor")
+TEST_SEED_OFFSET = 10_000
+
+
+RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners' randomised training
+
+
+def env_config(scale: float) -> dict:
+    """The ``ops_jax.make`` options of an imperfection level (``scale`` x the lab preset; 0: ideal)."""
+    return dict(BASE_ENV, imperfections="lab", imperfection_scale=scale) if scale > 0 else dict(BASE_ENV)
+
+
+def _hyper(preset: dict, algo: str) -> dict:
+    from benchmarks.sweep import LEARNERS
+
+    hyper = {"config": preset["config"]} if algo in LEARNERS else {"curve_episodes": preset["episodes"]}
+    hyper.update(preset.get("hyper", {}).get(algo, {}))
+    return hyper
+
+
+def compute(preset: dict) -> dict:
+    """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test
+    episodes; training "ideal" or "randomised")."""
+    import agents
+    import ops_jax
+    from benchmarks.sweep import LEARNERS
+    from ops_jax.progress import progress
+
+    best_ratio = {}
+    for name, scale in LEVELS:
+        env, params = ops_jax.make(**env_config(scale))
+        best_ratio[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
+    trainings = [(a, t, cfg) for a in preset["algos"]
+                 for t, cfg in (("ideal", env_config(0.0)), ("randomised", RANDOMISED)) if t == "ideal" or a in LEARNERS]
+    results = {f"{a}/{t}": {name: [] for name, _ in LEVELS} for a, t, _ in trainings}
+    cells = [(a, t, cfg, s) for a, t, cfg in trainings for s in range(preset["seeds"])]
+    for algo, training, cfg, seed in progress(cells, desc="reality", unit="controller"):
+        trained = agents.train(algo, cfg, seed=seed, total_steps=preset["budgets"][algo], **_hyper(preset, algo))
+        for name, scale in LEVELS:
+            ev = agents.evaluate(trained, env_config(scale), episodes=preset["episodes"],
+                                 seed=seed + TEST_SEED_OFFSET)
+            results[f"{algo}/{training}"][name].append(float(ev.normalized_power[:, -1].mean() * best_ratio[name]))
+    return results
+
+
+def report(out: Path, results: dict, preset: dict, command: str, wall_s: float) -> None:
+    """reality.md (Welch-bolded table), reality.csv, reality.json and reality.png in ``out``."""
+    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask
+
+    names = [n for n, _ in LEVELS]
+    bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
+    lines = [
+        "# Reality gap: controllers tested with lab imperfections",
+        "",
+        f"Final P / P_best (mean ± std over {preset['seeds']} seeds; each seed: {preset['episodes']} test "
+        "episodes of 200 steps), 5 stages, hard mode, phasor model; bold: best per level and those not "
+        "different from it (Welch's t-test, p >= 0.05). Levels: the lab preset of docs/imperfections.md x 0, 1, 2.",
+        "",
+        "| controller | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for algo in results:
+        cells = [_fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names]
+        a, training = algo.split("/")
+        lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
+    lines += ["", f"Command: `{command}`; {time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
+              f"({platform.processor() or platform.machine()}), {wall_s / 60:.1f} min."]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "reality.md").write_text("\n".join(lines) + "\n")
+    with open(out / "reality.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["controller", "trained", "level", "mean", "std", "seeds"])
+        for algo in results:
+            for n in names:
+                v = results[algo][n]
+                w.writerow([*algo.split("/"), n, f"{np.mean(v):.6f}", f"{np.std(v):.6f}", len(v)])
+    (out / "reality.json").write_text(json.dumps(results, indent=1))
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    x = np.array([s for _, s in LEVELS])
+    for algo in results:
+        m = np.array([np.mean(results[algo][n]) for n in names])
+        s = np.array([np.std(results[algo][n]) for n in names])
+        a, training = algo.split("/")
+        ax.errorbar(x, m, yerr=s, marker="o", capsize=3, label=f"{NAMES.get(a, a)} ({training})",
+                    linestyle="--" if training == "randomised" else "-")
+    ax.set_xticks(x, names)
+    ax.set_xlabel("imperfection level")
+    ax.set_ylabel("final P / P_best")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "reality.png", dpi=120)
+    plt.close(fig)
+
+
+def run(preset: dict, out: Path, command: str) -> Path:
+    """Compute and report the section; returns the table's path."""
+    t0 = time.perf_counter()
+    results = compute(preset)
+    report(out, results, preset, command, time.perf_counter() - t0)
+    return out / "reality.md"

@@ -1,0 +1,309 @@
+"""Lab imperfections against independent calculations: hand-written Jones matrices, the ideal
+system reproduced, vibration spectra, actuator and detector maps, batch independence, P_best."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import signal
+
+import ops_jax
+from ops_jax import hardware, imperfections, optics, physics, vibration
+
+
+def _hand_power(x, wp_err_deg, leak, weights, N):
+    """P of N stages from the spec written out with explicit 2x2 Jones matrices per stage, merging
+    the train entries pairwise (no shortcuts), float64 NumPy."""
+    T, c, lam = 20.0, 0.299792458, 1030e-6
+    n = 40 * 2**N
+    W = 2**N * T
+    dt = W / n
+    t = -W / 2 + np.arange(n) * dt
+    w = 2 * np.pi * c / lam + 2 * np.pi * (np.arange(n) - n / 2) / (n * dt)
+    u = 1 / np.cosh(t / (4.0 / 1.76))
+    a0 = np.sqrt(2e-10 / (dt * 1e-12 * np.trapezoid(u**2))) * u
+    spec = lambda a: np.fft.ifftshift(np.fft.ifft(np.fft.fftshift(a)))
+    field = lambda A: np.fft.ifftshift(np.fft.fft(np.fft.fftshift(A)))
+    rule = {"p": ("p", "s"), "-p": ("-p", "-s"), "s": ("-p", "s"), "-s": ("p", "-s")}
+    labels = ["-s"]
+    for _ in range(N):
+        labels = [y for lab in labels for y in rule[lab]]
+    zero = np.zeros(n, complex)
+    train = []
+    for k, lab in enumerate(labels):
+        A = (-1 if lab.startswith("-") else 1) * weights[k] * spec(a0) * np.exp(-1j * w * k * T / 2)
+        train.append(np.array([A, zero]) if lab.endswith("p") else np.array([zero, A]))
+    for i in range(N):
+        L = 2.0**i * (T / 2) * c / 2 + x[i] * lam
+        D = np.exp(-1j * w * (-2 * L / c))  # the delay operator (diagonal in frequency)
+        al, l = np.sqrt(1 - leak[i]), np.sqrt(leak[i])
+        phi = np.pi / 4 + 2 * np.deg2rad(wp_err_deg[i])
+        pbs = np.array([[al + l * D, 0 * D], [0 * D, al * D + l]])  # (2, 2, n): p keeps / s delayed
+        wp = np.array([[np.cos(phi), np.sin(phi)], [-np.sin(phi), np.cos(phi)]])
+        merged = []
+        for m in range(len(train) // 2):
+            ps = train[2 * m] + train[2 * m + 1]
+            PS = np.einsum("abk,bk->ak", pbs, ps)
+            merged.append(wp @ PS)
+        train = merged
+    I = np.abs(field(train[0][0])) ** 2 + np.abs(field(train[0][1])) ** 2
+    return 1e9 * dt * 1e-12 * np.trapezoid(I**2)
+
+
+@pytest.mark.parametrize("N", [1, 2])
+def test_field_model_matches_hand_written_jones(N):
+    rng = np.random.default_rng(N)
+    x = rng.uniform(-0.2, 0.2, N)
+    err = rng.uniform(-3, 3, N)
+    leak = rng.uniform(0, 0.05, N)
+    weights = (1 + 0.1 * rng.standard_normal(2**N)) * np.exp(0.3j * rng.standard_normal(2**N))
+    want = _hand_power(x, err, leak, weights, N)
+    ideal = _hand_power(x, np.zeros(N), np.zeros(N), np.ones(2**N), N)
+    with jax.enable_x64(True):
+        got = optics.measure(jnp.asarray(x), optics.rotation(jnp.asarray(err)), jnp.asarray(leak),
+                             (jnp.asarray(weights.real), jnp.asarray(weights.imag)), stages=N).power
+        ref = physics.measure(jnp.asarray(x), stages=N).power
+    assert abs(float(got) - want) < 1e-9 * want
+    assert abs(float(ref) - ideal) < 1e-9 * ideal  # the hand calculation is the spec's
+    assert abs(want - ideal) > 1e-3 * ideal  # and the imperfections do change P
+
+
+def test_splitting_ratio_of_a_waveplate_error():
+    """A wave plate eps off splits sin^2(45 deg + 2 eps): 0.5 deg -> 51.7:48.3 (N = 2, the first
+    stage's plate sets the second stage's split); only stage 1's light arrives at stage 2."""
+    phi = float(optics.rotation(0.5))
+    assert np.sin(phi) ** 2 == pytest.approx(0.5174, abs=1e-4)
+
+
+def test_phasor_matches_field_with_imperfections():
+    N = 5
+    x = jax.random.uniform(jax.random.key(1), (16, N), minval=-0.2, maxval=0.2)
+    rot = optics.rotation(jnp.array([0.3, -0.2, 0.4, -0.3, 0.2]))
+    leak = jnp.array([0.0, 1e-3, 2e-3, 1e-3, 1e-3])
+    pulses = (1 + 0.01 * jax.random.normal(jax.random.key(2), (16, 2**N)),
+              0.02 * jax.random.normal(jax.random.key(3), (16, 2**N)))
+    f = optics.measure(x, rot, leak, pulses, stages=N, model="field")
+    p = optics.measure(x, rot, leak, pulses, stages=N, model="phasor")
+    np.testing.assert_allclose(p.power, f.power, rtol=1e-3)
+    np.testing.assert_allclose(p.samples, f.samples, atol=1e-3 * physics.peak_intensity(N))
+    # Stage 1's leaked light falls between the phasor's slots: the documented bound 0.2 sqrt(leak_1).
+    leak1 = jnp.array([1e-3, 0, 0, 0, 0])
+    f1 = optics.measure(x, rot, leak1, pulses, stages=N, model="field").power
+    p1 = optics.measure(x, rot, leak1, pulses, stages=N, model="phasor").power
+    assert float(jnp.max(jnp.abs(p1 - f1) / f1)) < 0.2 * np.sqrt(1e-3)
+
+
+@pytest.mark.parametrize("model", ["phasor", "field"])
+def test_imperfect_path_with_zero_imperfections_is_the_ideal_system(model):
+    env0, p0 = ops_jax.make(3, "hard", model=model, max_steps=20)
+    env1, p1 = ops_jax.make(3, "hard", model=model, max_steps=20, imperfect=True)
+    assert float(p1.lab.p_best) == pytest.approx(env1.p_max, rel=1e-6)
+    pol = lambda key, obs: jnp.tanh(-3.0 * obs[:, -3:])
+    a = ops_jax.rollout(env0, p0, pol, jax.random.key(4), 8, 45)
+    b = ops_jax.rollout(env1, p1, pol, jax.random.key(4), 8, 45)
+    np.testing.assert_allclose(b.obs, a.obs, atol=2e-6)
+    np.testing.assert_allclose(b.normalized_power, a.normalized_power, rtol=2e-6)
+
+
+def test_preset_none_is_bit_identical_to_the_default():
+    env0, p0 = ops_jax.make(3, "hard", max_steps=20)
+    env1, p1 = ops_jax.make(3, "hard", max_steps=20, imperfections="none")
+    assert env1.config == env0.config and not env1.config.imperfect
+    pol = lambda key, obs: jax.random.uniform(key, (obs.shape[0], 3), minval=-1, maxval=1)
+    a = ops_jax.rollout(env0, p0, pol, jax.random.key(5), 4, 45)
+    b = ops_jax.rollout(env1, p1, pol, jax.random.key(5), 4, 45)
+    for u, v in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(u, v)
+
+
+def _simulate_vibration(steps, alpha, bg_rms, freq, q, res_rms, key=0):
+    r = len(freq)
+    freq, q, res_rms = (jnp.asarray(v, jnp.float32) for v in (freq, q, res_rms))
+    k0, k1 = jax.random.split(jax.random.key(key))
+    fir = jax.random.normal(k0, (vibration.FIR_TAPS, 1))
+    osc = vibration.stationary_lags(jax.random.normal(k1, (2, r, 1)), freq, q)
+
+    def body(carry, k):
+        fir, osc = carry
+        z = jax.random.normal(k, (1 + r, 1))
+        fir, osc, x = vibration.step(fir, osc, z[0], z[1:], alpha, bg_rms, freq, q, res_rms)
+        return (fir, osc), x[0]
+
+    return np.asarray(jax.lax.scan(body, (fir, osc), jax.random.split(jax.random.key(key + 1), steps))[1])
+
+
+def test_resonance_peaks_at_its_frequency_with_its_rms():
+    x = _simulate_vibration(2**15, 1.0, 0.0, [0.12, 0.3], [30.0, 30.0], [0.01, 0.0])
+    f, psd = signal.welch(x, nperseg=4096)
+    assert abs(f[np.argmax(psd)] - 0.12) < 1e-3
+    assert np.std(x) == pytest.approx(0.01, rel=0.05)
+    # Q: the -3 dB width of the peak is about f / Q.
+    half = f[psd > psd.max() / 2]
+    assert 0.5 * 0.12 / 30 < half.max() - half.min() + f[1] < 2 * 0.12 / 30
+
+
+@pytest.mark.parametrize("alpha", [0.0, 1.0, 1.8])
+def test_background_spectrum_slope_and_rms(alpha):
+    x = _simulate_vibration(2**15, alpha, 0.02, [0.1, 0.2], [10.0, 10.0], [0.0, 0.0])
+    f, psd = signal.welch(x, nperseg=2048)
+    band = (f > 0.03) & (f < 0.25)
+    slope = np.polyfit(np.log(f[band]), np.log(psd[band]), 1)[0]
+    assert slope == pytest.approx(-alpha, abs=0.2)
+    assert np.std(x) == pytest.approx(0.02, rel=0.1)
+
+
+def test_backlash_lag_and_dac_on_simple_inputs():
+    # Backlash of width 0.02: a ramp up by 0.01 per step, then down; the output trails by 0.01.
+    play, out = jnp.zeros(()), []
+    for cmd in [0.01, 0.02, 0.03, 0.02, 0.01, 0.0, -0.01]:
+        play = hardware.backlash(play, jnp.float32(cmd), 0.02)
+        out.append(float(play))
+    np.testing.assert_allclose(out, [0.0, 0.01, 0.02, 0.02, 0.02, 0.01, 0.0], atol=1e-7)
+    # Lag: a unit step reaches 1 - exp(-t / tau).
+    pos, tau, trace = jnp.zeros(()), 3.0, []
+    for _ in range(6):
+        pos = hardware.lag(pos, 1.0, tau)
+        trace.append(float(pos))
+    np.testing.assert_allclose(trace, 1 - np.exp(-np.arange(1, 7) / tau), rtol=1e-6)
+    assert float(hardware.lag(0.0, 1.0, 0.0)) == 1.0
+    # DAC: 4 bits over a span of 16 wl move in whole wl; the chain with a gain error.
+    cmd, play, pos = hardware.actuate(jnp.zeros(2), jnp.zeros(2), jnp.zeros(2), jnp.array([0.4, 0.6]),
+                                      jnp.array([0.0, 0.1]), 0.0, 0.0, 16.0, 4.0)
+    np.testing.assert_allclose(cmd, [0.4, 0.6], rtol=1e-7)
+    np.testing.assert_allclose(pos, [0.0, 1.1], rtol=1e-6)
+
+
+def test_detector_gain_offset_saturation_and_adc():
+    v = jnp.array([0.0, 0.5, 1.0, 2.0])
+    np.testing.assert_allclose(hardware.detect(v, 0.1, 0.02, jnp.inf, 0.0), 1.1 * v + 0.02, rtol=1e-6)
+    np.testing.assert_allclose(hardware.detect(v, 0.0, 0.0, 1.2, 0.0), [0.0, 0.5, 1.0, 1.2], rtol=1e-6)
+    q = hardware.detect(jnp.linspace(0, 1, 101), 0.0, 0.0, 1.0, 3.0)
+    assert set(np.round(np.asarray(q) * 8, 5)) <= set(float(i) for i in range(9))
+
+
+def test_lab_batch_independence_and_reproducibility():
+    env, params = ops_jax.make(3, "hard", imperfections="lab", model="phasor", max_steps=30)
+    pol = lambda key, obs: jnp.tanh(-3.0 * obs[:, -3:])
+    alone = ops_jax.rollout(env, params, pol, jax.random.key(7), 1, 40)
+    again = ops_jax.rollout(env, params, pol, jax.random.key(7), 1, 40)
+    batch = ops_jax.rollout(env, params, pol, jax.random.key(7), 64, 40)
+    np.testing.assert_array_equal(alone.obs, again.obs)
+    np.testing.assert_allclose(alone.obs[:, 0], batch.obs[:, 0], atol=1e-6)
+    assert not np.allclose(batch.obs[:, 0], batch.obs[:, 1])
+
+
+def test_domain_randomised_batch_uses_each_instances_values():
+    env, pa = ops_jax.make(3, "hard", imperfections="lab", model="phasor", max_steps=30)
+    _, pb = ops_jax.make(3, "hard", imperfections="lab", model="phasor", max_steps=30,
+                         waveplate_error_deg=[3.0, -3.0, 2.0], pbs_leakage=0.01)
+    assert float(pb.lab.p_best) < float(pa.lab.p_best)
+    batched = dataclasses.replace(pa, lab=jax.tree.map(lambda a, b: np.stack([a, b]), pa.lab, pb.lab))
+    keys = jax.random.split(jax.random.key(0), 2)
+    actions = jnp.array([[0.5, -0.5, 0.2], [-0.3, 0.1, 0.9]])
+    obs, states = jax.jit(env.reset_batch)(keys, batched)
+    obs2, _, rew, _, _, info = jax.jit(env.step_batch)(keys, states, actions, batched)
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    for i, p in enumerate((pa, pb)):
+        o, s = reset(keys[i], p)
+        np.testing.assert_allclose(o, obs[i], atol=1e-6)
+        o2, _, r, _, _, inf = step(keys[i], s, actions[i], p)
+        np.testing.assert_allclose(o2, obs2[i], atol=1e-6)
+        np.testing.assert_allclose(inf["normalized_power_best"], info["normalized_power_best"][i], rtol=1e-6)
+
+
+def test_p_best_is_a_local_maximum():
+    env, params = ops_jax.make(3, "hard", imperfections="lab", imperfection_scale=4.0, model="phasor")
+    lab = params.lab
+    f = lambda x: optics.measure(x, optics.rotation(lab.waveplate_error_deg), lab.pbs_leakage,
+                                 optics.ideal_pulses(3), stages=3, model="phasor").power
+    assert float(f(jnp.zeros(3))) <= float(lab.p_best) * (1 + 1e-6) < env.p_max
+    probes = jax.random.uniform(jax.random.key(0), (400, 3), minval=-0.3, maxval=0.3)
+    assert float(jnp.max(f(probes))) <= float(lab.p_best) * (1 + 1e-5)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(pbs_leakage=0.7), "pbs_leakage"),
+    (dict(vib_alpha=2.5), "vib_alpha"),
+    (dict(waveplate_error_deg=[0.1, 0.2]), "waveplate_error_deg"),
+    (dict(adc_bits=8.0), "adc_bits"),
+    (dict(imperfections="mars"), "imperfections"),
+    (dict(imperfection_scale=-1.0), "imperfection_scale"),
+])
+def test_bad_imperfections_fail_at_make(bad, match):
+    with pytest.raises(ValueError, match=match):
+        ops_jax.make(3, "hard", **bad)
+
+
+def test_lab_info_reports_both_scores():
+    env, params = ops_jax.make(3, "hard", imperfections="lab", model="phasor")
+    assert env.config.imperfect
+    obs, state = env.reset(jax.random.key(0), params)
+    _, _, _, _, _, info = jax.jit(env.step)(jax.random.key(1), state, jnp.zeros(3), params)
+    np.testing.assert_allclose(info["normalized_power_best"] * params.lab.p_best,
+                               info["normalized_power"] * env.p_max, rtol=1e-5)
+
+
+def test_options_pass_through_gymnasium_and_agents():
+    import gymnasium
+
+    import agents.base
+
+    cfg = dict(stages=3, mode="hard", model="phasor", imperfections="lab", imperfection_scale=2.0)
+    assert agents.base.check_env_config(cfg) == cfg
+    env = gymnasium.make("ops_jax/OPS-v0", stages=3, mode="hard", model="phasor", imperfections="lab")
+    assert env.unwrapped.env.config.imperfect
+    obs, _ = env.reset(seed=0)
+    obs2, reward, *_ = env.step(np.zeros(3, np.float32))
+    assert obs2.shape == obs.shape and np.isfinite(reward)
+    assert env.observation_space.contains(obs) and env.observation_space.contains(obs2)
+    with pytest.raises(ValueError, match="imperfections"):
+        gymnasium.make("ops_jax/OPS-v0", stages=3, imperfections="moon")
+
+
+def test_randomize_draws_each_episodes_imperfections():
+    env, p0 = ops_jax.make(3, "hard", imperfections="lab", model="phasor")
+    _, p1 = ops_jax.make(3, "hard", imperfections="lab", model="phasor", randomize=1.0)
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    keys = jax.random.split(jax.random.key(0), 256)
+    fixed = reset(keys, p0)[1].lab.values
+    drawn = reset(keys, p1)[1].lab.values
+    for name in imperfections.SCALED:
+        v = np.asarray(getattr(p0.lab, name))
+        np.testing.assert_array_equal(getattr(fixed, name), np.broadcast_to(v, getattr(fixed, name).shape))
+        d = np.asarray(getattr(drawn, name))
+        assert np.all(np.abs(d) <= 2 * np.abs(v) * (1 + 1e-6)) and np.all(d * v >= 0)
+        if np.any(v != 0):
+            assert np.std(d, axis=0).max() > 0.3 * np.abs(v).max()  # U[-1, 1) spread: std 0.58 v
+    with pytest.raises(ValueError, match="randomize"):
+        ops_jax.make(3, "hard", imperfections="lab", randomize=1.5)
+
+
+def test_reality_report_writes_table_csv_and_figure(tmp_path):
+    from benchmarks import reality
+
+    results = {"spgd/ideal": {"none": [0.99, 0.98], "lab": [0.97, 0.96], "2x lab": [0.9, 0.91]},
+               "ppo/randomised": {"none": [0.9, 0.7], "lab": [0.5, 0.6], "2x lab": [0.4, 0.45]}}
+    reality.report(tmp_path, results, dict(seeds=2, episodes=8), "python -m benchmarks.sweep --only reality", 60.0)
+    md = (tmp_path / "reality.md").read_text()
+    assert "| SPGD (ideal) | **0.9850 ± 0.0050** |" in md and "PPO (randomised)" in md
+    rows = (tmp_path / "reality.csv").read_text().splitlines()
+    assert rows[0] == "controller,trained,level,mean,std,seeds" and len(rows) == 7
+    assert (tmp_path / "reality.png").stat().st_size > 1000
+
+
+def test_imperfection_levels_share_one_compiled_step():
+    env, p1 = ops_jax.make(3, "hard", imperfections="lab", model="phasor")
+    _, p2 = ops_jax.make(3, "hard", imperfections="lab", imperfection_scale=2.0, model="phasor", randomize=0.5)
+    traces = []
+
+    @jax.jit
+    def step(key, state, params):
+        traces.append(1)
+        return env.step(key, state, jnp.zeros(3), params)
+
+    for p in (p1, p2, p1):
+        _, state = env.reset(jax.random.key(0), p)
+        step(jax.random.key(1), state, p)
+    assert len(traces) == 1
