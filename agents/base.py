@@ -12,8 +12,8 @@ Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
 fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
 ``normalized_power``), ``make_policy(env_config, hyper) -> Policy`` and
 ``params_template(env_config, hyper)`` (a pytree of the parameters' structure, for ``load``);
-``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may depend only on ``hyper`` and the
-static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
+``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may depend only on
+``hyper`` and the static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
 from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
 serves a policy trained in any mode.
 """

@@ -31,6 +31,7 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from benchmarks.sweep_units import (  # noqa: F401  (Sweep, SECTIONS, PRESETS: the sweep's public names)

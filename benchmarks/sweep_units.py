@@ -5,8 +5,6 @@ command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py (d
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import signal
 import time

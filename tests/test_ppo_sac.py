@@ -45,16 +45,16 @@ def _check(result, baseline, margin, tmp_path, reported):
 
 def test_ppo_learns_small(baseline, tmp_path):
     reported = []
-    r = agents.train("ppo", ENV, seed=0, total_steps=20_000, progress_fn=lambda *a: reported.append(a), num_envs=64, batch_size=64, num_minibatches=4,
-                     unroll_length=8, num_updates_per_batch=2, learning_rate=1e-3, discounting=0.95,
-                     entropy_cost=1e-3, init_noise_std=1.0, **SMALL)
+    r = agents.train("ppo", ENV, seed=0, total_steps=20_000, progress_fn=lambda *a: reported.append(a),
+                     num_envs=64, batch_size=64, num_minibatches=4, unroll_length=8, num_updates_per_batch=2,
+                     learning_rate=1e-3, discounting=0.95, entropy_cost=1e-3, init_noise_std=1.0, **SMALL)
     _check(r, baseline, 0.1, tmp_path, reported)
 
 
 def test_sac_learns_small(baseline, tmp_path):
     reported = []
-    r = agents.train("sac", ENV, seed=0, total_steps=8_000, progress_fn=lambda *a: reported.append(a), num_envs=32, grad_updates_per_step=4,
-                     batch_size=256, min_replay_size=1024, **SMALL)
+    r = agents.train("sac", ENV, seed=0, total_steps=8_000, progress_fn=lambda *a: reported.append(a),
+                     num_envs=32, grad_updates_per_step=4, batch_size=256, min_replay_size=1024, **SMALL)
     _check(r, baseline, 0.06, tmp_path, reported)
 
 
