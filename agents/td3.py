@@ -1,8 +1,9 @@
 """TD3 (Fujimoto et al. 2018) in pure JAX, in the style of brax's trainers.
 
 Flax (linen) networks in flax ``TrainState``s (optax Adam; targets by ``optax.incremental_update``),
-brax's ``UniformSamplingQueue`` replay buffer, and the whole training loop as jitted ``lax.scan`` chunks over the
-batched ``ops_jax`` environment (``env.reset_batch`` / ``env.step_batch``, ``model="phasor"`` unless the env_config names a model).
+brax's ``UniformSamplingQueue`` replay buffer, and the whole training loop as jitted ``lax.scan`` chunks over
+the batched ``ops_jax`` environment (``env.reset_batch`` / ``env.step_batch``, ``model="phasor"`` unless the
+env_config names a model).
 Twin critics, target policy smoothing, delayed actor and target updates, Gaussian exploration.
 Time-outs bootstrap: the stored discount is ``1 - terminated`` and the stored next observation is
 ``info["final_observation"]`` (the pre-reset one), so truncation is not treated as termination.
