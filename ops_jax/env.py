@@ -176,8 +176,9 @@ def _validate_config(cfg: EnvConfig) -> None:
         v = getattr(cfg, name)
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not accepted.contains(v):
             raise ValueError(f"{name} must be {accepted}, got {v!r}")
-    if not isinstance(cfg.include_noise, (bool, np.bool_)):
-        raise TypeError(f"include_noise must be a bool, got {cfg.include_noise!r}")
+    for name in ("include_noise", "imperfect"):
+        if not isinstance(getattr(cfg, name), (bool, np.bool_)):
+            raise TypeError(f"{name} must be a bool, got {getattr(cfg, name)!r}")
 
 
 class OPSEnv:
@@ -383,7 +384,7 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     physics._check_choice("mode", mode, MODES)
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
-    par_fields = {f.name for f in dataclasses.fields(EnvParams)}
+    par_fields = {f.name for f in dataclasses.fields(EnvParams)} - {"lab"}  # lab: built from the options below
     unknown = set(overrides) - cfg_fields - par_fields - set(imperfections.OPTIONS)
     if unknown:
         accepted = sorted(cfg_fields | par_fields | set(imperfections.OPTIONS))

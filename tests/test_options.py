@@ -10,6 +10,7 @@ import jax
 import pytest
 
 import ops_jax
+from ops_jax import imperfections
 from ops_jax.gym_env import OPSGymEnv, OPSVectorEnv
 
 INT32_MAX = 2**31 - 1
@@ -47,6 +48,34 @@ ROWS = {
     "window": ([0.16, 1e6], [(0.0, ValueError, "window must be a finite number in (0, inf) wl"),
                              (math.inf, ValueError, "(0, inf) wl"),
                              (0.15, ValueError, "window must be > init_spread")]),  # hard: init_spread 0.15
+    "imperfect": ([False, True], [(1, TypeError, "imperfect must be a bool")]),
+    "imperfections": (["none", "lab"], [("space", ValueError, "imperfections must be one of")]),
+    "imperfection_scale": ([0.0, 2.0], [(-1.0, ValueError, "imperfection_scale must be a finite number >= 0")]),
+    "waveplate_error_deg": ([-10.0, (0.1, -0.2, 0.3)], [(11.0, ValueError, "must lie in [-10.0, 10.0]"),
+                                                       ((0.1, 0.2), ValueError, "trailing shape (3,)")]),
+    "pbs_leakage": ([0.0, 0.5], [(-0.1, ValueError, "must lie in [0.0, 0.5]"), (0.6, ValueError, "[0.0, 0.5]")]),
+    "pulse_amplitude_noise": ([0.0, 0.5], [(0.6, ValueError, "must lie in [0.0, 0.5]")]),
+    "pulse_phase_noise": ([0.0, 3.0], [(4.0, ValueError, "must lie in [0.0, 3.14")]),
+    "readout_offset": ([-1.0, 1.0], [(2.0, ValueError, "must lie in [-1.0, 1.0]")]),
+    "readout_gain_error": ([-0.5, 0.5], [(0.6, ValueError, "must lie in [-0.5, 0.5]")]),
+    "actuator_gain_error": ([-0.5, 0.5], [(-0.6, ValueError, "must lie in [-0.5, 0.5]")]),
+    "backlash_wl": ([0.0, 1.0], [(-0.01, ValueError, "must lie in [0.0, 1.0]")]),
+    "lag_steps": ([0.0, 100.0], [(101.0, ValueError, "must lie in [0.0, 100.0]")]),
+    "dac_bits": ([0.0, 16.0], [(33.0, ValueError, "must lie in [0.0, 32.0]")]),
+    "actuator_span_wl": ([1e-3, 1e4], [(0.0, ValueError, "must lie in [0.001, 10000.0]")]),
+    "detector_offset": ([-1.0, 1.0], [(1.5, ValueError, "must lie in [-1.0, 1.0]")]),
+    "detector_gain_error": ([-0.5, 0.5], [(-0.6, ValueError, "must lie in [-0.5, 0.5]")]),
+    "detector_saturation": ([0.1, math.inf], [(0.05, ValueError, "must lie in [0.1, inf]")]),
+    "adc_bits": ([0.0], [(33.0, ValueError, "must lie in [0.0, 32.0]"),
+                         (8.0, ValueError, "adc_bits > 0 needs a finite detector_saturation")]),
+    "vib_rms": ([0.0, 1.0], [(2.0, ValueError, "must lie in [0.0, 1.0]")]),
+    "vib_alpha": ([0.0, 2.0], [(2.5, ValueError, "must lie in [0.0, 2.0]")]),
+    "resonance_freq": ([(0.01, 0.5)], [((0.6, 0.1), ValueError, "must lie in [0.0001, 0.5]"),
+                                       ((0.1,), ValueError, "trailing shape (2,)")]),
+    "resonance_q": ([(0.5, 1e4)], [((0.1, 1.0), ValueError, "must lie in [0.5, 10000.0]")]),
+    "resonance_rms": ([(0.0, 0.01)], [((-1.0, 0.0), ValueError, "must lie in [0.0, 1.0]")]),
+    "p_best": ([0.0, 1.0], [(-1.0, ValueError, "must lie in [0.0, inf]")]),
+    "randomize": ([0.0, 1.0], [(1.5, ValueError, "must lie in [0.0, 1.0]")]),
     "render_mode": ([None, "rgb_array"], [("ascii", ValueError, "render_mode must be None or one of")]),
     "device": ([None, "cpu"], [(3, TypeError, "device must be None, a platform name"),
                                ("no-such-platform", ValueError, "device 'no-such-platform' is not available")]),
@@ -68,6 +97,8 @@ def _options(constructor) -> set:
     names = {n for n, p in sig.items() if p.kind is not p.VAR_KEYWORD and n != "self"}
     if any(p.kind is p.VAR_KEYWORD for p in sig.values()):
         names |= {f.name for cls in (ops_jax.EnvConfig, ops_jax.EnvParams) for f in dataclasses.fields(cls)}
+        names |= set(imperfections.OPTIONS)
+        names.discard("lab")  # built by make from the imperfection options, not an option itself
     return names
 
 
