@@ -270,7 +270,7 @@ class OPSEnv:
     def auto_reset(self, done, key, state: EnvState, fallback, params: EnvParams):
         """``next_episode(key, state, params)`` where ``done``, else ``fallback`` (obs, state). Under
         ``jax.vmap`` (nested too) the reset is computed only on calls where some instance is done."""
-        return _auto_reset(self, ())(done, key, state, fallback, params)
+        return _auto_reset_ad(self, done, key, state, fallback, params)
 
     def step(self, key, state: EnvState, action, params: EnvParams):
         """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
@@ -297,6 +297,20 @@ class OPSEnv:
         """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched (B,)."""
         self.check_action(actions)
         return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(keys, states, actions, params)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
+    """``_auto_reset`` with derivatives (reverse mode included) taken through a plain ``lax.cond``."""
+    return _auto_reset(env, ())(done, key, state, fallback, params)
+
+
+@_auto_reset_ad.defjvp
+def _auto_reset_jvp(env, primals, tangents):
+    def plain(done, key, state, fallback, params):
+        return jax.tree.map(lambda a, b: jnp.where(done, a, b), env.next_episode(key, state, params), fallback)
+
+    return _auto_reset_ad(env, *primals), jax.jvp(plain, primals, tangents)[1]
 
 
 def _auto_reset(env: OPSEnv, levels: tuple):
