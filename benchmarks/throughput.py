@@ -1,7 +1,8 @@
 """Steady-state environment throughput: env-steps/s of a jitted 200-step ``lax.scan`` of
 ``OPSEnv.step_batch`` and of ``jax.vmap(OPSEnv.step)`` (hard mode, uniform random actions,
-auto-reset included; the two timed alternately in one process), per physics model, stage count and
-batch size, against the reference's recorded single-instance step time.
+auto-reset included; the two timed alternately in one process, and whether their optimised programs
+are identical), per physics model, stage count and batch size, against the reference's recorded
+single-instance step time.
 
     python -m benchmarks.throughput [--stages 3 5 7] [--batch 1 64 1024 8192] [--repeats 5]
                                     [--out results/throughput.json]
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import re
 import statistics
 import time
 from pathlib import Path
@@ -57,6 +59,13 @@ def build(stages: int, model: str, batch: int, path: str = "step_batch"):
     return run, obs, state
 
 
+def program_text(compiled) -> str:
+    """The optimised HLO of a compiled function without its source locations (for comparing programs)."""
+    lines = compiled.as_text().splitlines()
+    text = "\n".join(l for l in lines if not re.match(r"^\s*(\d+ [{\"]|FileNames|FunctionNames|FileLocations|StackFrames)", l))
+    return re.sub(r"(, )?(metadata=\{[^}]*\}|stack_frame_id=\d+)", "", text)
+
+
 def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> list[dict]:
     """One row per step path; the paths' repeats alternate, so load changes hit them alike."""
     key = jax.random.key(1)
@@ -89,6 +98,7 @@ def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> l
     base = rows[0]["steps_per_s"]
     for r in rows:
         r["vs_" + paths[0]] = r["steps_per_s"] / base
+        r["same_program_as_" + paths[0]] = program_text(compiled[r["step"]][0]) == program_text(compiled[paths[0]][0])
     return rows
 
 
@@ -126,7 +136,7 @@ def main(argv=None):
     rows = []
     combos = [(m, n, b) for m in args.models for n in args.stages for b in args.batch]
     header = (f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} "
-              f"{'us/step':>9} {'compile s':>9} {'x reference':>12}")
+              f"{'same HLO':>8} {'us/step':>9} {'compile s':>9} {'x reference':>12}")
     bar = progress(combos, desc="throughput", unit="cfg")
     bar.write(header + "\n" + "-" * len(header))
     for model, n, b in bar:
@@ -137,7 +147,8 @@ def main(argv=None):
             rows.append(row)
             sp = f"{row['speedup_vs_reference']:.0f}" if row["speedup_vs_reference"] else "-"
             bar.write(f"{model:7} {n:>2} {b:>6} {row['step']:>10} {row['steps_per_s']:>13,.0f} "
-                      f"{row['vs_step_batch']:>12.2f} {row['us_per_step_per_instance']:>9.3f} "
+                      f"{row['vs_step_batch']:>12.2f} {str(row['same_program_as_step_batch']):>8} "
+                      f"{row['us_per_step_per_instance']:>9.3f} "
                       f"{row['compile_s']:>9.2f} {sp:>12}")
     physics_rows = []
     print(f"\nphysics.measure alone, batch 1024 (us per instance)\n{'N':>2} " + " ".join(f"{m:>8}" for m in args.models))
