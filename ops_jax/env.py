@@ -27,7 +27,6 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-
 from jax.custom_batching import custom_vmap
 
 from ops_jax import noise, physics
@@ -295,13 +294,12 @@ class OPSEnv:
 
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
         """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched (B,)."""
-        self.check_action(actions)
         return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(keys, states, actions, params)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
-    """``_auto_reset`` with derivatives (reverse mode included) taken through a plain ``lax.cond``."""
+    """``_auto_reset`` whose derivatives (reverse mode included) go through a per-instance select."""
     return _auto_reset(env, ())(done, key, state, fallback, params)
 
 
@@ -337,6 +335,7 @@ def _auto_reset(env: OPSEnv, levels: tuple):
         return out, jax.tree.map(lambda x: True, out)
 
     return auto_reset
+
 
 def make(stages: int = 5, mode: str = "hard", **overrides):
     """Build ``(env, params)``. ``mode`` in easy / medium / hard (reference values) or custom
