@@ -1,6 +1,8 @@
 """Steady-state environment throughput: env-steps/s of a jitted 200-step ``lax.scan`` of
-``OPSEnv.step_batch`` (hard mode, uniform random actions, auto-reset included), per physics model,
-stage count and batch size, against the reference's recorded single-instance step time.
+``OPSEnv.step_batch`` and of ``jax.vmap(OPSEnv.step)`` (hard mode, uniform random actions,
+auto-reset included; the two timed alternately in one process, and whether their optimised programs
+are identical), per physics model, stage count and batch size, against the reference's recorded
+single-instance step time.
 
     python -m benchmarks.throughput [--stages 3 5 7] [--batch 1 64 1024 8192] [--repeats 5]
                                     [--out results/throughput.json]
@@ -11,25 +13,29 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import re
 import statistics
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from tqdm import tqdm
 
 import ops_jax
 from agents.base import split_over_devices
 from benchmarks.common import load_reference_timing, write_json_atomic
+from ops_jax.progress import progress
 
 SCAN_STEPS = 200
+PATHS = ("step_batch", "vmap")  # env.step_batch(keys, ...) | jax.vmap(env.step)(keys, ...)
 
 
-def build(stages: int, model: str, batch: int):
-    """A jitted function running SCAN_STEPS batched steps from a given state. With several local
-    devices that divide the batch, the batch is split across them (``agents.base.split_over_devices``)."""
+def build(stages: int, model: str, batch: int, path: str = "step_batch"):
+    """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS) from a given state.
+    With several local devices that divide the batch, the batch is split across them
+    (``agents.base.split_over_devices``)."""
     env, params = ops_jax.make(stages, "hard", model=model)
+    step = env.step_batch if path == "step_batch" else jax.vmap(env.step, in_axes=(0, 0, 0, None))
     sharding = split_over_devices(batch, "batch")
     shard = (lambda x: x) if sharding is None else (lambda x: jax.lax.with_sharding_constraint(x, sharding))
 
@@ -41,7 +47,7 @@ def build(stages: int, model: str, batch: int):
             k_act, k_env = jax.random.split(k)
             action = shard(jax.random.uniform(k_act, (batch, stages), minval=-1.0, maxval=1.0))
             keys = shard(jax.random.split(k_env, batch))
-            obs, state, reward, *_ = env.step_batch(keys, state, action, params)
+            obs, state, reward, *_ = step(keys, state, action, params)
             return (obs, state), reward.mean()
 
         (obs, state), r = jax.lax.scan(body, (obs, state), jnp.arange(SCAN_STEPS))
@@ -53,29 +59,47 @@ def build(stages: int, model: str, batch: int):
     return run, obs, state
 
 
-def measure(stages: int, model: str, batch: int, repeats: int) -> dict:
-    run, obs, state = build(stages, model, batch)
+def program_text(compiled) -> str:
+    """The optimised HLO of a compiled function without its source locations (for comparing programs)."""
+    lines = compiled.as_text().splitlines()
+    text = "\n".join(l for l in lines if not re.match(r"^\s*(\d+ [{\"]|FileNames|FunctionNames|FileLocations|StackFrames)", l))
+    return re.sub(r"(, )?(metadata=\{[^}]*\}|stack_frame_id=\d+)", "", text)
+
+
+def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> list[dict]:
+    """One row per step path; the paths' repeats alternate, so load changes hit them alike."""
     key = jax.random.key(1)
-    t0 = time.perf_counter()
-    lowered = run.lower(key, obs, state)
-    compiled = lowered.compile()
-    compile_s = time.perf_counter() - t0
-    jax.block_until_ready(compiled(key, obs, state))  # warm-up
-    times = []
-    for i in range(repeats):
+    compiled, compile_s, times = {}, {}, {p: [] for p in paths}
+    for p in paths:
+        run, obs, state = build(stages, model, batch, p)
         t0 = time.perf_counter()
-        jax.block_until_ready(compiled(jax.random.key(2 + i), obs, state))
-        times.append(time.perf_counter() - t0)
-    median = statistics.median(times)
-    return dict(
-        model=model,
-        stages=stages,
-        batch=batch,
-        compile_s=compile_s,
-        median_scan_s=median,
-        steps_per_s=batch * SCAN_STEPS / median,
-        us_per_step_per_instance=1e6 * median / (batch * SCAN_STEPS),
-    )
+        compiled[p] = (run.lower(key, obs, state).compile(), obs, state)
+        compile_s[p] = time.perf_counter() - t0
+        jax.block_until_ready(compiled[p][0](key, obs, state))  # warm-up
+    for i in range(repeats):
+        for p in paths:
+            fn, obs, state = compiled[p]
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(jax.random.key(2 + i), obs, state))
+            times[p].append(time.perf_counter() - t0)
+    rows = []
+    for p in paths:
+        median = statistics.median(times[p])
+        rows.append(dict(
+            model=model,
+            stages=stages,
+            batch=batch,
+            step=p,
+            compile_s=compile_s[p],
+            median_scan_s=median,
+            steps_per_s=batch * SCAN_STEPS / median,
+            us_per_step_per_instance=1e6 * median / (batch * SCAN_STEPS),
+        ))
+    base = rows[0]["steps_per_s"]
+    for r in rows:
+        r["vs_" + paths[0]] = r["steps_per_s"] / base
+        r["same_program_as_" + paths[0]] = program_text(compiled[r["step"]][0]) == program_text(compiled[paths[0]][0])
+    return rows
 
 
 def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
@@ -111,18 +135,21 @@ def main(argv=None):
     ref = load_reference_timing()
     rows = []
     combos = [(m, n, b) for m in args.models for n in args.stages for b in args.batch]
-    header = f"{'model':7} {'N':>2} {'batch':>6} {'env-steps/s':>13} {'us/step':>9} {'compile s':>9} {'x reference':>12}"
-    bar = tqdm(combos, desc="throughput", unit="cfg")
+    header = (f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} "
+              f"{'same HLO':>8} {'us/step':>9} {'compile s':>9} {'x reference':>12}")
+    bar = progress(combos, desc="throughput", unit="cfg")
     bar.write(header + "\n" + "-" * len(header))
     for model, n, b in bar:
-        row = measure(n, model, b, args.repeats)
-        ref_step = ref.get(str(n), {}).get("step_median_s")
-        row["reference_steps_per_s"] = 1 / ref_step if ref_step else None
-        row["speedup_vs_reference"] = row["steps_per_s"] * ref_step if ref_step else None
-        rows.append(row)
-        sp = f"{row['speedup_vs_reference']:.0f}" if row["speedup_vs_reference"] else "-"
-        bar.write(f"{model:7} {n:>2} {b:>6} {row['steps_per_s']:>13,.0f} "
-                  f"{row['us_per_step_per_instance']:>9.3f} {row['compile_s']:>9.2f} {sp:>12}")
+        for row in measure(n, model, b, args.repeats):
+            ref_step = ref.get(str(n), {}).get("step_median_s")
+            row["reference_steps_per_s"] = 1 / ref_step if ref_step else None
+            row["speedup_vs_reference"] = row["steps_per_s"] * ref_step if ref_step else None
+            rows.append(row)
+            sp = f"{row['speedup_vs_reference']:.0f}" if row["speedup_vs_reference"] else "-"
+            bar.write(f"{model:7} {n:>2} {b:>6} {row['step']:>10} {row['steps_per_s']:>13,.0f} "
+                      f"{row['vs_step_batch']:>12.2f} {str(row['same_program_as_step_batch']):>8} "
+                      f"{row['us_per_step_per_instance']:>9.3f} "
+                      f"{row['compile_s']:>9.2f} {sp:>12}")
     physics_rows = []
     print(f"\nphysics.measure alone, batch 1024 (us per instance)\n{'N':>2} " + " ".join(f"{m:>8}" for m in args.models))
     for n in args.stages:

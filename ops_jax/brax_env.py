@@ -23,13 +23,13 @@ Here each ``step`` draws the next episode's start from ``info["rng"]`` (new offs
 counter advanced, so hard mode's drift ramps and is redrawn) and, when those cache keys exist,
 writes it into them: whatever the wrapper restores (on our termination or on ``EpisodeWrapper``'s
 time limit) is a fresh random start. ``info["rng"]`` itself is never restored, so the per-step
-noise of the next episode differs too. The cost is one extra detector reading per step (the
-start's first observation), computed every step because under ``vmap`` a per-instance branch
-evaluates both sides anyway. Without ``AutoResetWrapper`` (raw use) ``step`` returns the
-finished state with ``done = 1``, the Brax convention.
+noise of the next episode differs too. The start is drawn by ``OPSEnv.auto_reset`` on steps where
+the environment's own episode ends (out of the window or ``max_steps``); under ``vmap`` it is
+computed only on steps where some slot ends. Without ``AutoResetWrapper`` (raw use) ``step``
+returns the finished state with ``done = 1``, the Brax convention.
 
 Use ``episode_length = max_steps`` in brax's trainers (``EpisodeWrapper``'s limit then agrees with
-the environment's own truncation, which ``final_normalized_power`` relies on).
+the environment's own truncation, which ``final_normalized_power`` and the fresh starts rely on).
 """
 
 from __future__ import annotations
@@ -116,7 +116,8 @@ class OPSBraxEnv(Env):
         new_info["time_out"] = truncated.astype(jnp.float32)
         if "first_obs" in new_info or "first_pipeline_state" in new_info:
             # The next episode's fresh start (episode counter + 1): what AutoResetWrapper restores.
-            first_obs, first_s = self.ops_env.next_episode(k_next, s, params)
+            cached = (new_info.get("first_obs", obs), new_info.get("first_pipeline_state", s))
+            first_obs, first_s = self.ops_env.auto_reset(terminated | truncated, k_next, s, cached, params)
             new_info["first_obs"] = first_obs
             new_info["first_pipeline_state"] = first_s
         metrics = dict(state.metrics)  # wrappers may have added keys (EvalWrapper: "reward")

@@ -29,6 +29,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_batching import custom_vmap
 
 from ops_jax import imperfections, noise, physics
 
@@ -182,7 +183,8 @@ def _validate_config(cfg: EnvConfig) -> None:
 
 
 class OPSEnv:
-    """N-stage optical pulse stacking. One instance per call; ``jax.vmap`` or ``step_batch`` for many."""
+    """N-stage optical pulse stacking. One instance per call; ``jax.vmap(env.step)`` (or its alias
+    ``step_batch``) for many: both compute the auto-reset only on steps where some instance ends."""
 
     def __init__(self, config: EnvConfig):
         _validate_config(config)
@@ -327,6 +329,11 @@ class OPSEnv:
         axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) > 0 else None, dataclasses.replace(params, lab=None))
         return dataclasses.replace(axes, lab=imperfections.batch_axes(params.lab))
 
+    def auto_reset(self, done, key, state: EnvState, fallback, params: EnvParams):
+        """``next_episode(key, state, params)`` where ``done``, else ``fallback`` (obs, state). Under
+        ``jax.vmap`` (nested too) the reset is computed only on calls where some instance is done."""
+        return _auto_reset_ad(self, done, key, state, fallback, params)
+
     def step(self, key, state: EnvState, action, params: EnvParams):
         """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
         info); when the episode ends, obs and state are the next episode's first and
@@ -334,13 +341,8 @@ class OPSEnv:
         self.check_action(action)
         k_step, k_reset = jax.random.split(key)
         obs, state, reward, terminated, truncated, info = self.step_env(k_step, state, action, params)
-        done = terminated | truncated
         info["final_observation"] = obs
-        new_obs, new_state = jax.lax.cond(
-            done,
-            lambda: self.next_episode(k_reset, state, params),
-            lambda: (obs, state),
-        )
+        new_obs, new_state = self.auto_reset(terminated | truncated, k_reset, state, (obs, state), params)
         return new_obs, new_state, reward, terminated, truncated, info
 
     def probe(self, state: EnvState, offsets, params: EnvParams):
@@ -354,25 +356,48 @@ class OPSEnv:
         return jax.vmap(self.reset, in_axes=(0, self._params_axes(params)))(keys, params)
 
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
-        """Step a batch (B instances, one key each). Same result per instance as ``step``; the
-        reset branch is computed only on steps where some instance finishes."""
-        self.check_action(actions)
-        axes = self._params_axes(params)
-        split = jax.vmap(jax.random.split)(keys)
-        k_step, k_reset = split[:, 0], split[:, 1]
-        obs, states, reward, terminated, truncated, info = jax.vmap(
-            self.step_env, in_axes=(0, 0, 0, axes))(k_step, states, actions, params)
-        done = terminated | truncated
-        info["final_observation"] = obs
+        """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched (B,)."""
+        return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(keys, states, actions, params)
 
-        def reset_some():
-            new_obs, new_states = jax.vmap(self.next_episode, in_axes=(0, 0, axes))(
-                k_reset, states, params)
-            sel = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)
-            return sel(new_obs, obs), jax.tree.map(sel, new_states, states)
 
-        obs, states = jax.lax.cond(jnp.any(done), reset_some, lambda: (obs, states))
-        return obs, states, reward, terminated, truncated, info
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
+    """``_auto_reset`` whose derivatives (reverse mode included) go through a per-instance select."""
+    return _auto_reset(env, ())(done, key, state, fallback, params)
+
+
+@_auto_reset_ad.defjvp
+def _auto_reset_jvp(env, primals, tangents):
+    def plain(done, key, state, fallback, params):
+        return jax.tree.map(lambda a, b: jnp.where(done, a, b), env.next_episode(key, state, params), fallback)
+
+    return _auto_reset_ad(env, *primals), jax.jvp(plain, primals, tangents)[1]
+
+
+def _auto_reset(env: OPSEnv, levels: tuple):
+    """``env.auto_reset`` on arguments with ``len(levels)`` leading batch axes; ``levels[j]`` (outermost
+    first) says per argument leaf whether it carries axis j. The reset runs when any instance is done."""
+
+    @custom_vmap
+    def auto_reset(done, key, state, fallback, params):
+        def one(d, k, s, fb, p):
+            return jax.tree.map(lambda a, b: jnp.where(d, a, b), env.next_episode(k, s, p), fb)
+
+        for batched in reversed(levels):
+            one = jax.vmap(one, in_axes=tuple(jax.tree.map(lambda b: 0 if b else None, batched)))
+        args = (done, key, state, fallback, params)
+        return jax.lax.cond(jnp.any(done), one, lambda *a: a[3], *args)
+
+    @auto_reset.def_vmap
+    def rule(axis_size, in_batched, done, key, state, fallback, params):
+        # The fallback (hence the result) carries every batch axis, so both cond branches agree.
+        fallback = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+                                fallback, in_batched[3])
+        in_batched[3] = jax.tree.map(lambda b: True, in_batched[3])
+        out = _auto_reset(env, (tuple(in_batched), *levels))(done, key, state, fallback, params)
+        return out, jax.tree.map(lambda x: True, out)
+
+    return auto_reset
 
 
 def make(stages: int = 5, mode: str = "hard", **overrides):

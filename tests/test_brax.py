@@ -117,3 +117,32 @@ def test_eval_metric_is_final_power():
     total = s.info["eval_metrics"].episode_metrics["final_normalized_power"]
     # the episode sum of final_normalized_power is the last step's P/Pmax
     np.testing.assert_allclose(total, s.metrics["normalized_power"], rtol=1e-6)
+
+
+def test_slots_under_vmap_match_single_slots_bitwise():
+    # Early terminations at different steps: the batched step computes the fresh starts only on
+    # steps where some slot ends, and every slot's trajectory equals its own single-slot run.
+    b, t, steps = 4, 16, 6
+    env, wrapped = _wrapped(steps, mode="hard", window=0.5, action_scale=0.3)
+    keys = jax.random.split(jax.random.PRNGKey(3), b)
+    actions = jax.random.uniform(jax.random.PRNGKey(4), (t, b, 3), minval=-1, maxval=1)
+
+    @jax.jit
+    def run(keys, actions):
+        def body(s, a):
+            s = wrapped.step(s, a)
+            return s, (s.obs, s.reward, s.done, s.pipeline_state, s.info["first_obs"])
+
+        return jax.lax.scan(body, wrapped.reset(keys), actions)[1]
+
+    out = run(keys, actions)
+    done = np.asarray(out[2])
+    assert done.any() and not done[done.any(axis=1)].all(axis=1).all()  # slots end at different steps
+    assert np.asarray(out[3].episode)[-1].min() >= 1
+    for i in range(b):
+        one = run(keys[i:i + 1], actions[:, i:i + 1])
+        for x, y in zip(jax.tree.leaves(one), jax.tree.leaves(out)):
+            np.testing.assert_array_equal(np.asarray(x)[:, 0], np.asarray(y)[:, i])
+    state = jax.jit(wrapped.reset)(keys)
+    text = str(jax.make_jaxpr(wrapped.step)(state, actions[0]))
+    assert text.count("cond[") == 1  # one batch-wide branch, not a per-slot select

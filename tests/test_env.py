@@ -88,6 +88,132 @@ def test_compiles_once():
     step(keys, states, jnp.zeros((4, 3)), dataclasses.replace(params, step_sigma=np.float32(1e-3)))
 
 
+def _scan_fn(step):
+    """Jitted ``lax.scan`` of ``step`` over (keys, actions) (time first); returns per step
+    (obs, state, reward, terminated, truncated, final_observation)."""
+    def run(params, state, keys, actions):
+        def body(s, ka):
+            obs, s, r, term, trunc, info = step(ka[0], s, ka[1], params)
+            return s, (obs, s, r, term, trunc, info["final_observation"])
+
+        return jax.lax.scan(body, state, (keys, actions))[1]
+
+    return run
+
+
+def _assert_bitwise_equal(a, b):
+    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def _uneven_ends(model, b):
+    """Hard mode, max_steps 5, window 0.5 wl, per-instance action_scale up to 0.5 wl: episodes end
+    at different steps."""
+    env, params = ops_jax.make(stages=3, mode="hard", max_steps=5, model=model, window=0.5)
+    return env, dataclasses.replace(params, action_scale=jnp.linspace(0.0, 0.5, b, dtype=jnp.float32))
+
+
+@pytest.mark.parametrize("model", ["phasor", "field"])
+def test_vmapped_step_equals_step_batch_and_single_instance_bitwise(model):
+    b, t = 6, 12
+    env, params = _uneven_ends(model, b)
+    axes = env._params_axes(params)
+    _, state = env.reset_batch(jax.random.split(jax.random.key(0), b), params)
+    keys = jax.random.split(jax.random.key(1), (t, b))
+    actions = jax.random.uniform(jax.random.key(2), (t, b, 3), minval=-1, maxval=1)
+    vmapped = jax.jit(_scan_fn(jax.vmap(env.step, in_axes=(0, 0, 0, axes))))(params, state, keys, actions)
+    batch = jax.jit(_scan_fn(env.step_batch))(params, state, keys, actions)
+    scan_inside = jax.jit(jax.vmap(_scan_fn(env.step), in_axes=(axes, 0, 1, 1), out_axes=1))(
+        params, state, keys, actions)
+    done = np.asarray(vmapped[3] | vmapped[4])
+    some = done.any(axis=1)
+    assert some[:-1].any() and not done[some].all(axis=1).all()  # ends mid-scan, not all at once
+    _assert_bitwise_equal(vmapped, batch)
+    _assert_bitwise_equal(vmapped, scan_inside)
+    single = jax.jit(_scan_fn(env.step))
+    for i in range(b):
+        p_i = jax.tree.map(lambda x: x[i] if jnp.ndim(x) else x, params)
+        one = single(p_i, jax.tree.map(lambda x: x[i], state), keys[:, i], actions[:, i])
+        _assert_bitwise_equal(one, jax.tree.map(lambda x: x[:, i], vmapped))
+
+
+def test_nested_vmap_seeds_by_instances_with_per_instance_params():
+    s_, b, t = 2, 4, 12
+    env, params = _uneven_ends("phasor", b)
+    axes = env._params_axes(params)
+    _, state = jax.vmap(env.reset_batch, in_axes=(0, None))(jax.random.split(jax.random.key(0), (s_, b)), params)
+    keys = jax.random.split(jax.random.key(1), (t, s_, b))
+    actions = jax.random.uniform(jax.random.key(2), (t, s_, b, 3), minval=-1, maxval=1)
+    nested = jax.vmap(jax.vmap(env.step, in_axes=(0, 0, 0, axes)), in_axes=(0, 0, 0, None))
+    out = jax.jit(_scan_fn(nested))(params, state, keys, actions)
+    assert np.asarray(out[3] | out[4]).any()
+    per_seed = jax.jit(_scan_fn(env.step_batch))
+    for k in range(s_):
+        ref = per_seed(params, jax.tree.map(lambda x: x[k], state), keys[:, k], actions[:, k])
+        _assert_bitwise_equal(ref, jax.tree.map(lambda x: x[:, k], out))
+
+
+def test_vmapped_reset_is_one_batch_wide_branch():
+    # Under vmap (nested too) the auto-reset stays a lax.cond on "any instance done" rather than
+    # a per-instance select, which would compute a reset for every instance on every step.
+    env, params = _uneven_ends("phasor", 4)
+    axes = env._params_axes(params)
+    _, state = env.reset_batch(jax.random.split(jax.random.key(0), 4), params)
+    one = jax.vmap(env.step, in_axes=(0, 0, 0, axes))
+    two = jax.vmap(one, in_axes=(0, 0, 0, None))
+    keys = jax.random.split(jax.random.key(1), 4)
+    state2 = jax.tree.map(lambda x: jnp.stack([x, x]), state)
+    for fn, args in ((one, (keys, state, jnp.zeros((4, 3)), params)),
+                     (two, (jnp.stack([keys, keys]), state2, jnp.zeros((2, 4, 3)), params))):
+        text = str(jax.make_jaxpr(fn)(*args))
+        assert text.count("cond[") == 1
+        assert "reduce_or[axes=(0,)]" in text or "reduce_or[axes=(0, 1)]" in text
+
+
+def test_gradients_through_vmapped_auto_reset():
+    # Half the instances end on this step: d(obs)/d(init_spread) is the next episode's start's
+    # derivative there and zero elsewhere; reverse mode works through the batched reset.
+    env, params = ops_jax.make(stages=3, mode="medium", max_steps=2, model="phasor")
+    spread = jnp.full(4, 0.13, jnp.float32)
+    keys = jax.random.split(jax.random.key(0), 4)
+    _, state = env.reset_batch(keys, params)
+    state = dataclasses.replace(state, t=jnp.array([0, 1, 0, 1], jnp.int32))
+    axes = env._params_axes(dataclasses.replace(params, init_spread=spread))
+
+    def total_obs(spread):
+        p = dataclasses.replace(params, init_spread=spread)
+        obs, _, _, term, trunc, _ = jax.vmap(env.step, in_axes=(0, 0, 0, axes))(keys, state, jnp.zeros((4, 3)), p)
+        return obs.sum(), term | trunc
+
+    grad, done = jax.grad(total_obs, has_aux=True)(spread)
+    np.testing.assert_array_equal(done, [False, True, False, True])
+    for i in range(4):
+        k_reset = jax.random.split(keys[i])[1]
+        s_i = jax.tree.map(lambda x: x[i], state)
+        start = jax.grad(lambda v: env.next_episode(k_reset, s_i, dataclasses.replace(params, init_spread=v))[0].sum())
+        expected = float(start(spread[i])) if done[i] else 0.0
+        assert float(grad[i]) == pytest.approx(expected, rel=1e-5, abs=1e-6)
+    assert np.abs(np.asarray(grad)[[1, 3]]).min() > 0
+
+
+def test_vmapped_step_compiles_once():
+    env, params = ops_jax.make(stages=3, mode="medium", max_steps=2)
+    chex.clear_trace_counter()
+
+    def vstep(keys, states, actions, params):
+        return jax.vmap(jax.vmap(env.step, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(
+            keys, states, actions, params)
+
+    step = jax.jit(chex.assert_max_traces(vstep, n=1))
+    keys = jax.random.split(jax.random.key(0), (2, 3))
+    _, states = jax.vmap(env.reset_batch, in_axes=(0, None))(keys, params)
+    for t in range(3):  # crosses an auto-reset
+        _, states, *_ = step(keys, states, jnp.full((2, 3, 3), 0.1 * t, jnp.float32), params)
+    step(keys, states, jnp.zeros((2, 3, 3)), dataclasses.replace(params, step_sigma=np.float32(1e-3)))
+
+
 def test_auto_reset_keeps_final_observation_and_counts_episodes():
     env, params = ops_jax.make(stages=2, mode="hard", max_steps=3)
     obs, state = env.reset(jax.random.key(0), params)
