@@ -290,6 +290,24 @@ class _Unpacked:
         self.extra = packed[..., d + 6 + n:]
 
 
+def _reset_key(env, seed, options):
+    """The episode counter after ``reset(seed, options)`` set on ``env``, its compiled functions
+    started, and the reset's PRNG key drawn from ``env.np_random`` (on ``env.device``)."""
+    if seed is not None:
+        env._episode = 0
+    if options:
+        unknown = set(options) - {"episode"}
+        if unknown:
+            raise ValueError(f"reset options accept only 'episode', got {sorted(unknown)}")
+        episode = options["episode"]
+        if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
+            raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
+        env._episode = int(episode)
+    env._start()
+    key = jax.random.key(int(env.np_random.integers(0, 2**32, dtype=np.uint64)))
+    return key if env.device is None else jax.device_put(key, env.device)
+
+
 class OPSGymEnv(gymnasium.Env):
     """One OPS instance behind the Gymnasium 1.x ``Env`` API (see the module docstring).
 
@@ -348,20 +366,7 @@ class OPSGymEnv(gymnasium.Env):
         """Start an episode. ``seed`` reseeds ``np_random`` and restarts the episode counter;
         ``options={"episode": k}`` sets the counter (drift ramp of hard mode). Returns (obs, info)."""
         super().reset(seed=seed)
-        if seed is not None:
-            self._episode = 0
-        if options:
-            unknown = set(options) - {"episode"}
-            if unknown:
-                raise ValueError(f"reset options accept only 'episode', got {sorted(unknown)}")
-            episode = options["episode"]
-            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
-                raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
-            self._episode = int(episode)
-        self._start()
-        key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
-        if self.device is not None:
-            key = jax.device_put(key, self.device)
+        key = _reset_key(self, seed, options)
         fresh = not self._started or seed is not None
         self._buf = self._reset(key, np.int32(self._episode), self._buf, fresh)
         self._started = True
@@ -486,20 +491,7 @@ class OPSVectorEnv(VectorEnv):
         """Reset every instance. ``seed`` reseeds ``np_random`` (and restarts the episode counter);
         ``options={"episode": k}`` starts every instance as its k-th episode. Returns (obs, infos)."""
         super().reset(seed=seed)
-        if seed is not None:
-            self._episode = 0
-        if options:
-            unknown = set(options) - {"episode"}
-            if unknown:
-                raise ValueError(f"reset options accept only 'episode', got {sorted(unknown)}")
-            episode = options["episode"]
-            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)) or episode < 0:
-                raise ValueError(f"options['episode'] must be an integer >= 0, got {episode!r}")
-            self._episode = int(episode)
-        self._start()
-        key = jax.random.key(int(self.np_random.integers(0, 2**32, dtype=np.uint64)))
-        if self.device is not None:
-            key = jax.device_put(key, self.device)
+        key = _reset_key(self, seed, options)
         episodes = np.full(self.num_envs, self._episode, np.int32)
         self._carry, obs = self._reset(key, episodes)
         self._episode += 1

@@ -16,6 +16,7 @@ from scipy.stats import ttest_ind
 from benchmarks import sweep
 from benchmarks.cells import CellStore
 from benchmarks.sweep_report import bold_mask, convergence_step
+from processes import descendants
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -103,23 +104,6 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def _descendants(pid: int) -> set:
-    """PIDs of the live processes descending from ``pid``."""
-    children = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(stat.parent.name))
-    found, stack = set(), [pid]
-    while stack:
-        for child in children.get(stack.pop(), []):
-            found.add(child)
-            stack.append(child)
-    return found
-
-
 def test_resume_after_sigkill(tmp_path):
     out = tmp_path / "run"
     args = ["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)]
@@ -127,7 +111,7 @@ def test_resume_after_sigkill(tmp_path):
     deadline = time.time() + 240
     while time.time() < deadline and not list((out / "cells").glob("*.json")):
         time.sleep(0.2)
-    spawned = _descendants(proc.pid)  # the local Ray instance and its workers
+    spawned = descendants([proc.pid])  # the local Ray instance and its workers
     assert spawned
     proc.send_signal(signal.SIGKILL)
     proc.wait()

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import sweep
+from processes import descendants
 
 REPO = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 180
@@ -28,22 +29,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _descendants(pids) -> set:
-    children = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(stat.parent.name))
-    found, stack = set(), list(pids)
-    while stack:
-        for child in children.get(stack.pop(), []):
-            found.add(child)
-            stack.append(child)
-    return found
 
 
 def _cmdline(pid: int) -> str:
@@ -69,8 +54,7 @@ def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
 def two_node_cluster():
     """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn down
     by process group (SIGTERM, then SIGKILL), never by name."""
-    if shutil.which("ray") is None:
-        pytest.skip("ray is not installed")
+    assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[dev]" (or ".[ray]")'
     tmp = Path(tempfile.mkdtemp(prefix="ojr-", dir="/tmp"))  # short: Ray's socket paths have a length limit
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(REPO), **CLUSTER_ENV}
@@ -81,7 +65,7 @@ def two_node_cluster():
         procs.append(_ray_start(["--address", f"127.0.0.1:{port}"], tmp / "node.log", env))
         yield f"127.0.0.1:{port}", env, procs
     finally:
-        spawned = _descendants([p.pid for p in procs])
+        spawned = descendants([p.pid for p in procs])
         for p in reversed(procs):
             os.killpg(p.pid, signal.SIGTERM)
         for p in reversed(procs):
@@ -108,7 +92,7 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
         deadline = time.time() + 600
         while killed is None and time.time() < deadline and proc.poll() is None:
             if list((out / "cells").glob("*.json")):  # mid-run: cells stored, workers computing more
-                running = [pid for pid in _descendants([p.pid for p in cluster])
+                running = [pid for pid in descendants([p.pid for p in cluster])
                            if _cmdline(pid).startswith("ray::SweepWorker.run")]
                 if running:
                     killed = running[0]
