@@ -31,7 +31,7 @@ def env_config(scale: float) -> dict:
 
 
 def _hyper(preset: dict, algo: str) -> dict:
-    from benchmarks.sweep import LEARNERS
+    from benchmarks.sweep_units import LEARNERS
 
     hyper = {"config": preset["config"]} if algo in LEARNERS else {"curve_episodes": preset["episodes"]}
     hyper.update(preset.get("hyper", {}).get(algo, {}))
@@ -43,7 +43,7 @@ def compute(preset: dict) -> dict:
     episodes; training "ideal" or "randomised")."""
     import agents
     import ops_jax
-    from benchmarks.sweep import LEARNERS
+    from benchmarks.sweep_units import LEARNERS
     from ops_jax.progress import progress
 
     best_ratio = {}
