@@ -134,7 +134,7 @@ def test_vmapped_step_equals_step_batch_and_single_instance_bitwise(model):
     _assert_bitwise_equal(vmapped, scan_inside)
     single = jax.jit(_scan_fn(env.step))
     for i in range(b):
-        p_i = jax.tree.map(lambda x: x[i] if jnp.ndim(x) else x, params)
+        p_i = jax.tree.map(lambda a, x: x if a is None else x[i], axes, params, is_leaf=lambda a: a is None)
         one = single(p_i, jax.tree.map(lambda x: x[i], state), keys[:, i], actions[:, i])
         _assert_bitwise_equal(one, jax.tree.map(lambda x: x[:, i], vmapped))
 
