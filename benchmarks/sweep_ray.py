@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import faulthandler
 import json
+import logging
 import os
 import shutil
 import socket
@@ -164,7 +165,9 @@ def connect(address: str | None, jobs: int | None):
         # Ray starts workers at nice 15 (for the raylet's sake): on a machine running other work they
         # would get a small share of the CPU (measured: a several-fold slower sweep).
         os.environ.setdefault("RAY_worker_niceness", "0")
-        ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True)
+        # logging_level: no start-up lines of Ray's own (a local instance's token notice, "Started ...").
+        ray.init(num_cpus=jobs, include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, log_to_driver=True,
+                 logging_level=logging.ERROR)
 
 
 def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int | None = None, restarts: int = 2,
