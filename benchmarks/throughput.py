@@ -62,7 +62,8 @@ def build(stages: int, model: str, batch: int, path: str = "step_batch"):
 def program_text(compiled) -> str:
     """The optimised HLO of a compiled function without its source locations (for comparing programs)."""
     lines = compiled.as_text().splitlines()
-    text = "\n".join(l for l in lines if not re.match(r"^\s*(\d+ [{\"]|FileNames|FunctionNames|FileLocations|StackFrames)", l))
+    debug_info = r"^\s*(\d+ [{\"]|FileNames|FunctionNames|FileLocations|StackFrames)"
+    text = "\n".join(l for l in lines if not re.match(debug_info, l))
     return re.sub(r"(, )?(metadata=\{[^}]*\}|stack_frame_id=\d+)", "", text)
 
 
