@@ -160,7 +160,7 @@ class PhysicsConfig(AlgoConfig):
     DEFAULT_PRESET: ClassVar[str] = "default"
     PRESETS: ClassVar[dict] = {"default": dict(
         starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
-        lengths_only=False)}
+        lengths_only=False, identify=False, forget=0.98)}
 
     starts: int = field(Range(0, 4096, integer=True))
     iters: int = field(Range(1, 1000, integer=True))
@@ -170,6 +170,8 @@ class PhysicsConfig(AlgoConfig):
     drift_gain: float = field(Range(0, 1))
     use_lengths: bool = field(_flag)
     lengths_only: bool = field(_flag)
+    identify: bool = field(_flag)
+    forget: float = field(Range(0, 1, lo_open=True))
 
     def check(self):
         if self.starts == 0 and not self.use_lengths:

@@ -28,7 +28,16 @@ them: legitimate but trivial, and useless when the channel is noisy or absent). 
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
 
-Measured scores and costs: docs/results.md (the physics-informed controller).
+Online identification (``identify=True``; off by default): the model also carries static unknowns
+theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
+rotation error; each fitted line's actuator gain error), estimated recursively. After the
+multi-start fit of the offsets (theta held), one Gauss-Newton step on (offsets, theta) with theta's
+accumulated information as its prior (initial standard deviations ``PRIOR_SD``); the information
+then grows by what that step tells about theta alone (the Schur complement of the offsets),
+discounted by ``forget`` per step. Moves are divided by the identified actuator gains.
+
+Measured scores and costs: docs/results.md (the physics-informed controller) and
+docs/imperfections.md (with lab imperfections).
 """
 
 from __future__ import annotations
@@ -39,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from ops_jax import physics
+from ops_jax import optics, physics
 from agents.base import Policy, TrainResult, check_env_config, evaluated_result
 from agents.config import PhysicsConfig
 
@@ -61,6 +70,28 @@ def wrap(x):
     return x - 0.5 * jnp.round(x / 0.5)
 
 
+# Online identification (``identify=True``): prior standard deviations of the static unknowns, in
+# units of the observation y (detector gain and offset: y = 2 ((1 + g) v + o) - 1), rad (wave plate
+# rotation error) and relative (actuator gain error); NOISE_Y: the assumed noise of y.
+PRIOR_SD = {"detector_gain": 0.05, "detector_offset": 0.05, "rotation": 0.03, "actuator_gain": 0.15}
+NOISE_Y = 0.01
+THETA_CLIP = {"detector_gain": 0.3, "detector_offset": 0.3, "rotation": 0.15, "actuator_gain": 0.5}
+
+
+def _theta_layout(n: int, fit: int) -> dict:
+    """Slices of the identified parameters theta: detector gain, offset, N rotations, ``fit`` actuator gains."""
+    return {"detector_gain": slice(0, 1), "detector_offset": slice(1, 2), "rotation": slice(2, 2 + n),
+            "actuator_gain": slice(2 + n, 2 + n + fit)}
+
+
+def _per_theta(n: int, fit: int, values: dict) -> np.ndarray:
+    """A vector over theta from one value per block of ``_theta_layout``."""
+    out = np.zeros(2 + n + fit, np.float32)
+    for k, sl in _theta_layout(n, fit).items():
+        out[sl] = values[k]
+    return out
+
+
 def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
@@ -74,44 +105,87 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     default = policy_params(env_config)
     p_max = physics.p_max(n, cfg.detector)
     peak = physics.peak_intensity(n)
+    identify = h["identify"] and fit > 0 and not h["lengths_only"]
+    layout = _theta_layout(n, fit)
+    n_theta = 2 + n + fit if identify else 0
+    prior = jnp.asarray(np.diag((NOISE_Y / _per_theta(n, fit, PRIOR_SD)) ** 2) if identify else np.zeros((0, 0)),
+                        jnp.float32)
+    theta_clip = jnp.asarray(_per_theta(n, fit, THETA_CLIP) if identify else np.zeros(0), jnp.float32)
 
-    def model(z):  # z (fit,) -> y (ny,)
-        x = jnp.concatenate([z, jnp.zeros((n - fit,), z.dtype)])
-        m = physics.measure(x, stages=n, model="phasor", detector=cfg.detector)
-        return jnp.concatenate([(2 * m.power / p_max - 1)[None], 2 * m.samples / peak - 1])
+    def full(z):
+        return jnp.concatenate([z, jnp.zeros((n - fit,), z.dtype)])
 
-    def residual(z, y, y_prev, dz_prev, w):
-        return jnp.concatenate([model(z) - y, w * (model(z - dz_prev) - y_prev)])
+    def model(z, th):  # z (fit,), theta (n_theta,) -> y (ny,)
+        if not identify:
+            m = physics.measure(full(z), stages=n, model="phasor", detector=cfg.detector)
+            return jnp.concatenate([(2 * m.power / p_max - 1)[None], 2 * m.samples / peak - 1])
+        m = optics.measure(full(z), np.pi / 4 + th[layout["rotation"]], 0.0, optics.ideal_pulses(n), stages=n,
+                           model="phasor", detector=cfg.detector)
+        v = jnp.concatenate([(m.power / p_max)[None], m.samples / peak])
+        return 2 * ((1 + th[layout["detector_gain"]]) * v + th[layout["detector_offset"]]) - 1
 
-    def lm(z, y, y_prev, dz_prev, w):
+    def moved(dz, th):
+        """The length change of a commanded move ``dz`` (wl) with the identified actuator gains."""
+        return dz * (1 + th[layout["actuator_gain"]]) if identify else dz
+
+    def residual(z, th, y, hist):
+        """Misfit of the latest frame ``y`` and, through the last move, of the one before it.
+        ``hist``: (y_prev, the commanded move dz_prev, the drift estimate v, the history weight w)."""
+        y_prev, dz_prev, v, w = hist
+        return jnp.concatenate([model(z, th) - y, w * (model(z - (moved(dz_prev, th) + v), th) - y_prev)])
+
+    def lm(z, th, y, hist):
         def body(z, _):
-            r = residual(z, y, y_prev, dz_prev, w)
-            J = jax.jacfwd(residual)(z, y, y_prev, dz_prev, w)
+            r = residual(z, th, y, hist)
+            J = jax.jacfwd(residual)(z, th, y, hist)
             A = J.T @ J
             A = A + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit))
             step = -jnp.linalg.solve(A, J.T @ r)
             return z + jnp.clip(step, -0.05, 0.05), None
 
         z, _ = jax.lax.scan(body, z, None, length=h["iters"])
-        r = residual(z, y, y_prev, dz_prev, w)
+        r = residual(z, th, y, hist)
         return wrap(z), jnp.sum(r**2)
 
-    def estimate_one(key, y, y_prev, dz_prev, w, z_pred, z_len):
+    def estimate_one(key, th, y, hist, z_pred, z_len):
         cands = [z_pred[None]]
         if h["starts"]:
             cands.append(jax.random.uniform(key, (h["starts"], fit), minval=-0.25, maxval=0.25))
         if h["use_lengths"]:
             cands.append(z_len[None])
         cands = jnp.concatenate(cands)
-        zs, cost = jax.vmap(lm, in_axes=(0, None, None, None, None))(cands, y, y_prev, dz_prev, w)
+        zs, cost = jax.vmap(lm, in_axes=(0, None, None, None))(cands, th, y, hist)
         return zs[jnp.argmin(cost)]
+
+    def identify_one(z, th, info, y, hist):
+        """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
+        the information update (the Schur complement of z: what this step tells about theta alone)."""
+        def res(u):
+            return residual(u[:fit], u[fit:], y, hist)
+
+        u = jnp.concatenate([z, th])
+        J = jax.jacfwd(res)(u)
+        A = J.T @ J
+        prior_full = jnp.zeros((fit + n_theta,) * 2).at[fit:, fit:].set(info)
+        A_reg = A + prior_full + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
+        step = -jnp.linalg.solve(A_reg, J.T @ res(u))
+        z_new = wrap(z + jnp.clip(step[:fit], -0.05, 0.05))
+        th_new = jnp.clip(th + jnp.clip(step[fit:], -0.1 * theta_clip, 0.1 * theta_clip), -theta_clip, theta_clip)
+        azz, azt, att = A[:fit, :fit], A[:fit, fit:], A[fit:, fit:]
+        schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
+        info_new = h["forget"] * info + schur
+        return z_new, th_new, 0.5 * (info_new + info_new.T)
 
     def init(key, obs):
         del key
         b = obs.shape[0]
-        return {"y_prev": jnp.zeros((b, ny), jnp.float32), "dz_prev": jnp.zeros((b, fit), jnp.float32),
-                "z": jnp.zeros((b, fit), jnp.float32), "v": jnp.zeros((b, fit), jnp.float32),
-                "valid": jnp.zeros((b,), jnp.float32)}
+        carry = {"y_prev": jnp.zeros((b, ny), jnp.float32), "dz_prev": jnp.zeros((b, fit), jnp.float32),
+                 "z": jnp.zeros((b, fit), jnp.float32), "v": jnp.zeros((b, fit), jnp.float32),
+                 "valid": jnp.zeros((b,), jnp.float32)}
+        if identify:
+            carry.update(theta=jnp.zeros((b, n_theta), jnp.float32),
+                         info=jnp.broadcast_to(prior, (b, n_theta, n_theta)))
+        return carry
 
     def act(params, carry, obs, key, probe):
         del probe
@@ -122,20 +196,26 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         y = last[:, :ny]
         x_len = last[:, ny:ny + n] * window
         valid = carry["valid"][:, None]
-        move = carry["dz_prev"] + carry["v"]  # commanded move + estimated drift since y_prev
+        th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
+        move = jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]  # length change + estimated drift since y_prev
         z_pred = wrap(carry["z"] + move)
+        new = {}
         if h["lengths_only"] or fit == 0:
             z = wrap(x_len[:, :fit])
         else:
-            w = h["w_hist"] * carry["valid"]
+            hist = (carry["y_prev"], carry["dz_prev"], carry["v"], h["w_hist"] * carry["valid"])
             keys = jax.random.split(key, b)
-            z = jax.vmap(estimate_one)(keys, y, carry["y_prev"], move, w, z_pred, wrap(x_len[:, :fit]))
+            z = jax.vmap(estimate_one)(keys, th, y, hist, z_pred, wrap(x_len[:, :fit]))
+            if identify:
+                z, th, info = jax.vmap(identify_one)(z, th, carry["info"], y, hist)
+                new.update(theta=th, info=info)
         # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
         v = carry["v"] + h["drift_gain"] * valid * wrap(z - z_pred)
-        a_fit = jnp.clip(-(h["gain"] * z + v) / scale, -1.0, 1.0)
+        per_unit = scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale  # wl moved per action unit
+        a_fit = jnp.clip(-(h["gain"] * z + v) / per_unit, -1.0, 1.0)
         action = jnp.concatenate([a_fit, jnp.zeros((b, n - fit), jnp.float32)], axis=1)
         dz = a_fit * scale
-        return action, {"y_prev": y, "dz_prev": dz, "z": z, "v": v, "valid": jnp.ones((b,), jnp.float32)}
+        return action, {"y_prev": y, "dz_prev": dz, "z": z, "v": v, "valid": jnp.ones((b,), jnp.float32), **new}
 
     return Policy(init, act)
 

@@ -1,9 +1,13 @@
 """The ``reality`` section of ``benchmarks.sweep``: every controller trained on the ideal system (the
 learners also with domain randomisation: lab imperfections, ``randomize=1``, i.e. 0 to 2x the lab
-errors per episode) and tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
+errors per episode; the physics-informed controller also identifying the imperfections online) and
+tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
 docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
-reachable with the level's static optics). Writes reality.md / .csv / .json and reality.png.
+reachable with the level's static optics). Its trainings and evaluations are cells of the sweep's
+store like every other section's (resumable, computed by the sweep's workers); this module holds
+the plan and the report (reality.md / .csv / .json and reality.png).
 
+    python -m benchmarks.sweep --only reality
     python -m benchmarks.sweep --quick --only reality --out results/quick
 """
 
@@ -19,9 +23,6 @@ import numpy as np
 
 LEVELS = (("none", 0.0), ("lab", 1.0), ("2x lab", 2.0))
 BASE_ENV = dict(stages=5, mode="hard", model="phasor")
-TEST_SEED_OFFSET = 10_000
-
-
 RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners' randomised training
 
 
@@ -30,49 +31,42 @@ def env_config(scale: float) -> dict:
     return dict(BASE_ENV, imperfections="lab", imperfection_scale=scale) if scale > 0 else dict(BASE_ENV)
 
 
-def _hyper(preset: dict, algo: str) -> dict:
-    from benchmarks.sweep_units import LEARNERS
+def trainings(algos, learners) -> list:
+    """(algo, training, env config, hyperparameter overrides) of each controller of the section:
+    every algorithm on the ideal system; the ``learners`` also randomised; the physics-informed
+    controller also with online identification ("identify")."""
+    out = []
+    for algo in algos:
+        out.append((algo, "ideal", env_config(0.0), {}))
+        if algo in learners:
+            out.append((algo, "randomised", dict(RANDOMISED), {}))
+        if algo == "physics":
+            out.append((algo, "identify", env_config(0.0), {"identify": True}))
+    return out
 
-    hyper = {"config": preset["config"]} if algo in LEARNERS else {"curve_episodes": preset["episodes"]}
-    hyper.update(preset.get("hyper", {}).get(algo, {}))
-    return hyper
 
-
-def compute(preset: dict) -> dict:
-    """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test
-    episodes; training "ideal" or "randomised")."""
-    import agents
+def best_ratios() -> dict:
+    """P_max / P_best of each level (1 for the ideal level)."""
     import ops_jax
-    from benchmarks.sweep_units import LEARNERS
-    from ops_jax.progress import progress
 
-    best_ratio = {}
+    ratios = {}
     for name, scale in LEVELS:
         env, params = ops_jax.make(**env_config(scale))
-        best_ratio[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
-    trainings = [(a, t, cfg) for a in preset["algos"]
-                 for t, cfg in (("ideal", env_config(0.0)), ("randomised", RANDOMISED)) if t == "ideal" or a in LEARNERS]
-    results = {f"{a}/{t}": {name: [] for name, _ in LEVELS} for a, t, _ in trainings}
-    cells = [(a, t, cfg, s) for a, t, cfg in trainings for s in range(preset["seeds"])]
-    for algo, training, cfg, seed in progress(cells, desc="reality", unit="controller"):
-        trained = agents.train(algo, cfg, seed=seed, total_steps=preset["budgets"][algo], **_hyper(preset, algo))
-        for name, scale in LEVELS:
-            ev = agents.evaluate(trained, env_config(scale), episodes=preset["episodes"],
-                                 seed=seed + TEST_SEED_OFFSET)
-            results[f"{algo}/{training}"][name].append(float(ev.normalized_power[:, -1].mean() * best_ratio[name]))
-    return results
+        ratios[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
+    return ratios
 
 
-def report(out: Path, results: dict, preset: dict, command: str, wall_s: float) -> None:
+def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
     """reality.md (Welch-bolded table), reality.csv, reality.json and reality.png in ``out``."""
     from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask
 
     names = [n for n, _ in LEVELS]
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
+    seeds = len(next(iter(results.values()))[names[0]])
     lines = [
         "# Reality gap: controllers tested with lab imperfections",
         "",
-        f"Final P / P_best (mean ± std over {preset['seeds']} seeds; each seed: {preset['episodes']} test "
+        f"Final P / P_best (mean ± std over {seeds} seeds; each seed: {preset['episodes']} test "
         "episodes of 200 steps), 5 stages, hard mode, phasor model; bold: best per level and those not "
         "different from it (Welch's t-test, p >= 0.05). Levels: the lab preset of docs/imperfections.md x 0, 1, 2.",
         "",
@@ -83,8 +77,11 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float) 
         cells = [_fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names]
         a, training = algo.split("/")
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
-    lines += ["", f"Command: `{command}`; {time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
-              f"({platform.processor() or platform.machine()}), {wall_s / 60:.1f} min."]
+    took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
+    lines += ["", "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
+              "identify (ideal, with online identification of the imperfections).",
+              "", f"Command: `{command}`; {time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
+              f"({platform.processor() or platform.machine()}){took}."]
     out.mkdir(parents=True, exist_ok=True)
     (out / "reality.md").write_text("\n".join(lines) + "\n")
     with open(out / "reality.csv", "w", newline="") as f:
@@ -103,7 +100,7 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float) 
         s = np.array([np.std(results[algo][n]) for n in names])
         a, training = algo.split("/")
         ax.errorbar(x, m, yerr=s, marker="o", capsize=3, label=f"{NAMES.get(a, a)} ({training})",
-                    linestyle="--" if training == "randomised" else "-")
+                    linestyle={"randomised": "--", "identify": ":"}.get(training, "-"))
     ax.set_xticks(x, names)
     ax.set_xlabel("imperfection level")
     ax.set_ylabel("final P / P_best")
@@ -111,11 +108,3 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float) 
     fig.tight_layout()
     fig.savefig(out / "reality.png", dpi=120)
     plt.close(fig)
-
-
-def run(preset: dict, out: Path, command: str) -> Path:
-    """Compute and report the section; returns the table's path."""
-    t0 = time.perf_counter()
-    results = compute(preset)
-    report(out, results, preset, command, time.perf_counter() - t0)
-    return out / "reality.md"

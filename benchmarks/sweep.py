@@ -9,7 +9,8 @@
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds: final P/Pmax in the training
 and testing environments, Welch's t-test bolding), ``table2`` (timings of the paper's Table 2, from
 the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on one mode, test on each),
-``feedback`` (train at k = 1, test at k = 1..100). Everything lands in ``results/<name>/``: tables
+``feedback`` (train at k = 1, test at k = 1..100); when named with ``--only``, ``reality``
+(controllers under lab imperfections, benchmarks/reality.py). Everything lands in ``results/<name>/``: tables
 (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored in ``cells/`` the
 moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them. The
 work is cut into units (``Sweep.units``) that Ray actors compute, on a local Ray instance with
@@ -35,6 +36,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from benchmarks.sweep_units import (  # noqa: F401  (Sweep, SECTIONS, PRESETS: the sweep's public names)
+    EXTRA_SECTIONS,
     PRESETS,
     QUICK_XLA_FLAG,
     SECTIONS,
@@ -64,8 +66,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
     ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
-    ap.add_argument("--only", nargs="+", choices=(*SECTIONS, "reality"),
-                    help="sections to run (default: all but reality, which runs alone: benchmarks/reality.py)")
+    ap.add_argument("--only", nargs="+", choices=(*SECTIONS, *EXTRA_SECTIONS),
+                    help=f"sections to run (default: {' '.join(SECTIONS)}; reality only when named: "
+                         "benchmarks/reality.py)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
     ap.add_argument("--ray", metavar="ADDRESS",
                     help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or HOST:PORT); "
@@ -86,14 +89,9 @@ def main(argv=None):
     if args.jobs is not None and args.jobs < 1:
         raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     preset = build_preset(args)
+    preset["command"] = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
     out = (args.out or Path("results") / preset["name"]).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    if args.only and "reality" in args.only:
-        from benchmarks import reality
-
-        command = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
-        print(f"wrote {reality.run(preset, out, command)}")
-        return out
     sections = args.only or list(SECTIONS)
     if args.quick:
         quick_compilation()

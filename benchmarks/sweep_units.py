@@ -13,10 +13,12 @@ from typing import Callable
 
 import numpy as np
 
+from benchmarks import reality
 from benchmarks.cells import CellStore, config_hash
 from benchmarks.paper import MODES
 
-SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")
+SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")  # the default run
+EXTRA_SECTIONS = ("reality",)  # run when asked for (--only): benchmarks/reality.py
 
 # Training budgets (environment steps) per preset and algorithm; hyper config per preset.
 PRESETS = {
@@ -29,7 +31,7 @@ PRESETS = {
                "td3": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
                "physics": {"starts": 4, "iters": 4}},
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
-        feedback_ks=(1, 100), aux_seeds=1,
+        feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
     "default": dict(  # budgets for a run well under 30 min on 2 CPU cores (22.0 min measured, see README)
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
@@ -37,13 +39,13 @@ PRESETS = {
         hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
                "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
-        feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2,
+        feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
     ),
     "paper": dict(
         seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,
         budgets={"spgd": 0, "physics": 0, "ppo": 200_000, "sac": 200_000, "td3": 250_000},
         stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
-        feedback_ks=(1, 20, 40, 60, 80, 100),
+        feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
     ),
 }
 TEST_SEED_OFFSET = 10_000
@@ -58,6 +60,7 @@ LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperpara
 TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 8.0, "spgd": 2.0}
 TRAIN_S_PER_STEP = {"ppo": 4e-5, "sac": 4e-4, "td3": 1e-4}
 EVAL_S = 1.0
+IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
 
 
 def cell_seconds(algo: str, steps: int) -> float:
@@ -88,9 +91,11 @@ class Sweep:
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- trained controllers --------------------------------------------------------------------
-    def _train_config(self, algo: str, env_config: dict, seed: int) -> dict:
+    def _train_config(self, algo: str, env_config: dict, seed: int, extra: dict | None = None) -> dict:
+        """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant)."""
         hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
+        hyper.update(extra or {})
         return dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
                     hyper=hyper, episodes=self.p["episodes"])
 
@@ -111,12 +116,13 @@ class Sweep:
                 self.log(f"checkpoint {record['checkpoint']} unusable ({exc}): training again")
             return False
 
-    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None) -> dict:
+    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None, extra=None) -> dict:
         """Train (or reuse) one controller, evaluate it in its training and testing environment.
-        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call)."""
+        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call);
+        ``extra``: hyperparameter overrides (``_train_config``)."""
         import agents
 
-        config = self._train_config(algo, env_config, seed)
+        config = self._train_config(algo, env_config, seed, extra)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
         # A controller with nothing to train records an evaluation as its curve: the same one as
@@ -144,23 +150,24 @@ class Sweep:
             record = self.cells.get(label, config, compute)
         return record
 
-    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar=_Silent()) -> dict:
+    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar=_Silent(),
+                      extra=None) -> dict:
         """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
         train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
 
         results = {}
         if hasattr(agents.base.algo_module(algo), "train_seeds"):
-            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s))]
+            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra))]
             if len(todo) > 1:
                 bar.set_description(f"{label(todo[0]).rsplit('-s', 1)[0]} seeds {todo} (one vmapped call)")
-                config = self._train_config(algo, env_config, todo[0])
+                config = self._train_config(algo, env_config, todo[0], extra)
                 results = dict(zip(todo, agents.train_seeds(algo, env_config, seeds=todo, total_steps=config["steps"],
                                                             **config["hyper"])))
         records = {}
         for seed in seeds:
             bar.set_description(f"{label(seed)}")
-            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed))
+            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed), extra)
             bar.update()
         return records
 
@@ -199,13 +206,15 @@ class Sweep:
 
         units, producer = [], {}
 
-        def train(prefix, algo, env, seeds):
+        def train(prefix, algo, env, seeds, extra=None):
             groups = [list(seeds)] if hasattr(agents.base.algo_module(algo), "train_seeds") else [[s] for s in seeds]
+            factor = IMPERFECT_COST if "imperfections" in env else 1.0
             for group in groups:
-                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s)) for s in group]
+                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s, extra)) for s in group]
                 key = prefix if len(groups) == 1 else cells[0][0]
+                cost = len(group) * cell_seconds(algo, self.p["budgets"][algo]) * factor
                 units.append(dict(key=key, algo=algo, kind="train", env=env, seeds=group, prefix=prefix, cells=cells,
-                                  deps=[], cost=round(len(group) * cell_seconds(algo, self.p["budgets"][algo]), 1)))
+                                  deps=[], cost=round(cost, 1), hyper=extra or {}))
                 producer.update({label: key for label, _ in cells})
 
         p = self.p
@@ -234,7 +243,32 @@ class Sweep:
                     cells = [(lab, self._eval_config(ckpt, env, s)) for lab, env, s in evals]
                     units.append(dict(key=f"evals-{mode}-{algo}-s{seed}", algo=algo, kind="eval", train=(label, config),
                                       evals=evals, cells=cells, deps=[producer[label]], cost=len(cells) * EVAL_S))
+        if "reality" in sections:
+            for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
+                prefix = f"reality-{training}-{algo}"
+                train(prefix, algo, env, range(self._reality_seeds()), extra)
+                for seed in range(self._reality_seeds()):
+                    label, config = f"{prefix}-s{seed}", self._train_config(algo, env, seed, extra)
+                    ckpt = f"checkpoints/{label}-{config_hash(config)}"
+                    evals = [(self._reality_label(prefix, level, seed), test_env, seed + TEST_SEED_OFFSET)
+                             for level, test_env in self._reality_levels()]
+                    cells = [(lab, self._eval_config(ckpt, e, s)) for lab, e, s in evals]
+                    units.append(dict(key=f"evals-{prefix}-s{seed}", algo=algo, kind="eval", train=(label, config),
+                                      evals=evals, cells=cells, deps=[producer[label]],
+                                      cost=len(cells) * EVAL_S * IMPERFECT_COST))
         return units
+
+    def _reality_seeds(self) -> int:
+        return self.p.get("reality_seeds", self.p["seeds"])
+
+    @staticmethod
+    def _reality_levels() -> list:
+        """(level name, test env config) of the reality section."""
+        return [(name, reality.env_config(scale)) for name, scale in reality.LEVELS]
+
+    @staticmethod
+    def _reality_label(prefix: str, level: str, seed: int) -> str:
+        return f"{prefix}-{level.replace(' ', '')}-s{seed}"
 
     def todo(self, unit: dict):
         """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
@@ -251,7 +285,8 @@ class Sweep:
         """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's
         table-1 ``record`` (and checkpoint in this folder)."""
         if unit["kind"] == "train":
-            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}")
+            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}",
+                               extra=unit.get("hyper"))
         else:
             for label, env, seed in unit["evals"]:
                 self.evaluated(label, record, env, seed)
@@ -278,7 +313,7 @@ class Sweep:
         self.timing["table1 training + evaluation"] = time.perf_counter() - t0
         results = {}
         for name, compute in (("stages", lambda: self.stage_scan(bar)), ("transfer", lambda: self.transfer(runs, bar)),
-                              ("feedback", lambda: self.feedback(runs, bar))):
+                              ("feedback", lambda: self.feedback(runs, bar)), ("reality", lambda: self.reality(bar))):
             if name in sections:
                 t = time.perf_counter()
                 results[name] = compute()
@@ -292,7 +327,10 @@ class Sweep:
             if "table2" in sections:
                 report.table2(self.out, runs, self.p)
             for name, res in results.items():
-                getattr(report, name)(self.out, res, self.p)
+                if name == "reality":
+                    reality.report(self.out, res, self.p, self.p.get("command", "python -m benchmarks.sweep --only reality"))
+                else:
+                    getattr(report, name)(self.out, res, self.p)
             self.timing["tables and figures"] = time.perf_counter() - t
         self.timing["total"] = time.perf_counter() - t0
 
@@ -305,6 +343,20 @@ class Sweep:
                     records = self.trained_seeds(algo, {"stages": n, "mode": mode}, range(self.p["stage_seeds"]),
                                                  lambda s: f"stages-N{n}-{mode}-{algo}-s{s}", bar)
                     res.update({(n, mode, algo, seed): r for seed, r in records.items()})
+        return res
+
+    def reality(self, bar) -> dict:
+        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
+        ratios = reality.best_ratios()
+        res = {}
+        for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
+            prefix = f"reality-{training}-{algo}"
+            records = self.trained_seeds(algo, env, range(self._reality_seeds()), lambda s: f"{prefix}-s{s}", bar, extra)
+            res[f"{algo}/{training}"] = {level: [] for level, _ in self._reality_levels()}
+            for seed, record in records.items():
+                for level, test_env in self._reality_levels():
+                    ev = self.evaluated(self._reality_label(prefix, level, seed), record, test_env, seed + TEST_SEED_OFFSET)
+                    res[f"{algo}/{training}"][level].append(float(np.mean(ev["final"]) * ratios[level]))
         return res
 
     def transfer(self, runs, bar):

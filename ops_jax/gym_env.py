@@ -16,7 +16,9 @@ Semantics (both adapters):
 - reward: the configured reward (``"paper"``: in [-1, 0]); ``terminated`` when a delay leaves the
   +-window; ``truncated`` after ``max_steps`` (the environment truncates itself, so the registered
   spec has no ``TimeLimit``; ``env.unwrapped.max_episode_steps`` is ``max_steps``).
-- info: ``power``, ``normalized_power`` (P / P_max), ``deltas_wl`` (N,), ``action_nonfinite``.
+- info: ``power``, ``normalized_power`` (P / P_max), ``normalized_power_best`` (P / P_best: the best P
+  reachable with the configured static imperfections; P / P_max without them), ``deltas_wl`` (N,),
+  ``action_nonfinite``.
 - randomness: ``reset(seed=s)`` seeds ``np_random`` and restarts the episode counter (hard mode's
   drift ramps with it); the JAX key of the episode is drawn from ``np_random``. ``reset(options=
   {"episode": k})`` starts as the k-th episode (k >= 10: hard mode's drift fully on).
@@ -159,9 +161,13 @@ def _split_step_keys(key, num_envs: int):
     return key, jax.random.split(sub, num_envs)
 
 
+SCALARS = 7  # per step: reward, terminated, truncated, power, P / P_max, P / P_best, action_nonfinite
+
+
 def _pack(obs, reward, terminated, truncated, info, extra=()):
-    """One float32 array (..., D + 5 + N [+ extra]) so that one device->host copy returns a step."""
-    scal = [reward, terminated, truncated, info["power"], info["normalized_power"], info["action_nonfinite"]]
+    """One float32 array (..., D + SCALARS + N [+ extra]) so that one device->host copy returns a step."""
+    scal = [reward, terminated, truncated, info["power"], info["normalized_power"], info["normalized_power_best"],
+            info["action_nonfinite"]]
     cols = [obs] + [jnp.asarray(s, jnp.float32)[..., None] for s in scal] + [info["deltas_wl"]] + list(extra)
     return jnp.concatenate([jnp.asarray(c, jnp.float32) for c in cols], axis=-1)
 
@@ -202,7 +208,7 @@ def _single_fns(stages, mode, options):
         key0 = jax.random.key(0)
         template = jax.eval_shape(lambda k: (jax.random.key_data(k), env.reset(k, params)[1]), key0)
         codec = _FlatCodec(template)
-        head = d + 6 + n
+        head = d + SCALARS + n
 
         def step(buf, action):
             key_data, state = codec.unflatten(buf[head:])
@@ -218,7 +224,7 @@ def _single_fns(stages, mode, options):
             obs, state = env.reset(k_reset, params, episode)
             p_init = jnp.where(fresh, state.p_init, codec.unflatten(buf[head:])[1].p_init)
             state = dataclasses.replace(state, p_init=p_init)
-            packed = jnp.zeros(head, jnp.float32).at[:d].set(obs).at[d + 6:].set(state.deltas)
+            packed = jnp.zeros(head, jnp.float32).at[:d].set(obs).at[d + SCALARS:].set(state.deltas)
             return jnp.concatenate([packed, codec.flatten((jax.random.key_data(key), state))])
 
         return jax.jit(step), jax.jit(reset), codec, head
@@ -285,9 +291,10 @@ class _Unpacked:
         self.truncated = packed[..., d + 2] != 0
         self.power = packed[..., d + 3]
         self.normalized_power = packed[..., d + 4]
-        self.action_nonfinite = packed[..., d + 5] != 0
-        self.deltas_wl = packed[..., d + 6:d + 6 + n]
-        self.extra = packed[..., d + 6 + n:]
+        self.normalized_power_best = packed[..., d + 5]
+        self.action_nonfinite = packed[..., d + 6] != 0
+        self.deltas_wl = packed[..., d + SCALARS:d + SCALARS + n]
+        self.extra = packed[..., d + SCALARS + n:]
 
 
 def _reset_key(env, seed, options):
@@ -391,6 +398,7 @@ class OPSGymEnv(gymnasium.Env):
         info = {
             "power": float(u.power),
             "normalized_power": float(u.normalized_power),
+            "normalized_power_best": float(u.normalized_power_best),
             "deltas_wl": u.deltas_wl.copy(),
             "action_nonfinite": bool(u.action_nonfinite),
         }
@@ -512,6 +520,7 @@ class OPSVectorEnv(VectorEnv):
         infos = {
             "power": u.power.copy(), "_power": ones,
             "normalized_power": u.normalized_power.copy(), "_normalized_power": ones,
+            "normalized_power_best": u.normalized_power_best.copy(), "_normalized_power_best": ones,
             "deltas_wl": u.deltas_wl.copy(), "_deltas_wl": ones,
             "action_nonfinite": u.action_nonfinite.copy(), "_action_nonfinite": ones,
         }

@@ -255,9 +255,21 @@ def test_options_pass_through_gymnasium_and_agents():
     env = gymnasium.make("ops_jax/OPS-v0", stages=3, mode="hard", model="phasor", imperfections="lab")
     assert env.unwrapped.env.config.imperfect
     obs, _ = env.reset(seed=0)
-    obs2, reward, *_ = env.step(np.zeros(3, np.float32))
+    obs2, reward, _, _, info = env.step(np.zeros(3, np.float32))
     assert obs2.shape == obs.shape and np.isfinite(reward)
     assert env.observation_space.contains(obs) and env.observation_space.contains(obs2)
+    u = env.unwrapped
+    p_best = float(u.params.lab.p_best)
+    assert p_best < 0.999 * u.env.p_max  # the lab optics cannot reach P_max
+    np.testing.assert_allclose(info["normalized_power_best"] * p_best, info["normalized_power"] * u.env.p_max,
+                               rtol=1e-5)
+    venv = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=4, vectorization_mode="vector_entry_point", stages=3,
+                              mode="hard", model="phasor", imperfections="lab")
+    venv.reset(seed=0)
+    infos = venv.step(np.zeros((4, 3), np.float32))[-1]
+    assert infos["_normalized_power_best"].all()
+    np.testing.assert_allclose(infos["normalized_power_best"] * p_best, infos["normalized_power"] * u.env.p_max,
+                               rtol=1e-5)
     with pytest.raises(ValueError, match="imperfections"):
         gymnasium.make("ops_jax/OPS-v0", stages=3, imperfections="moon")
 
