@@ -30,9 +30,10 @@ feedback_k = 1 and helps only at long feedback delays).
 
 Online identification (``identify=True``; off by default): the model also carries static unknowns
 theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
-rotation error; each fitted line's actuator gain error), estimated recursively. After the
+rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
+recursively. After the
 multi-start fit of the offsets (theta held), one Gauss-Newton step on (offsets, theta) with theta's
-accumulated information as its prior (initial standard deviations ``PRIOR_SD``); the information
+accumulated information as its prior; the information
 then grows by what that step tells about theta alone (the Schur complement of the offsets),
 discounted by ``forget`` per step. Moves are divided by the identified actuator gains.
 
@@ -70,25 +71,36 @@ def wrap(x):
     return x - 0.5 * jnp.round(x / 0.5)
 
 
-# Online identification (``identify=True``): prior standard deviations of the static unknowns, in
-# units of the observation y (detector gain and offset: y = 2 ((1 + g) v + o) - 1), rad (wave plate
-# rotation error) and relative (actuator gain error); NOISE_Y: the assumed noise of y.
-PRIOR_SD = {"detector_gain": 0.05, "detector_offset": 0.05, "rotation": 0.03, "actuator_gain": 0.15}
+# Online identification (``identify=True``): the static unknowns theta, with their start, prior
+# standard deviation and accepted range: detector gain error and offset (y = 2 ((1 + g) v + o) - 1),
+# each stage's wave plate rotation error (rad) and PBS leakage amplitude sqrt(leak) (started off zero,
+# where P is flat in it), each fitted line's actuator gain error; NOISE_Y: the assumed noise of y.
+THETA = {  # block: (start, prior SD, lowest, highest)
+    "detector_gain": (0.0, 0.05, -0.3, 0.3),
+    "detector_offset": (0.0, 0.05, -0.3, 0.3),
+    "rotation": (0.0, 0.03, -0.15, 0.15),
+    "leak_amplitude": (0.02, 0.03, 1e-3, 0.3),
+    "actuator_gain": (0.0, 0.15, -0.5, 0.5),
+}
 NOISE_Y = 0.01
-THETA_CLIP = {"detector_gain": 0.3, "detector_offset": 0.3, "rotation": 0.15, "actuator_gain": 0.5}
 
 
 def _theta_layout(n: int, fit: int) -> dict:
-    """Slices of the identified parameters theta: detector gain, offset, N rotations, ``fit`` actuator gains."""
-    return {"detector_gain": slice(0, 1), "detector_offset": slice(1, 2), "rotation": slice(2, 2 + n),
-            "actuator_gain": slice(2 + n, 2 + n + fit)}
+    """Slices of theta's blocks: detector gain, offset (1 each), rotations and leak amplitudes (N each),
+    actuator gains (``fit``)."""
+    sizes = {"detector_gain": 1, "detector_offset": 1, "rotation": n, "leak_amplitude": n, "actuator_gain": fit}
+    out, i = {}, 0
+    for k, size in sizes.items():
+        out[k], i = slice(i, i + size), i + size
+    return out
 
 
-def _per_theta(n: int, fit: int, values: dict) -> np.ndarray:
-    """A vector over theta from one value per block of ``_theta_layout``."""
-    out = np.zeros(2 + n + fit, np.float32)
-    for k, sl in _theta_layout(n, fit).items():
-        out[sl] = values[k]
+def _per_theta(n: int, fit: int, column: int) -> np.ndarray:
+    """Column ``column`` of ``THETA`` (0 start, 1 prior SD, 2 lowest, 3 highest) as a vector over theta."""
+    layout = _theta_layout(n, fit)
+    out = np.zeros(max(s.stop for s in layout.values()), np.float32)
+    for k, sl in layout.items():
+        out[sl] = THETA[k][column]
     return out
 
 
@@ -107,10 +119,11 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     peak = physics.peak_intensity(n)
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
     layout = _theta_layout(n, fit)
-    n_theta = 2 + n + fit if identify else 0
-    prior = jnp.asarray(np.diag((NOISE_Y / _per_theta(n, fit, PRIOR_SD)) ** 2) if identify else np.zeros((0, 0)),
-                        jnp.float32)
-    theta_clip = jnp.asarray(_per_theta(n, fit, THETA_CLIP) if identify else np.zeros(0), jnp.float32)
+    column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
+    theta0, theta_lo, theta_hi = column(0), column(2), column(3)
+    n_theta = theta0.size
+    prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
+    max_step = 0.1 * (theta_hi - theta_lo)  # per control step
 
     def full(z):
         return jnp.concatenate([z, jnp.zeros((n - fit,), z.dtype)])
@@ -119,8 +132,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         if not identify:
             m = physics.measure(full(z), stages=n, model="phasor", detector=cfg.detector)
             return jnp.concatenate([(2 * m.power / p_max - 1)[None], 2 * m.samples / peak - 1])
-        m = optics.measure(full(z), np.pi / 4 + th[layout["rotation"]], 0.0, optics.ideal_pulses(n), stages=n,
-                           model="phasor", detector=cfg.detector)
+        m = optics.measure(full(z), np.pi / 4 + th[layout["rotation"]], th[layout["leak_amplitude"]] ** 2,
+                           optics.ideal_pulses(n), stages=n, model="phasor", detector=cfg.detector)
         v = jnp.concatenate([(m.power / p_max)[None], m.samples / peak])
         return 2 * ((1 + th[layout["detector_gain"]]) * v + th[layout["detector_offset"]]) - 1
 
@@ -170,7 +183,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         A_reg = A + prior_full + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
         step = -jnp.linalg.solve(A_reg, J.T @ res(u))
         z_new = wrap(z + jnp.clip(step[:fit], -0.05, 0.05))
-        th_new = jnp.clip(th + jnp.clip(step[fit:], -0.1 * theta_clip, 0.1 * theta_clip), -theta_clip, theta_clip)
+        th_new = jnp.clip(th + jnp.clip(step[fit:], -max_step, max_step), theta_lo, theta_hi)
         azz, azt, att = A[:fit, :fit], A[:fit, fit:], A[fit:, fit:]
         schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
         info_new = h["forget"] * info + schur
@@ -183,7 +196,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
                  "z": jnp.zeros((b, fit), jnp.float32), "v": jnp.zeros((b, fit), jnp.float32),
                  "valid": jnp.zeros((b,), jnp.float32)}
         if identify:
-            carry.update(theta=jnp.zeros((b, n_theta), jnp.float32),
+            carry.update(theta=jnp.broadcast_to(theta0, (b, n_theta)),
                          info=jnp.broadcast_to(prior, (b, n_theta, n_theta)))
         return carry
 
