@@ -33,7 +33,7 @@ PRESETS = {
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
-    "default": dict(  # budgets for a run well under 30 min on 2 CPU cores (22.0 min measured, see README)
+    "default": dict(  # ~45 min on 2 CPU cores (docs/results.md)
         seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
         budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
         hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
@@ -54,11 +54,11 @@ LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperpara
 
 # Seconds of one cell on one worker of a 2-core CPU (compilation shared over an algorithm's cells): a
 # training cell costs TRAIN_FIXED_S + TRAIN_S_PER_STEP x its budget, an evaluation cell EVAL_S. Fitted
-# to the default preset's measured run (docs/sweep.md: PPO 2M steps ~80 s, SAC 100k ~40 s, TD3 60k
-# ~6 s per seed of a 5-seed call, physics-informed ~8 s, SPGD ~2 s; evaluations 0.05-2 s). They weight
-# the progress bar, so its remaining time follows cost rather than cell count, and order the work.
-TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 8.0, "spgd": 2.0}
-TRAIN_S_PER_STEP = {"ppo": 4e-5, "sac": 4e-4, "td3": 1e-4}
+# to the default preset's measured run (docs/results.md, JAX 0.10: PPO 2M steps ~135 s, SAC 100k ~88 s,
+# TD3 60k ~12 s per seed of a 5-seed call, physics-informed ~12 s with its evaluations, SPGD ~2 s).
+# They weight the progress bar, so its remaining time follows cost rather than cell count, and order the work.
+TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 12.0, "spgd": 2.0}
+TRAIN_S_PER_STEP = {"ppo": 6.6e-5, "sac": 8.5e-4, "td3": 1.6e-4}
 EVAL_S = 1.0
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
 
