@@ -93,18 +93,20 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
                 w.writerow([*algo.split("/"), n, f"{np.mean(v):.6f}", f"{np.std(v):.6f}", len(v)])
     (out / "reality.json").write_text(json.dumps(results, indent=1))
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plt.subplots(figsize=(7, 4))
     x = np.array([s for _, s in LEVELS])
+    algos = list(dict.fromkeys(a.split("/")[0] for a in results))
+    color = {a: f"C{i}" for i, a in enumerate(algos)}  # one colour per controller, a line style per training
     for algo in results:
         m = np.array([np.mean(results[algo][n]) for n in names])
         s = np.array([np.std(results[algo][n]) for n in names])
         a, training = algo.split("/")
-        ax.errorbar(x, m, yerr=s, marker="o", capsize=3, label=f"{NAMES.get(a, a)} ({training})",
+        ax.errorbar(x, m, yerr=s, marker="o", capsize=3, label=f"{NAMES.get(a, a)} ({training})", color=color[a],
                     linestyle={"randomised": "--", "identify": ":"}.get(training, "-"))
     ax.set_xticks(x, names)
     ax.set_xlabel("imperfection level")
     ax.set_ylabel("final P / P_best")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.02, 0.5))
     fig.tight_layout()
     fig.savefig(out / "reality.png", dpi=120)
     plt.close(fig)
