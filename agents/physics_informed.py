@@ -31,11 +31,10 @@ feedback_k = 1 and helps only at long feedback delays).
 Online identification (``identify=True``; off by default): the model also carries static unknowns
 theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
 rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
-recursively. After the
-multi-start fit of the offsets (theta held), one Gauss-Newton step on (offsets, theta) with theta's
-accumulated information as its prior; the information
-then grows by what that step tells about theta alone (the Schur complement of the offsets),
-discounted by ``forget`` per step. Moves are divided by the identified actuator gains.
+recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on
+(offsets, theta) with theta's accumulated information as its prior; the information then grows by
+what that step tells about theta alone (the Schur complement of the offsets), discounted by
+``forget`` per step. Moves are divided by the identified actuator gains.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and
 docs/imperfections.md (with lab imperfections).
