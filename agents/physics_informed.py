@@ -22,8 +22,8 @@ Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
 adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
-them: legitimate but trivial, and useless when the channel is noisy or absent). The default
-``use_lengths=False`` never looks at them: it is the physics-informed controller proper.
+them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). The
+default ``use_lengths=False`` never looks at them: it is the physics-informed controller proper.
 ``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
@@ -34,7 +34,11 @@ rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA`
 recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on
 (offsets, theta) with theta's accumulated information as its prior; the information then grows by
 what that step tells about theta alone (the Schur complement of the offsets), discounted by
-``forget`` per step. Moves are divided by the identified actuator gains.
+``forget`` per step. Moves are divided by the identified actuator gains. With ``use_lengths=True``
+as well, each fitted line's length readout is calibrated against the fit (readout = (1 + g) x + o,
+recursive least squares, discounted by ``forget``) and, once the calibrated length is known to
+CAL_TRUST, read instead of the fitted offset: the readout sees the length at once and has no sign
+ambiguity, where the fit, near the optimum, has to tell +x from -x through the last move.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and
 docs/imperfections.md (with lab imperfections).
@@ -82,6 +86,12 @@ THETA = {  # block: (start, prior SD, lowest, highest)
     "actuator_gain": (0.0, 0.15, -0.5, 0.5),
 }
 NOISE_Y = 0.01
+# The length readout's calibration (``identify=True`` with ``use_lengths=True``): readout = (1 + g) x + o
+# per fitted line, recursive least squares of the readout on the fitted lengths (their assumed error
+# CAL_NOISE wl, innovations beyond CAL_CLIP times their standard deviation cut) from the prior
+# o ~ N(0, CAL_PRIOR^2) wl, 1 + g ~ N(1, CAL_PRIOR^2); the controller reads the calibrated readout
+# where its standard deviation is below CAL_TRUST wl, the fitted offsets elsewhere.
+CAL_NOISE, CAL_CLIP, CAL_PRIOR, CAL_TRUST = 0.01, 3.0, 0.05, 0.002
 
 
 def _theta_layout(n: int, fit: int) -> dict:
@@ -117,6 +127,9 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     p_max = physics.p_max(n, cfg.detector)
     peak = physics.peak_intensity(n)
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
+    readout = identify and h["use_lengths"]
+    cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
+    cal_mean = jnp.array([0.0, 1.0])
     layout = _theta_layout(n, fit)
     column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
     theta0, theta_lo, theta_hi = column(0), column(2), column(3)
@@ -188,6 +201,27 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         info_new = h["forget"] * info + schur
         return z_new, th_new, 0.5 * (info_new + info_new.T)
 
+    def calibrate_one(info, vec, z, r):
+        """One line's readout calibration: the recursive least squares update with the fitted offset
+        ``z`` (wl, modulo the period) and readout ``r`` (wl); returns (info, vec, the calibrated length
+        (wl, modulo the period), its standard deviation (wl))."""
+        def solve(info, vec):
+            A = info + cal_prior
+            return jnp.linalg.solve(A, vec + cal_prior @ cal_mean), jnp.linalg.inv(A)
+
+        beta, cov = solve(info, vec)
+        x = z + 0.5 * jnp.round(((r - beta[0]) / beta[1] - z) / 0.5)  # the fitted length, unwrapped by the readout
+        phi = jnp.array([1.0, x])
+        innov = r - phi @ beta
+        bound = CAL_CLIP * jnp.sqrt(CAL_NOISE**2 + phi @ cov @ phi)
+        r_used = phi @ beta + jnp.clip(innov, -bound, bound)
+        info = h["forget"] * info + jnp.outer(phi, phi) / CAL_NOISE**2
+        vec = h["forget"] * vec + phi * r_used / CAL_NOISE**2
+        beta, cov = solve(info, vec)
+        x_cal = (r - beta[0]) / beta[1]
+        d = jnp.array([-1.0, -x_cal]) / beta[1]  # gradient of x_cal in (o, 1 + g)
+        return info, vec, wrap(x_cal), jnp.sqrt(d @ cov @ d)
+
     def init(key, obs):
         del key
         b = obs.shape[0]
@@ -197,6 +231,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         if identify:
             carry.update(theta=jnp.broadcast_to(theta0, (b, n_theta)),
                          info=jnp.broadcast_to(prior, (b, n_theta, n_theta)))
+        if readout:
+            carry.update(cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32), cal_vec=jnp.zeros((b, fit, 2), jnp.float32))
         return carry
 
     def act(params, carry, obs, key, probe):
@@ -221,6 +257,11 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
             if identify:
                 z, th, info = jax.vmap(identify_one)(z, th, carry["info"], y, hist)
                 new.update(theta=th, info=info)
+            if readout:
+                cal_info, cal_vec, z_cal, sd = jax.vmap(jax.vmap(calibrate_one))(
+                    carry["cal_info"], carry["cal_vec"], z, x_len[:, :fit])
+                z = jnp.where(sd < CAL_TRUST, z_cal, z)
+                new.update(cal_info=cal_info, cal_vec=cal_vec)
         # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
         v = carry["v"] + h["drift_gain"] * valid * wrap(z - z_pred)
         per_unit = scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale  # wl moved per action unit

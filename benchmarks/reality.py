@@ -1,6 +1,7 @@
 """The ``reality`` section of ``benchmarks.sweep``: every controller trained on the ideal system (the
 learners also with domain randomisation: lab imperfections, ``randomize=1``, i.e. 0 to 2x the lab
-errors per episode; the physics-informed controller also identifying the imperfections online) and
+errors per episode; the physics-informed controller also identifying the imperfections online, and
+identifying them while reading the length readout through its identified calibration) and
 tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
 docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
 reachable with the level's static optics). Its trainings and evaluations are cells of the sweep's
@@ -34,7 +35,8 @@ def env_config(scale: float) -> dict:
 def trainings(algos, learners) -> list:
     """(algo, training, env config, hyperparameter overrides) of each controller of the section:
     every algorithm on the ideal system; the ``learners`` also randomised; the physics-informed
-    controller also with online identification ("identify")."""
+    controller also with online identification ("identify") and with it reading the calibrated length
+    readout ("readout")."""
     out = []
     for algo in algos:
         out.append((algo, "ideal", env_config(0.0), {}))
@@ -42,6 +44,7 @@ def trainings(algos, learners) -> list:
             out.append((algo, "randomised", dict(RANDOMISED), {}))
         if algo == "physics":
             out.append((algo, "identify", env_config(0.0), {"identify": True}))
+            out.append((algo, "readout", env_config(0.0), {"identify": True, "use_lengths": True}))
     return out
 
 
@@ -79,7 +82,8 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
     took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
     lines += ["", "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
-              "identify (ideal, with online identification of the imperfections).",
+              "identify (ideal, with online identification of the imperfections), readout (identify, "
+              "also reading the length readout through its identified calibration).",
               "", f"Command: `{command}`; {time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
               f"({platform.processor() or platform.machine()}){took}."]
     out.mkdir(parents=True, exist_ok=True)
@@ -102,7 +106,7 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         s = np.array([np.std(results[algo][n]) for n in names])
         a, training = algo.split("/")
         ax.errorbar(x, m, yerr=s, marker="o", capsize=3, label=f"{NAMES.get(a, a)} ({training})", color=color[a],
-                    linestyle={"randomised": "--", "identify": ":"}.get(training, "-"))
+                    linestyle={"randomised": "--", "identify": ":", "readout": "-."}.get(training, "-"))
     ax.set_xticks(x, names)
     ax.set_xlabel("imperfection level")
     ax.set_ylabel("final P / P_best")

@@ -80,16 +80,18 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     trains = [u for u in units if u["kind"] == "train"]
     learners = ("ppo", "sac", "td3")
     prefixes = {f"reality-ideal-{a}" for a in preset["algos"]} | {f"reality-randomised-{a}" for a in learners}
-    assert {u["prefix"] for u in trains} == prefixes | {"reality-identify-physics"}
+    physics = {"reality-identify-physics", "reality-readout-physics"}
+    assert {u["prefix"] for u in trains} == prefixes | physics
     for u in trains:
         config = u["cells"][0][1]
         assert config["env"]["stages"] == 5 and config["env"]["mode"] == "hard"
         assert (config["env"].get("randomize") == 1.0) == ("randomised" in u["prefix"])
-        assert config["hyper"].get("identify", False) == ("identify" in u["prefix"])
+        assert config["hyper"].get("identify", False) == (u["prefix"] in physics)
+        assert config["hyper"].get("use_lengths", False) == ("readout" in u["prefix"])
     seeds = sorted(c["seed"] for u in trains for _, c in u["cells"] if u["prefix"] == "reality-randomised-sac")
     assert seeds == list(range(preset["reality_seeds"]))
     evals = [u for u in units if u["kind"] == "eval"]
-    assert len(evals) == (len(prefixes) + 1) * preset["reality_seeds"]
+    assert len(evals) == (len(prefixes) + len(physics)) * preset["reality_seeds"]
     for u in evals:
         assert [c["env"].get("imperfection_scale", 0.0) for _, c in u["cells"]] == [0.0, 1.0, 2.0]
         assert u["cost"] > 0 and u["deps"]
