@@ -40,6 +40,7 @@ PRESETS = {
                "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
+        reality_budgets={"sac": 300_000},  # SAC's randomised training is far from done at 100k (docs/imperfections.md)
     ),
     "paper": dict(
         seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,
@@ -91,13 +92,15 @@ class Sweep:
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- trained controllers --------------------------------------------------------------------
-    def _train_config(self, algo: str, env_config: dict, seed: int, extra: dict | None = None) -> dict:
-        """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant)."""
+    def _train_config(self, algo: str, env_config: dict, seed: int, extra: dict | None = None,
+                      steps: int | None = None) -> dict:
+        """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant);
+        ``steps``: a budget other than the preset's (a section's own)."""
         hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
         hyper.update(extra or {})
-        return dict(kind="train", algo=algo, env=env_config, seed=seed, steps=self.p["budgets"][algo],
-                    hyper=hyper, episodes=self.p["episodes"])
+        return dict(kind="train", algo=algo, env=env_config, seed=seed,
+                    steps=self.p["budgets"][algo] if steps is None else steps, hyper=hyper, episodes=self.p["episodes"])
 
     def _finished(self, label: str, config: dict, quiet: bool = True) -> bool:
         """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
@@ -116,13 +119,14 @@ class Sweep:
                 self.log(f"checkpoint {record['checkpoint']} unusable ({exc}): training again")
             return False
 
-    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None, extra=None) -> dict:
+    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None, extra=None,
+                steps=None) -> dict:
         """Train (or reuse) one controller, evaluate it in its training and testing environment.
         ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call);
-        ``extra``: hyperparameter overrides (``_train_config``)."""
+        ``extra``, ``steps``: hyperparameter overrides and budget (``_train_config``)."""
         import agents
 
-        config = self._train_config(algo, env_config, seed, extra)
+        config = self._train_config(algo, env_config, seed, extra, steps)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
         # A controller with nothing to train records an evaluation as its curve: the same one as
@@ -151,23 +155,23 @@ class Sweep:
         return record
 
     def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar=_Silent(),
-                      extra=None) -> dict:
+                      extra=None, steps=None) -> dict:
         """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
         train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
 
         results = {}
         if hasattr(agents.base.algo_module(algo), "train_seeds"):
-            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra))]
+            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra, steps))]
             if len(todo) > 1:
                 bar.set_description(f"{label(todo[0]).rsplit('-s', 1)[0]} seeds {todo} (one vmapped call)")
-                config = self._train_config(algo, env_config, todo[0], extra)
+                config = self._train_config(algo, env_config, todo[0], extra, steps)
                 results = dict(zip(todo, agents.train_seeds(algo, env_config, seeds=todo, total_steps=config["steps"],
                                                             **config["hyper"])))
         records = {}
         for seed in seeds:
             bar.set_description(f"{label(seed)}")
-            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed), extra)
+            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed), extra, steps)
             bar.update()
         return records
 
@@ -206,15 +210,15 @@ class Sweep:
 
         units, producer = [], {}
 
-        def train(prefix, algo, env, seeds, extra=None):
+        def train(prefix, algo, env, seeds, extra=None, steps=None):
             groups = [list(seeds)] if hasattr(agents.base.algo_module(algo), "train_seeds") else [[s] for s in seeds]
             factor = IMPERFECT_COST if "imperfections" in env else 1.0
             for group in groups:
-                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s, extra)) for s in group]
+                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s, extra, steps)) for s in group]
                 key = prefix if len(groups) == 1 else cells[0][0]
-                cost = len(group) * cell_seconds(algo, self.p["budgets"][algo]) * factor
+                cost = len(group) * cell_seconds(algo, cells[0][1]["steps"]) * factor
                 units.append(dict(key=key, algo=algo, kind="train", env=env, seeds=group, prefix=prefix, cells=cells,
-                                  deps=[], cost=round(cost, 1), hyper=extra or {}))
+                                  deps=[], cost=round(cost, 1), hyper=extra or {}, steps=steps))
                 producer.update({label: key for label, _ in cells})
 
         p = self.p
@@ -246,9 +250,10 @@ class Sweep:
         if "reality" in sections:
             for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
                 prefix = f"reality-{training}-{algo}"
-                train(prefix, algo, env, range(self._reality_seeds()), extra)
+                steps = self._reality_budget(algo)
+                train(prefix, algo, env, range(self._reality_seeds()), extra, steps)
                 for seed in range(self._reality_seeds()):
-                    label, config = f"{prefix}-s{seed}", self._train_config(algo, env, seed, extra)
+                    label, config = f"{prefix}-s{seed}", self._train_config(algo, env, seed, extra, steps)
                     ckpt = f"checkpoints/{label}-{config_hash(config)}"
                     evals = [(self._reality_label(prefix, level, seed), test_env, seed + TEST_SEED_OFFSET)
                              for level, test_env in self._reality_levels()]
@@ -260,6 +265,10 @@ class Sweep:
 
     def _reality_seeds(self) -> int:
         return self.p.get("reality_seeds", self.p["seeds"])
+
+    def _reality_budget(self, algo: str) -> int:
+        """``algo``'s training budget (env steps) in the reality section: ``reality_budgets``, else the preset's."""
+        return self.p.get("reality_budgets", {}).get(algo, self.p["budgets"][algo])
 
     @staticmethod
     def _reality_levels() -> list:
@@ -286,7 +295,7 @@ class Sweep:
         table-1 ``record`` (and checkpoint in this folder)."""
         if unit["kind"] == "train":
             self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}",
-                               extra=unit.get("hyper"))
+                               extra=unit.get("hyper"), steps=unit.get("steps"))
         else:
             for label, env, seed in unit["evals"]:
                 self.evaluated(label, record, env, seed)
@@ -351,7 +360,8 @@ class Sweep:
         res = {}
         for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
             prefix = f"reality-{training}-{algo}"
-            records = self.trained_seeds(algo, env, range(self._reality_seeds()), lambda s: f"{prefix}-s{s}", bar, extra)
+            records = self.trained_seeds(algo, env, range(self._reality_seeds()), lambda s: f"{prefix}-s{s}", bar, extra,
+                                         self._reality_budget(algo))
             res[f"{algo}/{training}"] = {level: [] for level, _ in self._reality_levels()}
             for seed, record in records.items():
                 for level, test_env in self._reality_levels():

@@ -96,6 +96,13 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
         assert [c["env"].get("imperfection_scale", 0.0) for _, c in u["cells"]] == [0.0, 1.0, 2.0]
         assert u["cost"] > 0 and u["deps"]
     assert not [u for u in sweep.Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
+    # The default preset's own reality budgets: SAC's trainings there run longer than its table-1 ones.
+    default = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
+    steps = {(u["prefix"], config["steps"]) for u in sweep.Sweep(default, tmp_path, print).units(["reality", "table1"])
+             if u["kind"] == "train" and u["algo"] in ("sac", "ppo") for _, config in u["cells"]}
+    assert {st for prefix, st in steps if prefix.startswith("reality-") and "sac" in prefix} == {300_000}
+    assert {st for prefix, st in steps if prefix.startswith("table1-") and "sac" in prefix} == {default["budgets"]["sac"]}
+    assert {st for _, st in steps if st != 300_000} == {default["budgets"]["sac"], default["budgets"]["ppo"]}
 
 
 def test_pick_keeps_workers_on_their_algorithm():
