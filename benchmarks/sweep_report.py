@@ -290,6 +290,8 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
         f"- sections: {', '.join(sections)}",
         f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: {p['episodes']}",
         f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['config']}",
+        *([f"- the reality section's own budgets: {p['reality_budgets']}"]
+          if "reality" in sections and p.get("reality_budgets") else []),
         f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
         f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
         f"- XLA_FLAGS: {os.environ.get('XLA_FLAGS') or '(none)'}",
