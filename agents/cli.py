@@ -106,7 +106,7 @@ def main(argv=None) -> dict:
     ev = agents.evaluate(result, env_config, episodes=args.episodes, seed=args.eval_seed)
     summary = dict(algo=args.algo, env_config=env_config, seed=args.seed, hyper=result.hyper,
                    wall_time=result.wall_time, evaluation=ev.summary,
-                   train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0)
+                   train_steps=result.env_steps)
     write_json_atomic(out / "summary.json", summary)
     s = ev.summary
     print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing P/Pmax "
