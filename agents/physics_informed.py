@@ -22,13 +22,14 @@ Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
 adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
-them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). The
-default ``use_lengths=False`` never looks at them: it is the physics-informed controller proper.
+them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). With
+``use_lengths=False`` (the "frames" preset) the controller never looks at them.
 ``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
 
-Online identification (``identify=True``; off by default): the model also carries static unknowns
+Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False``
+turns it off): the model also carries static unknowns
 theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
 rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
 recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on

@@ -80,9 +80,9 @@ def _table(rows: list[dict], pythons: list[str], algos: list[str]) -> str:
             rs = [r for r in rows if r["algo"] == algo and r["python"] == py]
             rate = statistics.median(r["steps_per_s"] for r in rs)
             base = rate if base is None else base
-            lines.append(f"| {algo} | {rs[0]['jax']} | {rs[0]['steps']:,} | {statistics.median(r['wall_s'] for r in rs):.1f} | "
-                         f"{statistics.median(r['cpu_s'] for r in rs):.1f} | "
-                         f"{rate:,.0f} | {statistics.median(r['compile_s'] for r in rs):.1f} | "
+            med = {k: statistics.median(r[k] for r in rs) for k in ("wall_s", "cpu_s", "compile_s")}
+            lines.append(f"| {algo} | {rs[0]['jax']} | {rs[0]['steps']:,} | {med['wall_s']:.1f} | {med['cpu_s']:.1f} | "
+                         f"{rate:,.0f} | {med['compile_s']:.1f} | "
                          f"{rs[0]['compiles']} | {rate / base:.2f}x |")
     return "\n".join(lines)
 

@@ -21,11 +21,11 @@ def test_reaches_high_power_quickly_without_probes():
     assert res.summary["steps_to_0p9_median"] <= 30
 
 
-def test_length_channel_is_ignored_by_default():
+def test_length_channel_is_ignored_from_frames():
     env, params = ops_jax.make(**ENV)
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 4), params)
     garbled = obs.at[:, 2**3:].set(0.7)  # lengths replaced by nonsense
-    for hyper, same in (({}, True), ({"use_lengths": True, "lengths_only": True}, False)):
+    for hyper, same in (({"config": "frames"}, True), ({"use_lengths": True, "lengths_only": True}, False)):
         pol = pi.make_policy(ENV, hyper)
         key = jax.random.key(1)
         act = jax.jit(lambda o: pol.act(None, pol.init(key, o), o, key, None)[0])

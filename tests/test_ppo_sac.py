@@ -80,8 +80,9 @@ def test_configs_and_bad_hyper():
         agents.train("sac", ENV, total_steps=100, min_replay_size=1000)
 
 
-@pytest.mark.parametrize("total,fixed,unit,evals", [(20_000, 0, 16_384, 10), (2_000_000, 0, 16_384, 10), (100_000, 2_048, 64, 10),
-                                                    (147_456, 0, 16_384, 10), (30_000, 2_048, 64, 1), (5_000, 0, 2_048, 40)])
+@pytest.mark.parametrize("total,fixed,unit,evals", [
+    (20_000, 0, 16_384, 10), (2_000_000, 0, 16_384, 10), (100_000, 2_048, 64, 10), (147_456, 0, 16_384, 10),
+    (30_000, 2_048, 64, 1), (5_000, 0, 2_048, 40)])
 def test_fit_budget_never_exceeds_total(total, fixed, unit, evals):
     num_timesteps, num_evals = fit_budget("ppo", total, fixed, unit, evals)
     assert num_timesteps <= total and 1 <= num_evals <= evals
