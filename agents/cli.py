@@ -24,7 +24,7 @@ import agents
 from agents import base
 from agents.config import CONFIG_TYPES
 from agents.io import write_json_atomic
-from ops_jax.progress import progress
+from ops_jax.progress import exit_interrupted, progress
 
 
 def parse_set(items) -> dict:
@@ -86,6 +86,7 @@ def main(argv=None) -> dict:
     out = args.out or Path("runs") / args.algo
     env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
     config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+    base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
@@ -96,9 +97,22 @@ def main(argv=None) -> dict:
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
                             config=config)
+    except KeyboardInterrupt:
+        bar.close()
+        at = f"at step {bar.n:,} of {total:,}" if total else "during training"
+        exit_interrupted(f"stopped {at}; nothing written to {out}; run the same command again to train from the start")
     finally:
         bar.close()
+    try:
+        return finish(args, out, env_config, result)
+    except KeyboardInterrupt:
+        kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
+        exit_interrupted(f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
+                         "gives the trained policy)")
 
+
+def finish(args, out: Path, env_config: dict, result) -> dict:
+    """Write the checkpoint, curve and evaluation summary of a finished training into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     agents.save(out / "checkpoint", result)
     write_curve_csv(out / "curve.csv", result.curve)
