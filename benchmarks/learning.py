@@ -102,7 +102,8 @@ def format_table(agg: dict) -> str:
 def main(argv=None) -> dict:
     from agents.base import ALGOS
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algos", nargs="+", default=[a for a in ALGOS], choices=sorted(ALGOS))
     ap.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"])
     ap.add_argument("--seeds", type=int, default=5)

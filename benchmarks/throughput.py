@@ -117,7 +117,8 @@ def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
     ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])
