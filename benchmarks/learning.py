@@ -100,7 +100,7 @@ def format_table(agg: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    from agents.base import ALGOS
+    from agents.base import ALGOS, algo_module
 
     ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -118,6 +118,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    for algo in args.algos:  # a missing extra stops here, at once, naming its install command
+        algo_module(algo)
 
     from tqdm import tqdm
 

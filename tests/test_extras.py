@@ -36,6 +36,7 @@ def test_the_agents_extra_installs_what_the_sweep_and_learners_import():
     (["ray"], ["-m", "benchmarks.sweep", "--quick", "--out", "out"]),
     (["ray", "brax", "flax", "optax", "scipy"], ["-m", "benchmarks.sweep", "--quick", "--out", "out"]),
     (["flax"], ["-m", "agents.train", "--algo", "td3", "--stages", "2", "--steps", "1000", "--out", "run"]),
+    (["brax"], ["-m", "benchmarks.learning", "--algos", "sac", "--seeds", "1", "--out", "out"]),
 ])
 def test_a_program_without_its_extra_names_the_install_command(modules, args, tmp_path):
     out = _run_without(modules, args, tmp_path)
