@@ -54,7 +54,7 @@ def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
 def two_node_cluster():
     """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn down
     by process group (SIGTERM, then SIGKILL), never by name."""
-    assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[dev]" (or ".[ray]")'
+    assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[agents]"'
     tmp = Path(tempfile.mkdtemp(prefix="ojr-", dir="/tmp"))  # short: Ray's socket paths have a length limit
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(REPO), **CLUSTER_ENV}
