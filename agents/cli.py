@@ -8,7 +8,8 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
 the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
-plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
+plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops
+it with one line saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
