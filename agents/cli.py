@@ -87,7 +87,10 @@ def main(argv=None) -> dict:
     out = args.out or Path("runs") / args.algo
     env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
     config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
-    base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
+    try:
+        base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
+    except KeyboardInterrupt:
+        exit_interrupted(f"stopped while starting; nothing written to {out}")
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
