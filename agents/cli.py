@@ -96,7 +96,7 @@ def main(argv=None) -> dict:
 
     def show(step: int, metrics: dict) -> None:
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
-        bar.update(max(0, int(step) - bar.n))
+        bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
 
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
