@@ -7,7 +7,6 @@ import os
 import re
 import shlex
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -15,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from processes import descendants
+from processes import stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
 RECIPE_TITLE = "# test cluster:"
@@ -43,23 +42,6 @@ def _ray_start(argv, log: Path, env: dict, deadline: float) -> subprocess.Popen:
         assert proc.poll() is None and time.monotonic() < deadline, f"{shlex.join(argv)}:\n{log.read_text()[-3000:]}"
         time.sleep(0.5)
     return proc
-
-
-def _stop(procs) -> None:
-    spawned = descendants([p.pid for p in procs])
-    for p in reversed(procs):
-        os.killpg(p.pid, signal.SIGTERM)
-    for p in reversed(procs):
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait(timeout=20)
-    for pid in spawned:  # a Ray process outside the process groups
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
 
 def test_the_recipe_starts_two_nodes_with_a_token_and_runs_the_sweep_on_them():
@@ -93,6 +75,6 @@ def test_the_recipe_starts_two_nodes_with_a_token_and_runs_the_sweep_on_them():
         assert ran == [["export", "RAY_AUTH_MODE=token"], ["ray", "start"], ["ray", "start"], ["ray", "status"],
                        ["python", "-m"], ["ray", "stop"]]
     finally:
-        _stop(procs)
+        stop_groups(procs, grace_s=10.0)
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import sweep
-from processes import descendants
+from processes import descendants, stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 180
@@ -65,20 +65,7 @@ def two_node_cluster():
         procs.append(_ray_start(["--address", f"127.0.0.1:{port}"], tmp / "node.log", env))
         yield f"127.0.0.1:{port}", env, procs
     finally:
-        spawned = descendants([p.pid for p in procs])
-        for p in reversed(procs):
-            os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(timeout=20)
-        for pid in spawned:  # a worker outside the process groups
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        stop_groups(procs)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
