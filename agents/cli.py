@@ -14,7 +14,6 @@ it with one line saying what was kept (nothing during training, the checkpoint a
 
 from __future__ import annotations
 
-import argparse
 import ast
 import csv
 from pathlib import Path
@@ -26,6 +25,7 @@ from agents import base
 from agents.config import CONFIG_TYPES
 from agents.io import write_json_atomic
 from ops_jax.progress import exit_interrupted, progress
+from ops_jax.cli import ArgumentParser
 
 
 def parse_set(items) -> dict:
@@ -70,7 +70,7 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS))
     ap.add_argument("--stages", type=int, default=5)
     ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"])

@@ -26,6 +26,7 @@ import numpy as np
 import ops_jax
 from ops_jax import physics, render
 from agents import base
+from ops_jax.cli import ArgumentParser
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
 
@@ -75,8 +76,8 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m agents.episode", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m agents.episode", description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", nargs="?", default="episode", choices=("episode", "frame"))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--mode", default="hard", help="easy | medium | hard | custom")

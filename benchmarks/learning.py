@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import write_json_atomic
+from ops_jax.cli import ArgumentParser
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:
@@ -102,8 +103,8 @@ def format_table(agg: dict) -> str:
 def main(argv=None) -> dict:
     from agents.base import ALGOS, algo_module
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algos", nargs="+", default=[a for a in ALGOS], choices=sorted(ALGOS))
     ap.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"])
     ap.add_argument("--seeds", type=int, default=5)

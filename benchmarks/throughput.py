@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import ops_jax
 from agents.base import split_over_devices
 from benchmarks.common import load_reference_timing, write_json_atomic
+from ops_jax.cli import ArgumentParser
 from ops_jax.progress import exit_interrupted, progress
 
 SCAN_STEPS = 200
@@ -117,8 +118,8 @@ def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
     ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])

@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 from ops_jax import physics
+from ops_jax.cli import ArgumentParser
 from ops_jax.env import make
 
 DEFAULT_FIGSIZE = (6.4, 3.4)  # inches
@@ -306,8 +307,8 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
 # -- command line ------------------------------------------------------------------------------
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", choices=("landscape",))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
