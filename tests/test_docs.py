@@ -23,7 +23,7 @@ from ops_jax import extras
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
-INLINE = re.compile(r"(?<!`)`(python (?:-m |examples/)[^`]+)`")
+INLINE = re.compile(r"(?<!`)`((?:python (?:-m |examples/)|pip install )[^`]+)`")
 # Placeholders of inline commands in prose, and a value each takes here.
 PLACEHOLDERS = {"ALGO": "td3", "ADDRESS": "auto", "PORT": "6379", "X": "out", "...": "out"}
 # Sizes in python blocks that would take minutes, and what they become here (each must occur somewhere).
@@ -143,7 +143,7 @@ def test_documented_pip_install_names_existing_extras(where, argv):
             assert set(m.group(1).split(",")) <= declared, f"{where}: {word}; extras are {sorted(declared)}"
 
 
-@pytest.mark.parametrize("where, body", fenced("yaml"), ids=lambda v: v if isinstance(v, str) and ":" in v else "")
+@pytest.mark.parametrize("where, body", fenced("yaml"), ids=lambda v: v if isinstance(v, str) and ".md:" in v else "")
 def test_documented_yaml_parses(where, body):
     yaml = pytest.importorskip("yaml")
     assert isinstance(yaml.safe_load(body), dict), where
