@@ -23,7 +23,7 @@ from ops_jax import extras
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
-INLINE = re.compile(r"(?<!`)`((?:python (?:-m |examples/)|pip install )[^`]+)`")
+INLINE = re.compile(r"(?<!`)`((?:python\s+(?:-m\s|examples/)|pip\s+install\s)[^`]+)`")
 # Placeholders of inline commands in prose, and a value each takes here.
 PLACEHOLDERS = {"ALGO": "td3", "ADDRESS": "auto", "PORT": "6379", "X": "out", "...": "out"}
 # Sizes in python blocks that would take minutes, and what they become here (each must occur somewhere).
