@@ -426,9 +426,8 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
                           for k, v in vars(params).items() if k != "lab"}, lab=lab)
     env = OPSEnv(config)
-    if config.imperfect:
-        lab = dataclasses.replace(lab, p_best=imperfections.best_power(config, lab).astype(np.float32))
-        params = dataclasses.replace(params, lab=lab)
+    p_best = imperfections.best_power(config, lab) if config.imperfect else env.p_max
+    params = dataclasses.replace(params, lab=dataclasses.replace(lab, p_best=np.asarray(p_best, np.float32)))
     return env, params
 
 
