@@ -6,8 +6,8 @@ Every ``ops_jax.make`` option is accepted as ``--option value`` (underscores or 
 Python literals, e.g. ``--waveplate-error-deg "(0.3, -0.2, 0.4, -0.3, 0.2)"``). At every tick of
 ``--rate`` Hz the simulation advances one control step whether or not a setpoint changed: vibration,
 drift and pulse noise go on, so a slow controller pays for its latency as on a bench. A tick applies
-the setpoints present at its start; a line moves at most ``action_scale`` wl per tick (its slew
-rate) towards its setpoint. A tick that starts late is counted in ``OVERRUNS``; ticks missed by a
+the setpoints present at its start; a line moves at most ``--action-scale`` wl per tick towards its
+setpoint (default here 1 wl: a piezo settles within a tick; the option is the lines' slew limit). A tick that starts late is counted in ``OVERRUNS``; ticks missed by a
 stall are run back to back, so the simulated time stays the wall-clock time. ``--lockstep`` instead
 advances one tick per write to ``ADVANCE`` (reproducible runs, tests).
 
@@ -75,8 +75,9 @@ def parser() -> argparse.ArgumentParser:
 
 
 def make_options(args: argparse.Namespace) -> dict:
-    """The ``ops_jax.make`` keyword options given on the command line."""
-    return {k: getattr(args, k) for k in option_names() if getattr(args, k) is not None}
+    """The ``ops_jax.make`` keyword options given on the command line (``action_scale``, the largest
+    move per tick, 1 wl unless given)."""
+    return {"action_scale": 1.0, **{k: getattr(args, k) for k in option_names() if getattr(args, k) is not None}}
 
 
 class Bench:
@@ -196,6 +197,8 @@ class _BenchGroupBase:
 
     async def start(self, async_lib):
         await self.publish(self.bench.frame)
+        print(f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} lines, "
+              f"{'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}", flush=True)
         if not self.lockstep:
             asyncio.get_running_loop().create_task(self.clock())
 
@@ -231,8 +234,6 @@ def main(argv=None) -> None:
     from caproto.server import run
 
     group = pv_group(bench, args.prefix, args.rate, args.lockstep)
-    print(f"ops_jax.ioc: {len(group.pvdb)} PVs under {args.prefix!r}, {bench.n} lines, "
-          f"{'lockstep' if args.lockstep else f'{args.rate:g} Hz'}", flush=True)
     run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
 
 
