@@ -39,8 +39,8 @@ import numpy as np
 
 import ops_jax
 from agents import base
-from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, load_mapping, make_bench,
-                                  signals, sim_mapping)
+from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
+                                  make_bench, signals, sim_mapping)
 from agents.cli import parse_set
 from agents.io import write_json_atomic
 
@@ -134,6 +134,7 @@ class Loop:
         self.n = len(mapping["lines"])
         self.frames = None
         self.stop_reason: str | None = None
+        self.stopped_at = None  # time.time() of the watchdog's stop
         self.user_stop = False
         self.rec = {k: [] for k in ("time_s", "tick", "p_pmax", "p_pbest", "latency_ms", "decide_ms")}
         self.t0 = None
@@ -142,7 +143,7 @@ class Loop:
     def trip(self, reason: str):
         """Stop at once: no further move; the frame being waited for fails with ``reason``."""
         if self.stop_reason is None:
-            self.stop_reason = reason
+            self.stop_reason, self.stopped_at = reason, time.time()
             log.error("watchdog: %s", reason)
         self.lines.lock(self.stop_reason)
         self.det.fail(SafetyStop(self.stop_reason))
@@ -288,6 +289,7 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
     return {
         "controller": controller,
         "stopped_by": stopped_by,
+        "watchdog_time": loop.stopped_at,
         "steps": steps,
         "seconds": elapsed,
         "rate_hz": steps / elapsed if elapsed > 0 else 0.0,
@@ -304,13 +306,19 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
     }
 
 
-def plot(path: Path, loop: Loop, title: str) -> None:
-    """P / P_max and P / P_best against time."""
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (imported before a run: the end of a run is kept short)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def plot(path: Path, loop: Loop, title: str) -> None:
+    """P / P_max and P / P_best against time."""
+    plt = _pyplot()
     t = np.asarray(loop.rec["time_s"])
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.plot(t, loop.rec["p_pbest"], lw=1, label="P / P_best")
@@ -372,6 +380,7 @@ def main(argv=None) -> int:
     except (MappingError, ValueError, TypeError, FileNotFoundError) as exc:
         print(f"agents.bench: {exc}", file=sys.stderr)
         return 2
+    _pyplot()
     bench, lines = make_bench(mapping)
     try:
         connect(bench, mapping["safety"]["connect_s"])
@@ -385,15 +394,18 @@ def main(argv=None) -> int:
     loop.watch()
     md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
-    elapsed = _run(loop, md, out)
+    try:
+        elapsed = _run(loop, md, out)
+    finally:
+        disconnect(bench)
     summary = summarize(loop, args.controller, elapsed)
     write_json_atomic(out / "summary.json", summary)
+    stopped = summary["stopped_by"] not in ("time", "steps", "user")
+    if stopped:
+        print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr, flush=True)
     plot(out / "power.png", loop, f"{args.controller} on the bench, {summary['rate_hz']:.0f} steps/s")
     print(json.dumps(summary, indent=1))
-    if summary["stopped_by"] not in ("time", "steps", "user"):
-        print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr)
-        return EXIT_WATCHDOG
-    return 0
+    return EXIT_WATCHDOG if stopped else 0
 
 
 def _run(loop: Loop, md: dict, out: Path) -> float:

@@ -344,3 +344,14 @@ class Control(Device):
         self.setpoint_wl.put(np.asarray(setpoint_wl, float))
         self.probe_power.put(np.asarray(probe_power, float))
         self.latency_ms.put(float(latency_ms))
+
+
+def disconnect(bench) -> None:
+    """Stop following ``bench``'s PVs and close the Channel Access circuits (a clean exit)."""
+    import ophyd
+
+    bench.destroy()
+    if ophyd.cl.name == "caproto":
+        from caproto.threading.pyepics_compat import PV
+
+        PV.default_context().disconnect()

@@ -7,8 +7,9 @@ Python literals, e.g. ``--waveplate-error-deg "(0.3, -0.2, 0.4, -0.3, 0.2)"``). 
 ``--rate`` Hz the simulation advances one control step whether or not a setpoint changed: vibration,
 drift and pulse noise go on, so a slow controller pays for its latency as on a bench. A tick applies
 the setpoints present at its start; a line moves at most ``--action-scale`` wl per tick towards its
-setpoint (default here 1 wl: a piezo settles within a tick; the option is the lines' slew limit). A tick that starts late is counted in ``OVERRUNS``; ticks missed by a
-stall are run back to back, so the simulated time stays the wall-clock time. ``--lockstep`` instead
+setpoint (default here 1 wl: a piezo settles within a tick; the option is the lines' slew limit). A
+tick that starts late is counted in ``OVERRUNS``; ticks missed by a stall are run back to back, so
+the simulated time stays the wall-clock time. ``--lockstep`` instead
 advances one tick per write to ``ADVANCE`` (reproducible runs, tests).
 
 PVs (prefix first; lengths in wavelengths, wl):
