@@ -58,17 +58,19 @@ class Agent:
     def __init__(self, policy: base.Policy, params, env, seed: int):
         self.policy, self.params, self.env = policy, params, env
         _, self._k_init, self._k_run = jax.random.split(jax.random.key(seed), 3)
-        self.scale = None
         obs = jnp.zeros((1, env.observation_size), jnp.float32)
         calls = []
         jax.eval_shape(lambda: self._act(params, policy.init(self._k_init, obs), obs, self._k_run,
                                          jnp.zeros((MAX_PROBES, 1)), calls))
         self.probes = len(calls)
         self._init = jax.jit(policy.init)
-        self._run = jax.jit(lambda p, c, o, k, r: self._act(p, c, o, k, r, []))
-        # compile once, before the run (the result is discarded: the policy is pure)
-        jax.block_until_ready(self._run(params, self._init(self._k_init, obs), obs, self._k_run,
-                                        jnp.zeros((self.probes, 1))))
+        self._run = jax.jit(self._step)
+        # compile before the run (results discarded: the policy is pure); twice, the second time with the
+        # carry as act returns it (its dtypes may differ from init's)
+        carry = self._init(self._k_init, obs)
+        for _ in range(2):
+            _, carry, _ = self._run(params, carry, np.zeros(obs.shape[1], np.float32), 0, np.zeros(self.probes, np.float32))
+        jax.block_until_ready(carry)
         self.carry, self.t = None, 0
 
     def _act(self, params, carry, obs, key, results, calls):
@@ -82,24 +84,28 @@ class Agent:
         offsets = jnp.stack(calls) if calls else jnp.zeros((0, *action.shape), jnp.float32)
         return action, carry, offsets
 
+    def _step(self, params, carry, obs, t, results):
+        """Step ``t``'s (action (N,), carry, probe offsets (K, N)) from obs (D,) and probe results (K,)."""
+        key = jax.random.split(jax.random.fold_in(self._k_run, t))[0]
+        action, carry, offsets = self._act(params, carry, obs[None], key, results[:, None], [])
+        return action[0], carry, offsets[:, 0]
+
     def start(self, obs):
         """The controller's state from the first observation."""
         self.carry = self._init(self._k_init, jnp.asarray(obs, jnp.float32)[None])
 
     def _call(self, obs, results):
-        key = jax.random.split(jax.random.fold_in(self._k_run, self.t))[0]
-        return self._run(self.params, self.carry, jnp.asarray(obs, jnp.float32)[None], key,
-                         jnp.asarray(results, jnp.float32)[:, None])
+        return self._run(self.params, self.carry, np.asarray(obs, np.float32), self.t, np.asarray(results, np.float32))
 
     def offsets(self, obs, results, i: int) -> np.ndarray:
         """Probe i's offsets (N,) wl, given the results of probes 0..i-1."""
-        return np.asarray(self._call(obs, results)[2][i, 0], np.float64)
+        return np.asarray(self._call(obs, results)[2][i], np.float64)
 
     def act(self, obs, results) -> np.ndarray:
         """The step's action (N,) in [-1, 1]; advances the controller's state."""
         action, self.carry, _ = self._call(obs, results)
         self.t += 1
-        return np.asarray(action[0], np.float64)
+        return np.asarray(action, np.float64)
 
 
 def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed: int):

@@ -5,9 +5,6 @@ subprocesses on free localhost ports (EPICS_CA_* set for both sides), each in it
 group, killed on teardown, every wait bounded."""
 
 import json
-import os
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,6 +23,7 @@ from ophyd.sim import make_fake_device  # noqa: E402
 import agents  # noqa: E402
 from agents import bench as runner  # noqa: E402
 from agents.bench_devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
+from benchmarks.lab import Process, ca_env  # noqa: E402
 from ops_jax import ioc  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,78 +131,29 @@ def test_light_imports_stay_light():
 
 # -- real IOCs and runners -----------------------------------------------------------------------
 
-def free_port() -> int:
-    """A localhost port free for both TCP and UDP (Channel Access serves both on one port)."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp:
-            tcp.bind(("127.0.0.1", 0))
-            port = tcp.getsockname()[1]
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-                try:
-                    udp.bind(("127.0.0.1", port))
-                except OSError:
-                    continue
-                return port
-    raise RuntimeError("no free localhost port")
-
-
-def ca_env() -> dict:
-    return {**os.environ, "EPICS_CA_SERVER_PORT": str(free_port()), "EPICS_CA_REPEATER_PORT": str(free_port()),
-            "EPICS_CA_ADDR_LIST": "127.0.0.1", "EPICS_CA_AUTO_ADDR_LIST": "NO", "JAX_PLATFORMS": "cpu"}
-
-
-class IOC:
-    """``python -m ops_jax.ioc`` in its own process group, ready once it says it is serving."""
-
-    def __init__(self, tmp: Path, *args):
-        self.env, self.log = ca_env(), tmp / f"ioc-{os.getpid()}-{time.monotonic_ns()}.log"
-        with open(self.log, "w") as f:
-            self.proc = subprocess.Popen([sys.executable, "-m", "ops_jax.ioc", *args], stdout=f, stderr=subprocess.STDOUT,
-                                         cwd=ROOT, env=self.env, start_new_session=True)
-
-    def wait_ready(self):
-        deadline = time.monotonic() + START_S
-        while "serving" not in self.log.read_text():
-            assert self.proc.poll() is None, f"the IOC exited:\n{self.log.read_text()}"
-            assert time.monotonic() < deadline, f"the IOC did not start within {START_S} s:\n{self.log.read_text()}"
-            time.sleep(0.2)
-        return self
-
-    def kill(self):
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        self.proc.wait(10)
-
-
 @pytest.fixture(scope="module")
 def iocs(tmp_path_factory):
     """Three simulated benches started together: lockstep (lab), free-running, one to kill."""
     tmp = tmp_path_factory.mktemp("iocs")
     common = ["--stages", "3", "--mode", "hard", "--model", "phasor"]
-    started = {"lockstep": IOC(tmp, *common, "--prefix", "LS:", "--imperfections", "lab", "--lockstep"),
-               "free": IOC(tmp, *common, "--prefix", "FR:", "--rate", "100"),
-               "victim": IOC(tmp, *common, "--prefix", "KV:", "--rate", "100")}
+    args = {"lockstep": ["--prefix", "LS:", "--imperfections", "lab", "--lockstep"],
+            "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"]}
+    started = {k: Process("ops_jax.ioc", common + a, ca_env(), tmp / f"{k}.log") for k, a in args.items()}
     try:
-        yield {k: v.wait_ready() for k, v in started.items()}
+        yield {k: p.wait_for("serving", START_S) for k, p in started.items()}
     finally:
-        for v in started.values():
-            v.kill()
+        for p in started.values():
+            p.kill()
 
 
-def bench_run(ioc_, tmp: Path, *args):
-    """Start ``python -m agents.bench`` against ``ioc_`` in its own process group."""
-    with open(tmp / "runner.log", "w") as log:
-        return subprocess.Popen([sys.executable, "-m", "agents.bench", "--out", str(tmp / "out"), *args], stdout=log,
-                                stderr=subprocess.STDOUT, cwd=ROOT, env=ioc_.env, start_new_session=True)
+def bench_run(ioc_, tmp: Path, *args) -> Process:
+    """``python -m agents.bench`` against ``ioc_`` in its own process group."""
+    return Process("agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log")
 
 
-def finish(proc, tmp: Path, timeout=START_S):
-    try:
-        rc = proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        raise AssertionError(f"the runner did not finish within {timeout} s:\n{(tmp / 'runner.log').read_text()}")
-    return rc, (tmp / "runner.log").read_text()
+def finish(proc: Process, timeout=START_S):
+    """(exit status, output); the runner is killed past ``timeout`` s."""
+    return proc.wait(timeout), proc.text()
 
 
 def documents(tmp: Path) -> list:
@@ -217,7 +166,7 @@ def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
     steps = 20
     rc, log = finish(bench_run(iocs["lockstep"], tmp_path, "--prefix", "LS:", "--stages", "3", "--lockstep",
                                "--controller", "physics", "--set", "starts=2", "--steps", str(steps),
-                               "--stale-s", "30"), tmp_path)
+                               "--stale-s", "30"))
     assert rc == 0, log
     events = [d["doc"]["data"] for d in documents(tmp_path) if d["name"] == "event"]
     assert len(events) == steps
@@ -233,7 +182,7 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     mapping = {**sim_mapping("FR:", 3), "safety": {"soft_range_wl": [-0.2, 0.2], "max_step_wl": 0.03, "stale_s": 5.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"), "--controller", "spgd",
-                               "--seconds", "3"), tmp_path)
+                               "--seconds", "3"))
     assert rc == 0, log
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
@@ -252,8 +201,7 @@ def test_unknown_pv_fails_at_once_naming_it(iocs, tmp_path):
     mapping = {**sim_mapping("FR:", 3), "safety": {"connect_s": 2.0}}
     mapping["lines"][1]["readback"] = "FR:LINE2:NOPE"
     (tmp_path / "map.json").write_text(json.dumps(mapping))
-    rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"), "--controller", "spgd"),
-                     tmp_path)
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", tmp_path / "map.json", "--controller", "spgd"))
     message = next((line for line in log.splitlines() if "no answer from PV" in line), "")
     assert rc == 2 and "FR:LINE2:NOPE" in message and "FR:LINE1:SP" not in message, log
 
@@ -266,11 +214,11 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
     out = tmp_path / "out" / "documents.jsonl"
     deadline = time.monotonic() + START_S
     while not (out.exists() and out.read_text().count('"event"') >= 20):
-        assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "runner.log").read_text()
+        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
         time.sleep(0.1)
     killed_at = time.time()
     victim.kill()
-    rc, log = finish(proc, tmp_path, timeout=60)
+    rc, log = finish(proc, timeout=60)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert rc == runner.EXIT_WATCHDOG, log
     assert summary["stopped_by"].startswith("lost connection to PV KV:"), summary
