@@ -47,6 +47,13 @@ def test_bad_mapping_fails_naming_the_key(edit, needle):
         check_mapping(m)
 
 
+def test_docs_mapping_example_is_the_simulated_benchs():
+    """docs/lab.md's mapping file, every key written out, is what the runner builds for --prefix OPS:."""
+    text = (ROOT / "docs" / "lab.md").read_text()
+    example = json.loads(text.split("```json\n", 1)[1].split("```", 1)[0])
+    assert check_mapping(example) == check_mapping(sim_mapping("OPS:", 2))
+
+
 def fake_bench(stages=3, **safety):
     mapping = check_mapping({**sim_mapping("T:", stages), "safety": safety})
     bench, lines = make_bench(mapping, device_class=make_fake_device)
