@@ -251,17 +251,20 @@ def control_plan(loop: Loop, control, md: dict):
         t_frame = loop.det.tick_time
         yield from bps.read(loop.bench)
         obs, base_wl = loop.observe(), loop.lines.position
-        t_decide = time.perf_counter()
-        results, latency = np.zeros(loop.agent.probes), []
+        results, latency, decide = np.zeros(loop.agent.probes), [], 0.0
         for i in range(loop.agent.probes):  # a probe: move, wait for the next frame, read (moved back below)
-            yield from bps.abs_set(loop.lines, base_wl + loop.agent.offsets(obs, results, i))
+            t = time.perf_counter()
+            offsets = loop.agent.offsets(obs, results, i)
+            decide += time.perf_counter() - t
+            yield from bps.abs_set(loop.lines, base_wl + offsets)
             latency.append(1e3 * (time.perf_counter() - t_frame))
             loop.det.use()
             yield from tick()
             yield from frame()
             t_frame, results[i] = loop.det.tick_time, loop.probe_power()
+        t = time.perf_counter()
         action = loop.agent.act(obs, results)
-        decide_ms = 1e3 * (time.perf_counter() - t_decide)
+        decide_ms = 1e3 * (decide + time.perf_counter() - t)
         yield from bps.abs_set(loop.lines, base_wl + action * loop.scale)
         latency.append(1e3 * (time.perf_counter() - t_frame))
         control.put(action, loop.lines.position, results, latency[-1])

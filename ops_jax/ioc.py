@@ -98,7 +98,7 @@ class Bench:
         self.frame = self._decode(np.asarray(obs)[-self.env.frame_size:], np.zeros(self.n),
                                   *self._true_power(self.state), False)
         # compile once, before serving (the result is discarded: the step is pure)
-        jax.block_until_ready(self._step(self.state, jnp.zeros(self.n, jnp.float32), 1))
+        jax.block_until_ready(self._step(self.state, np.zeros(self.n, np.float32), 1))
 
     def _true_power(self, state):
         """(P / P_max, P / P_best) of ``state`` as it truly is (the reset's evaluation values)."""
@@ -127,8 +127,8 @@ class Bench:
         action = np.where(np.isfinite(action), action, 0.0)
         self.command = self.command + action * self.scale
         self.t += 1
-        self.state, frame, position, npow, best, outside = self._step(self.state, jnp.asarray(action, jnp.float32),
-                                                                      self.t)
+        self.state, *out = self._step(self.state, action.astype(np.float32), self.t)
+        frame, position, npow, best, outside = jax.device_get(out)
         if not self.env.config.imperfect:
             position = self.command
         self.frame = self._decode(frame, position, npow, best, outside)
@@ -166,18 +166,18 @@ class _BenchGroupBase:
     """Tick logic shared by the generated PV group (mixed into a caproto ``PVGroup``)."""
 
     async def publish(self, values: dict):
-        ts = time.time()
+        """Write one tick's values (caproto stamps each write with the time)."""
         for i in range(1, self.bench.n + 1):
-            await getattr(self, f"rbv{i}").write(values["position"][i - 1], timestamp=ts)
-            await getattr(self, f"len{i}").write(values["length"][i - 1], timestamp=ts)
-        await self.power.write(values["power"], timestamp=ts)
-        await self.trace.write(values["trace"], timestamp=ts)
-        await self.p_pmax.write(values["p_pmax"], timestamp=ts)
-        await self.p_pbest.write(values["p_pbest"], timestamp=ts)
+            await getattr(self, f"rbv{i}").write(values["position"][i - 1])
+            await getattr(self, f"len{i}").write(values["length"][i - 1])
+        await self.power.write(values["power"])
+        await self.trace.write(values["trace"])
+        await self.p_pmax.write(values["p_pmax"])
+        await self.p_pbest.write(values["p_pbest"])
         status = STATUS_OUTSIDE if values["outside"] else STATUS_OK
         if status != self.status.value:
-            await self.status.write(status, timestamp=ts)
-        await self.tick.write(self.bench.t, timestamp=ts)  # last: a new tick means a complete frame
+            await self.status.write(status)
+        await self.tick.write(self.bench.t)  # last: a new tick means a complete frame
 
     async def step(self):
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
