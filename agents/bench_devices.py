@@ -9,7 +9,7 @@ wavelength); the safety limits in wavelengths::
                   "power_full_scale": 1.0, "trace_peak": 1.0},
      "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
      "advance": null, "units_per_wl": 1.0,
-     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 3.0}}
+     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}}
 
 ``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
 controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the
@@ -34,7 +34,7 @@ from ophyd.status import Status
 
 log = logging.getLogger("agents.bench")
 
-SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 3.0}
+SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}
 _KEYS = {
     "": {"lines", "detector", "evaluation", "advance", "units_per_wl", "safety"},
     "lines[]": {"setpoint", "readback", "length"},
@@ -292,7 +292,15 @@ def _device_class(mapping: dict):
 
 def make_bench(mapping: dict, device_class=None, name: str = "bench"):
     """``(bench device, Lines)`` for a validated mapping. ``device_class(mapping) -> class`` may wrap
-    the device class (``ophyd.sim.make_fake_device`` in tests)."""
+    the device class (``ophyd.sim.make_fake_device`` in tests). The first bench of a process sets
+    ophyd's Channel Access timeouts to the mapping's ``connect_s``."""
+    from ophyd.signal import EpicsSignalBase
+
+    try:
+        s = mapping["safety"]["connect_s"]
+        EpicsSignalBase.set_defaults(timeout=s, connection_timeout=s)
+    except RuntimeError:  # signals exist already in this process: their timeouts stay
+        pass
     cls = _device_class(mapping)
     if device_class is not None:
         cls = device_class(cls)

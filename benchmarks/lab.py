@@ -146,7 +146,7 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.lab", description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0], help="the runner's control rate caps (Hz)")
-    ap.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=list(CONTROLLERS))
+    ap.add_argument("--controllers", nargs="*", default=list(CONTROLLERS), choices=list(CONTROLLERS))
     ap.add_argument("--policy", nargs="*", default=[], help="folders written by agents.save, run too")
     ap.add_argument("--stale-s", type=float, default=0.5, help="the watchdog's limit on a frame's age (s)")
     ap.add_argument("--no-kill", action="store_true", help="skip the IOC-SIGKILL check")
