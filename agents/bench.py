@@ -196,8 +196,9 @@ class Loop:
                                 lengths / self.window])
         env = self.agent.env
         if frame.size != env.frame_size:
-            raise SafetyStop(f"the bench's frame has {frame.size} entries, the controller expects {env.frame_size} "
-                             f"(scope trace of {trace.size} samples for {self.n} lines?)")
+            self.trip(f"the bench's frame has {frame.size} entries, the controller expects {env.frame_size} "
+                      f"(scope trace of {trace.size} samples for {self.n} lines?)")
+            raise SafetyStop(self.stop_reason)
         stack = env.config.frame_stack
         self.frames = [frame] * stack if self.frames is None else (self.frames + [frame])[-stack:]
         return np.concatenate(self.frames)
