@@ -95,16 +95,20 @@ def start_ioc(out: Path, *args) -> Process:
     return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log").wait_for("serving")
 
 
-def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float) -> dict:
-    """One run against a fresh IOC (``IOC_ARGS``, 100 Hz); returns its summary.json."""
+def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
+                   lockstep: int = 0) -> dict:
+    """One run against a fresh IOC (``IOC_ARGS``, 100 Hz, or ``lockstep`` > 0 steps in lockstep);
+    returns its summary.json."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = start_ioc(out, "--prefix", "OPS:", "--rate", 100, *IOC_ARGS)
+    clock = ["--lockstep"] if lockstep else ["--rate", 100]
+    ioc = start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS)
     try:
         args = ["--prefix", "OPS:", "--controller", controller, "--seconds", seconds, "--rate", rate, "--out", out,
                 "--stale-s", stale_s]
+        args += ["--lockstep", "--steps", lockstep] if lockstep else []
         args += [x for s in sets for x in ("--set", s)]
         runner = Process("agents.bench", args, ioc.env, out / "runner.log")
-        rc = runner.wait(START_S + 2 * seconds)
+        rc = runner.wait(START_S + 2 * seconds + lockstep)
         if rc != 0:
             raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
         return json.loads((out / "summary.json").read_text())
@@ -152,6 +156,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--controllers", nargs="*", default=["spgd", "physics"], choices=list(CONTROLLERS))
     ap.add_argument("--policy", nargs="*", default=[], help="folders written by agents.save, run too")
     ap.add_argument("--stale-s", type=float, default=0.5, help="the watchdog's limit on a frame's age (s)")
+    ap.add_argument("--lockstep", type=int, default=0, metavar="STEPS",
+                    help="run each controller STEPS steps in lockstep instead (scores without timing)")
     ap.add_argument("--no-kill", action="store_true", help="skip the IOC-SIGKILL check")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
@@ -159,10 +165,12 @@ def main(argv=None) -> dict:
     runs = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
     for name, controller, sets in runs:
         for rate in args.rates:
-            s = run_controller(args.out / f"{name}-{rate:g}hz", controller, sets, args.seconds, rate, args.stale_s)
+            s = run_controller(args.out / f"{name}-{rate:g}hz", controller, sets, args.seconds, rate, args.stale_s,
+                               args.lockstep)
             rows.append({**s, "controller": name, "settings": sets, "rate": rate})
             print(table(rows[-1:]).splitlines()[-1], flush=True)
-    result = {"ioc": IOC_ARGS + ["--rate", "100"], "seconds": args.seconds, "stale_s": args.stale_s, "rows": rows,
+    result = {"ioc": IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]), "seconds": args.seconds,
+              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill")}
     print(table(rows))
     if result["kill"]:
