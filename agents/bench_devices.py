@@ -131,10 +131,12 @@ def load_mapping(path) -> dict:
 
 
 class DelayLine(Device):
-    """One delay line: a setpoint (written), its readback and optionally a length readout (read)."""
+    """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
+    step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a
+    Python client pays for most."""
 
-    setpoint = FCpt(EpicsSignal, "{sp_pv}", kind="normal", auto_monitor=True)
-    readback = FCpt(EpicsSignalRO, "{rbv_pv}", kind="hinted", auto_monitor=True)
+    setpoint = FCpt(EpicsSignal, "{sp_pv}", kind="config")
+    readback = FCpt(EpicsSignalRO, "{rbv_pv}", kind="config")
 
     def __init__(self, prefix="", *, sp_pv, rbv_pv, **kwargs):
         self.sp_pv, self.rbv_pv = sp_pv, rbv_pv
