@@ -143,7 +143,7 @@ class Loop:
         self.stopped_at = None  # time.time() of the watchdog's stop
         self.user_stop = False
         self.rec = {k: [] for k in ("time_s", "tick", "p_pmax", "p_pbest", "latency_ms", "decide_ms")}
-        self.t0 = None
+        self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
 
     # -- watchdog --------------------------------------------------------------------------------
     def trip(self, reason: str):
@@ -280,7 +280,7 @@ def control_plan(loop: Loop, control, md: dict):
     def run():
         loop.agent.start(loop.observe())  # the controller's state from the current frame, compiled
         loop.frames = None
-        loop.t0 = time.perf_counter()
+        loop.t0, loop.cpu0 = time.perf_counter(), time.process_time()
         while not loop.done():
             yield from step()
 
@@ -310,6 +310,7 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
         "latency_ms_max": float(rec["latency_ms"].max()) if rec["latency_ms"].size else float("nan"),
         "decide_ms_p50": pct(rec["decide_ms"], 50),
         "decide_ms_p99": pct(rec["decide_ms"], 99),
+        "cpu_ms_per_step": 1e3 * (time.process_time() - loop.cpu0) / steps if steps else float("nan"),
         "p_over_pbest_mean": mean(rec["p_pbest"][tail]),
         "p_over_pmax_mean": mean(rec["p_pmax"][tail]),
         "clipped_moves": int(loop.lines.clipped.get()),
