@@ -116,12 +116,12 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
         ioc.kill()
 
 
-def kill_check(out: Path, controller: str = "physics", after_events: int = 100) -> dict:
+def kill_check(out: Path, stale_s: float, controller: str = "physics", after_events: int = 100) -> dict:
     """SIGKILL the IOC after ``after_events`` steps; how the runner ends."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = start_ioc(out, "--prefix", "OPS:", "--rate", 100, *IOC_ARGS)
     runner = Process("agents.bench", ["--prefix", "OPS:", "--controller", controller, "--seconds", 600,
-                                      "--out", out], ioc.env, out / "runner.log")
+                                      "--stale-s", stale_s, "--out", out], ioc.env, out / "runner.log")
     docs = out / "documents.jsonl"
     deadline = time.monotonic() + START_S
     while not (docs.exists() and docs.read_text().count('"name": "event"') >= after_events):
@@ -172,7 +172,7 @@ def main(argv=None) -> dict:
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     result = {"ioc": IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]), "seconds": args.seconds,
               "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
-              "kill": None if args.no_kill else kill_check(args.out / "kill")}
+              "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))
     if result["kill"]:
         print("IOC SIGKILL:", json.dumps(result["kill"]))
