@@ -5,6 +5,7 @@ subprocesses on free localhost ports (EPICS_CA_* set for both sides), each in it
 group, killed on teardown, every wait bounded."""
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -234,3 +235,21 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
     assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "fail"
     events = [d["doc"] for d in docs if d["name"] == "event"]
     assert len(events) >= 20 and all(e["time"] <= summary["watchdog_time"] for e in events)
+
+
+def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
+    """SIGINT: the run ends after the current step, exit status 0, everything written."""
+    proc = bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
+                     "--seconds", "120", "--stale-s", "5")
+    out = tmp_path / "out" / "documents.jsonl"
+    deadline = time.monotonic() + START_S
+    while not (out.exists() and out.read_text().count('"event"') >= 10):
+        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
+        time.sleep(0.1)
+    proc.proc.send_signal(signal.SIGINT)
+    rc, log = finish(proc, timeout=60)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert rc == 0 and summary["stopped_by"] == "user", log
+    docs = documents(tmp_path)
+    assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success"
+    assert (tmp_path / "out" / "power.png").exists()
