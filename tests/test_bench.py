@@ -164,6 +164,14 @@ def finish(proc: Process, timeout=START_S):
     return proc.wait(timeout), proc.text()
 
 
+def wait_for_events(proc: Process, tmp: Path, count: int) -> None:
+    """Wait until the run has written ``count`` events (it must not end first)."""
+    out, deadline = tmp / "out" / "documents.jsonl", time.monotonic() + START_S
+    while not (out.exists() and out.read_text().count('"name": "event"') >= count):
+        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
+        time.sleep(0.1)
+
+
 def documents(tmp: Path) -> list:
     return [json.loads(line) for line in (tmp / "out" / "documents.jsonl").read_text().splitlines()]
 
@@ -219,11 +227,7 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
     victim = iocs["victim"]
     proc = bench_run(victim, tmp_path, "--prefix", "KV:", "--stages", "3", "--controller", "physics",
                      "--seconds", "120", "--stale-s", "5")
-    out = tmp_path / "out" / "documents.jsonl"
-    deadline = time.monotonic() + START_S
-    while not (out.exists() and out.read_text().count('"event"') >= 20):
-        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
-        time.sleep(0.1)
+    wait_for_events(proc, tmp_path, 20)
     killed_at = time.time()
     victim.kill()
     rc, log = finish(proc, timeout=60)
@@ -241,11 +245,7 @@ def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
     """SIGINT: the run ends after the current step, exit status 0, everything written."""
     proc = bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
                      "--seconds", "120", "--stale-s", "5")
-    out = tmp_path / "out" / "documents.jsonl"
-    deadline = time.monotonic() + START_S
-    while not (out.exists() and out.read_text().count('"event"') >= 10):
-        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
-        time.sleep(0.1)
+    wait_for_events(proc, tmp_path, 10)
     proc.proc.send_signal(signal.SIGINT)
     rc, log = finish(proc, timeout=60)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
