@@ -44,7 +44,8 @@ def test_same_seed_same_result():
 @pytest.mark.parametrize("hyper, word", [
     ({"starts": -1}, "starts"), ({"iters": 0}, "iters"), ({"gain": -0.5}, "gain"),
     ({"use_lengths": "yes"}, "use_lengths"), ({"damping": float("nan")}, "damping"),
-    ({"starts": 0, "use_lengths": False}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"), ({"forget": 1.5}, "forget"),
+    ({"starts": 0, "use_lengths": False}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"),
+    ({"forget": 1.5}, "forget"),
 ])
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
