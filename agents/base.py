@@ -6,7 +6,8 @@ A controller is a ``Policy``: ``init(key, obs) -> carry`` and
 the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``evaluate`` counts
 every probe as a measurement. Learned policies ignore carry and probe.
 
-Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
+Each algorithm module (``agents.spgd``, ``agents.ppo``, ...; registered in ``agents.registry``,
+its interface ``agents.registry.AlgoModule``) provides
 ``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
 (``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
 fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib
 import json
 import os
 import shutil
@@ -37,14 +37,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
+from agents import registry
 
-ALGOS = {
-    "spgd": "agents.spgd",
-    "ppo": "agents.ppo",
-    "sac": "agents.sac",
-    "td3": "agents.td3",
-    "physics": "agents.physics_informed",
-}
+ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
 
 
@@ -81,10 +76,8 @@ class EvalResult(NamedTuple):
     summary: dict
 
 
-def algo_module(algo: str):
-    if algo not in ALGOS:
-        raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {algo!r}")
-    return importlib.import_module(ALGOS[algo])
+def algo_module(algo: str) -> registry.AlgoModule:
+    return registry.get(algo).load()
 
 
 def check_env_config(env_config) -> dict:
@@ -97,7 +90,7 @@ def check_env_config(env_config) -> dict:
 
 def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> TrainResult:
-    """Train ``algo`` ("spgd", "ppo", "sac", "td3", "physics") on ``ops_jax.make(**env_config)``.
+    """Train ``algo`` (a name of ``ALGOS``) on ``ops_jax.make(**env_config)``.
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
     fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
     module = algo_module(algo)
@@ -108,12 +101,12 @@ def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None
 
 
 def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
-    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it (TD3:
-    see ``agents.td3.train_seeds``), else one call per seed."""
+    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
+    (``Algo.vmaps_seeds``, e.g. ``agents.td3.train_seeds``), else one call per seed."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     seeds = list(seeds)
-    if hasattr(module, "train_seeds"):
+    if registry.get(algo).vmaps_seeds:
         return module.train_seeds(env_config, seeds=seeds, total_steps=total_steps, **hyper)
     return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
 

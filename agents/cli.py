@@ -22,7 +22,7 @@ import numpy as np
 
 import agents
 from agents import base
-from agents.config import CONFIG_TYPES
+from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
 from ops_jax.progress import progress
 

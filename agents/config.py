@@ -323,5 +323,3 @@ class TD3Config(AlgoConfig):
         if self.batch_size > self.buffer_size:
             raise ValueError(f"batch_size must be <= buffer_size = {self.buffer_size}, got {self.batch_size}")
 
-
-CONFIG_TYPES = {"spgd": SPGDConfig, "physics": PhysicsConfig, "ppo": PPOConfig, "sac": SACConfig, "td3": TD3Config}

@@ -35,6 +35,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from benchmarks import sweep_units  # noqa: E402
 from benchmarks.sweep_units import (  # noqa: F401  (Sweep, SECTIONS, PRESETS: the sweep's public names)
     EXTRA_SECTIONS,
     PRESETS,
@@ -48,8 +49,7 @@ from benchmarks.sweep_units import (  # noqa: F401  (Sweep, SECTIONS, PRESETS: t
 
 def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
-    preset = json.loads(json.dumps(PRESETS[name]))  # deep copy
-    preset["name"] = name
+    preset = json.loads(json.dumps(sweep_units.preset(name)))  # deep copy
     if args.seeds is not None:
         if args.seeds < 2:
             raise SystemExit("--seeds must be >= 2 (Welch's t-test needs two samples per algorithm)")
@@ -65,7 +65,7 @@ def main(argv=None):
     ap.add_argument("--preset", choices=("default", "paper"), default="default")
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
-    ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
+    ap.add_argument("--algos", nargs="+", choices=sweep_units.preset("default")["algos"])
     ap.add_argument("--only", nargs="+", choices=(*SECTIONS, *EXTRA_SECTIONS),
                     help=f"sections to run (default: {' '.join(SECTIONS)}; reality only when named: "
                          "benchmarks/reality.py)")

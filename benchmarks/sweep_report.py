@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.registry import NAMES
 from benchmarks.paper import MODES, PAPER_TABLE1, PAPER_TABLE2
 
 ENVS = ("training", "testing")
-NAMES = {"spgd": "SPGD", "ppo": "PPO", "sac": "SAC", "td3": "TD3", "physics": "Physics"}
 
 
 def bold_mask(samples: dict, alpha: float = 0.05) -> dict:

@@ -20,53 +20,57 @@ from benchmarks.paper import MODES
 SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")  # the default run
 EXTRA_SECTIONS = ("reality",)  # run when asked for (--only): benchmarks/reality.py
 
-# Training budgets (environment steps) per preset and algorithm; hyper config per preset.
+# The sweep's presets: seeds, episodes and section settings; each algorithm's budgets, hyperparameters and
+# cost come from its entry in agents.registry (``preset``).
 PRESETS = {
     "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
-        seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
-        budgets={"spgd": 0, "physics": 0, "ppo": 32_768, "sac": 3_000, "td3": 3_000},
-        hyper={"ppo": {"num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64], "num_updates_per_batch": 2},
-               "sac": {"min_replay_size": 1024, "num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64],
-                       "grad_updates_per_step": 4, "batch_size": 256},
-               "td3": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
-               "physics": {"starts": 4, "iters": 4}},
+        seeds=2, config="fast", episodes=8,
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
     "default": dict(  # ~45 min on 2 CPU cores (docs/results.md)
-        seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
-        budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
-        hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
-               "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
+        seeds=5, config="fast", episodes=32,
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
-        reality_budgets={"sac": 300_000},  # SAC's randomised training is far from done at 100k (docs/imperfections.md)
     ),
     "paper": dict(
-        seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,
-        budgets={"spgd": 0, "physics": 0, "ppo": 200_000, "sac": 200_000, "td3": 250_000},
+        seeds=20, config="paper", episodes=100,
         stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
         feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
     ),
 }
 TEST_SEED_OFFSET = 10_000
-LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperparameter config
-
-
-# Seconds of one cell on one worker of a 2-core CPU (compilation shared over an algorithm's cells): a
-# training cell costs TRAIN_FIXED_S + TRAIN_S_PER_STEP x its budget, an evaluation cell EVAL_S. Fitted
-# to the default preset's measured run (docs/results.md, JAX 0.10: PPO 2M steps ~135 s, SAC 100k ~88 s,
-# TD3 60k ~12 s per seed of a 5-seed call, physics-informed ~12 s with its evaluations, SPGD ~2 s).
-# They weight the progress bar, so its remaining time follows cost rather than cell count, and order the work.
-TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 12.0, "spgd": 2.0}
-TRAIN_S_PER_STEP = {"ppo": 6.6e-5, "sac": 8.5e-4, "td3": 1.6e-4}
-EVAL_S = 1.0
+EVAL_S = 1.0  # seconds of one evaluation cell (the progress bar's weights; training cells: agents.registry)
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
+
+
+def preset(name: str) -> dict:
+    """The preset ``name`` with the registered algorithms' parts: ``algos``, ``budgets``, ``hyper`` and
+    (where any) ``reality_budgets``."""
+    from agents.registry import REGISTRY
+
+    algos = [a for a in REGISTRY.values() if a.sweep is not None and name in a.sweep.budgets]
+    out = dict(PRESETS[name], name=name, algos=tuple(a.name for a in algos),
+               budgets={a.name: a.sweep.budgets[name] for a in algos})
+    hyper = {a.name: a.sweep.hyper[name] for a in algos if name in a.sweep.hyper}
+    reality = {a.name: a.sweep.reality_budgets[name] for a in algos if name in a.sweep.reality_budgets}
+    return {**out, **({"hyper": hyper} if hyper else {}), **({"reality_budgets": reality} if reality else {})}
+
+
+def algo_entry(name: str):
+    """The ``agents.registry.Algo`` of ``name`` (imported here: jax loads after the sweep's settings)."""
+    from agents import registry
+
+    return registry.get(name)
 
 
 def cell_seconds(algo: str, steps: int) -> float:
     """Estimated seconds of one training cell of ``algo`` with a budget of ``steps`` env steps."""
-    return TRAIN_FIXED_S.get(algo, 5.0) + TRAIN_S_PER_STEP.get(algo, 0.0) * steps
+    return algo_entry(algo).sweep.cell_seconds(steps)
+
+
+def is_learner(algo: str) -> bool:
+    return algo_entry(algo).learner
 
 
 class _Silent:
@@ -96,7 +100,7 @@ class Sweep:
                       steps: int | None = None) -> dict:
         """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant);
         ``steps``: a budget other than the preset's (a section's own)."""
-        hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
+        hyper = {"config": self.p["config"]} if is_learner(algo) else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
         hyper.update(extra or {})
         return dict(kind="train", algo=algo, env=env_config, seed=seed,
@@ -131,7 +135,7 @@ class Sweep:
 
         # A controller with nothing to train records an evaluation as its curve: the same one as
         # the training-environment evaluation below, which is then served from memory.
-        curve = {} if algo in LEARNERS else {"curve_episodes": config["episodes"]}
+        curve = {} if is_learner(algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
             trained = result if result is not None else agents.train(
@@ -161,7 +165,7 @@ class Sweep:
         import agents
 
         results = {}
-        if hasattr(agents.base.algo_module(algo), "train_seeds"):
+        if algo_entry(algo).vmaps_seeds:
             todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra, steps))]
             if len(todo) > 1:
                 bar.set_description(f"{label(todo[0]).rsplit('-s', 1)[0]} seeds {todo} (one vmapped call)")
@@ -211,7 +215,7 @@ class Sweep:
         units, producer = [], {}
 
         def train(prefix, algo, env, seeds, extra=None, steps=None):
-            groups = [list(seeds)] if hasattr(agents.base.algo_module(algo), "train_seeds") else [[s] for s in seeds]
+            groups = [list(seeds)] if algo_entry(algo).vmaps_seeds else [[s] for s in seeds]
             factor = IMPERFECT_COST if "imperfections" in env else 1.0
             for group in groups:
                 cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s, extra, steps)) for s in group]
@@ -248,7 +252,7 @@ class Sweep:
                     units.append(dict(key=f"evals-{mode}-{algo}-s{seed}", algo=algo, kind="eval", train=(label, config),
                                       evals=evals, cells=cells, deps=[producer[label]], cost=len(cells) * EVAL_S))
         if "reality" in sections:
-            for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
+            for algo, training, env, extra in reality.trainings(self.algos, [a for a in self.algos if is_learner(a)]):
                 prefix = f"reality-{training}-{algo}"
                 steps = self._reality_budget(algo)
                 train(prefix, algo, env, range(self._reality_seeds()), extra, steps)
@@ -358,7 +362,7 @@ class Sweep:
         """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
         ratios = reality.best_ratios()
         res = {}
-        for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
+        for algo, training, env, extra in reality.trainings(self.algos, [a for a in self.algos if is_learner(a)]):
             prefix = f"reality-{training}-{algo}"
             records = self.trained_seeds(algo, env, range(self._reality_seeds()), lambda s: f"{prefix}-s{s}", bar, extra,
                                          self._reality_budget(algo))

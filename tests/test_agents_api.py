@@ -141,7 +141,7 @@ def test_every_algorithm_has_one_config_type(algo):
     """Presets build and round-trip through the stored form; one error style for every algorithm."""
     import dataclasses
 
-    from agents.config import CONFIG_TYPES
+    from agents.registry import CONFIG_TYPES
 
     cls = CONFIG_TYPES[algo]
     for name in cls.PRESETS:
