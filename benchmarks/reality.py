@@ -6,7 +6,7 @@ tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor m
 docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
 reachable with the level's static optics). Its trainings and evaluations are cells of the sweep's
 store like every other section's (resumable, computed by the sweep's workers); this module holds
-the plan and the report (reality.md / .csv / .json and reality.png).
+the section (``Reality``: its cells and its report: reality.md / .csv / .json and reality.png).
 
     python -m benchmarks.sweep --only reality
     python -m benchmarks.sweep --quick --only reality --out results/quick
@@ -21,6 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.sweep_section import TEST_SEED_OFFSET, Section
 
 LEVELS = (("none", 0.0), ("lab", 1.0), ("2x lab", 2.0))
 BASE_ENV = dict(stages=5, mode="hard", model="phasor")
@@ -46,6 +48,58 @@ def trainings(algos, learners) -> list:
             out.append((algo, "identify", env_config(0.0), {"identify": True}))
             out.append((algo, "readout", env_config(0.0), {"identify": True, "use_lengths": True}))
     return out
+
+
+class Reality(Section):
+    """The reality section: each controller of ``trainings`` trained (``reality_seeds`` seeds, the
+    preset's ``reality_budgets`` where given), then tested at each of ``LEVELS``."""
+
+    name = "reality"
+    default = False
+
+    @staticmethod
+    def _trainings(sweep) -> list:
+        """(label prefix, algo, env config, hyperparameter overrides, budget or None) of each controller."""
+        from agents.registry import REGISTRY
+
+        learners = [a for a in sweep.algos if REGISTRY[a].learner]
+        return [(f"reality-{training}-{algo}", algo, env, extra, sweep.p.get("reality_budgets", {}).get(algo))
+                for algo, training, env, extra in trainings(sweep.algos, learners)]
+
+    @staticmethod
+    def _seeds(sweep) -> range:
+        return range(sweep.p.get("reality_seeds", sweep.p["seeds"]))
+
+    @staticmethod
+    def _tests(prefix: str, seed: int) -> list:
+        """(level, cell label, test env config) of one trained controller."""
+        return [(level, f"{prefix}-{level.replace(' ', '')}-s{seed}", env_config(scale)) for level, scale in LEVELS]
+
+    def units(self, sweep) -> list:
+        units = []
+        for prefix, algo, env, extra, steps in self._trainings(sweep):
+            units += sweep.train_units(prefix, algo, env, self._seeds(sweep), extra, steps)
+            for seed in self._seeds(sweep):
+                evals = [(label, test_env, seed + TEST_SEED_OFFSET) for _, label, test_env in self._tests(prefix, seed)]
+                units.append(sweep.eval_unit(f"evals-{prefix}-s{seed}", algo,
+                                             sweep.train_cell(f"{prefix}-s{seed}", algo, env, seed, extra, steps), evals))
+        return units
+
+    def results(self, sweep) -> dict:
+        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
+        ratios = best_ratios()
+        res = {}
+        for prefix, algo, env, extra, steps in self._trainings(sweep):
+            records = sweep.trained_seeds(algo, env, self._seeds(sweep), lambda s: f"{prefix}-s{s}", extra, steps)
+            row = res[f"{algo}/{prefix.split('-')[1]}"] = {level: [] for level, _ in LEVELS}
+            for seed, record in records.items():
+                for level, label, test_env in self._tests(prefix, seed):
+                    ev = sweep.evaluated(label, record, test_env, seed + TEST_SEED_OFFSET)
+                    row[level].append(float(np.mean(ev["final"]) * ratios[level]))
+        return res
+
+    def report(self, sweep, results) -> None:
+        report(sweep.out, results, sweep.p, sweep.p.get("command", "python -m benchmarks.sweep --only reality"))
 
 
 def best_ratios() -> dict:

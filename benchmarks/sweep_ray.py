@@ -23,12 +23,10 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from benchmarks.sweep_units import Sweep, crash_injection, enable_compilation_cache
+from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
-FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS",
-                 "XLA_PYTHON_CLIENT_PREALLOCATE")
-CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE")
 PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
@@ -40,8 +38,8 @@ def _stderr(msg: str) -> None:
 class SweepWorker:
     """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
 
-    def __init__(self, preset: dict, env: dict, crash_marker: str):
-        """``env``: variables set before jax starts (XLA_FLAGS, ...); ``crash_marker``: see ``crash_injection``."""
+    def __init__(self, preset: dict, env: dict):
+        """``env``: variables set before jax starts (XLA_FLAGS, ...)."""
         import ray
 
         faulthandler.enable()  # a crash prints the Python stack into the worker's log (shown by the driver)
@@ -50,10 +48,9 @@ class SweepWorker:
         self.where = dict(node_id=ray.get_runtime_context().get_node_id(), hostname=socket.gethostname())
         self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
         self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
-        crash_injection(self.sweep, Path(crash_marker))
 
     def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
-        """Compute ``unit`` (an eval unit gets its controller's table-1 ``record`` and ``checkpoint``
+        """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
         files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
         "node_id", "hostname"}."""
         t0 = time.perf_counter()
@@ -109,8 +106,9 @@ def store_files(out: Path, files: dict) -> None:
 
 
 def _kind(unit: dict) -> str:
-    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), or evaluation."""
-    return f"train {unit['algo']}" if unit["kind"] == "train" else "eval"
+    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
+    or a section's own cells."""
+    return {"train": f"train {unit['algo']}", "eval": "eval"}.get(unit["kind"], f"cell {unit['algo']}")
 
 
 def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
@@ -199,7 +197,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
     actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
-    actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
+    actors = [actor.remote(preset, env) for _ in range(n)]
     remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
     for u in todo.values():
         remaining[u["algo"]] += u["cost"]

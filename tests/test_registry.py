@@ -97,9 +97,9 @@ def test_registered_learner_on_the_command_line(tiny, tmp_path, capsys):
 
 
 def test_registered_learner_in_a_sweep_plan(tiny, tmp_path):
-    from benchmarks import sweep_units
+    from benchmarks import sweep_plan, sweep_units
 
-    preset = dict(sweep_units.preset("quick"), algos=["tiny"], seeds=1)
+    preset = dict(sweep_plan.preset("quick"), algos=["tiny"], seeds=1)
     assert preset["budgets"]["tiny"] == 120 and preset["hyper"]["tiny"] == {"max_gain": 0.8}
     plan = sweep_units.Sweep(preset, tmp_path, print)
     units = [u for u in plan.units(["table1"]) if u["key"] == "table1-easy-tiny"]

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.stats import ttest_ind
 
 from benchmarks import sweep
+from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
 from benchmarks.sweep_report import bold_mask, convergence_step
 from processes import descendants
@@ -57,7 +58,7 @@ def test_cell_store_resumes_and_detects_corruption(tmp_path):
 
 def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
-    units = sweep.Sweep(preset, tmp_path, print).units(sweep.SECTIONS)
+    units = Sweep(preset, tmp_path, print).units(sweep.SECTIONS)
     labels = [label for u in units for label, _ in u["cells"]]
     assert len(labels) == len(set(labels)) == 253  # the default preset's cells, each in one unit
     produced = {}
@@ -76,7 +77,7 @@ def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
 
 def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=None, algos=None))
-    units = sweep.Sweep(preset, tmp_path, print).units(["reality"])
+    units = Sweep(preset, tmp_path, print).units(["reality"])
     trains = [u for u in units if u["kind"] == "train"]
     learners = ("ppo", "sac", "td3")
     prefixes = {f"reality-ideal-{a}" for a in preset["algos"]} | {f"reality-randomised-{a}" for a in learners}
@@ -95,10 +96,10 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     for u in evals:
         assert [c["env"].get("imperfection_scale", 0.0) for _, c in u["cells"]] == [0.0, 1.0, 2.0]
         assert u["cost"] > 0 and u["deps"]
-    assert not [u for u in sweep.Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
+    assert not [u for u in Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
     # The default preset's own reality budgets: SAC's trainings there run longer than its table-1 ones.
     default = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
-    steps = {(u["prefix"], config["steps"]) for u in sweep.Sweep(default, tmp_path, print).units(["reality", "table1"])
+    steps = {(u["prefix"], config["steps"]) for u in Sweep(default, tmp_path, print).units(["reality", "table1"])
              if u["kind"] == "train" and u["algo"] in ("sac", "ppo") for _, config in u["cells"]}
     assert {st for prefix, st in steps if prefix.startswith("reality-") and "sac" in prefix} == {300_000}
     assert {st for prefix, st in steps if prefix.startswith("table1-") and "sac" in prefix} == {default["budgets"]["sac"]}
@@ -184,7 +185,9 @@ def test_worker_crash_is_resumed(tmp_path):
     is restarted by Ray, which retries its unit; the run completes."""
     out = tmp_path / "run"
     args = ["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)]
-    proc = _run_sweep(args, env_extra={"OPS_SWEEP_CRASH_AFTER": "2"})
+    hook = str(REPO / "tests" / "crash_hook")  # its sitecustomize crashes a process of the run once
+    proc = _run_sweep(args, env_extra={"OPS_SWEEP_CRASH_AFTER": "2", "OPS_SWEEP_CRASH_MARKER": str(out / ".crash-injected"),
+                                       "PYTHONPATH": f"{hook}{os.pathsep}{REPO}"})
     stdout, stderr = proc.communicate(timeout=400)
     assert proc.returncode == 0, stderr[-2000:]
     assert (out / ".crash-injected").exists()
@@ -207,3 +210,52 @@ def test_remaining_work_follows_measured_cost_per_kind():
     # A kind not seen finish yet takes the overall ratio (here 101 / 60).
     assert abs(projected_seconds(Counter({"train sac": 60.0}), Counter({"train ppo": 50.0, "eval": 10.0}),
                                  Counter({"train ppo": 100.0, "eval": 1.0})) - 101.0) < 1e-9
+
+
+def test_a_section_plugs_into_the_plan(tmp_path):
+    """A section given as cells(preset), compute(cell) and report(records, out) is planned, computed into
+    the cell store, resumed and reported like the built-in ones."""
+    from benchmarks import sweep_plan
+    from benchmarks.sweep_section import CellSection
+
+    computed = []
+
+    def cells(preset):
+        return [dict(label=f"square-{x}", x=x, cost=0.5) for x in range(preset["seeds"])]
+
+    def compute(cell):
+        computed.append(cell["x"])
+        return {"square": cell["x"] ** 2}
+
+    def report(records, out):
+        text = "\n".join(f"{c['x']} {r['square']}" for c, r in records)
+        (out / "squares.md").write_text(text)
+        return text
+
+    sweep_plan.register(CellSection("squares", cells, compute, report))
+    try:
+        preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=3, algos=None))
+        plan = Sweep(preset, tmp_path, print)
+        units = plan.units(["squares"])
+        assert [u["key"] for u in units] == ["square-0", "square-1", "square-2"] and units[0]["cost"] == 0.5
+        plan.compute_unit(units[1])
+        assert computed == [1] and [u["key"] for u in units if plan.todo(u)] == ["square-0", "square-2"]
+        assert Sweep(preset, tmp_path, print).run(["squares"]) == (2, 1)
+        assert sorted(computed) == [0, 1, 2] and (tmp_path / "squares.md").read_text() == "0 0\n1 1\n2 4"
+        assert "squares" not in sweep.SECTIONS and "squares.md" in (tmp_path / "summary.md").read_text()
+    finally:
+        sweep_plan.unregister("squares")
+
+
+def test_docs_section_snippet_runs(tmp_path):
+    from benchmarks import sweep_plan
+
+    text = (REPO / "docs" / "sweep.md").read_text()
+    snippet = text.split("## Sections", 1)[1].split("```python", 1)[1].split("```", 1)[0]
+    exec(snippet, {})
+    try:
+        preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=2, algos=None))
+        assert Sweep(preset, tmp_path, print).run(["squares"]) == (2, 0)
+        assert "'square': 1" in (tmp_path / "squares.md").read_text()
+    finally:
+        sweep_plan.unregister("squares")
