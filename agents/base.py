@@ -36,8 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from agents import registry
+from agents.envs import built, check_env_config  # noqa: F401  (check_env_config: the algorithms' validation)
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
@@ -67,25 +67,21 @@ class TrainResult:
 
 
 class EvalResult(NamedTuple):
-    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``summary``: final
-    mean/std, steps to reach 0.9 (median over episodes that reach it) and the fraction that do,
-    measurements per control step, inference time per control step (s, batched)."""
+    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``normalized_power_best``:
+    P/P_best, P_best the best P reachable with the configuration's static imperfections (P_max on the
+    ideal system: then the same array); ``summary``: final mean/std, steps to reach 0.9 (median over
+    episodes that reach it) and the fraction that do, measurements per control step, inference time per
+    control step (s, batched), ``score``: the ratio to report ("P/P_best" with imperfections, then with
+    ``final_mean_best``, ``final_std_best`` and ``mean_last10_best``; else "P/Pmax")."""
 
     normalized_power: np.ndarray
     terminated: np.ndarray
     summary: dict
+    normalized_power_best: np.ndarray
 
 
 def algo_module(algo: str) -> registry.AlgoModule:
     return registry.get(algo).load()
-
-
-def check_env_config(env_config) -> dict:
-    """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises)."""
-    if not isinstance(env_config, dict):
-        raise TypeError(f"env_config must be a dict of ops_jax.make keyword arguments, got {type(env_config).__name__}")
-    ops_jax.make(**env_config)
-    return dict(env_config)
 
 
 def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
@@ -152,7 +148,7 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     env_config = check_env_config(env_config)
     if not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
-    env, env_params = ops_jax.make(**env_config)
+    env, env_params = built(env_config)
     steps = int(steps or env.config.max_steps)
     memo = (_source_ident(result_or_policy, policy), json.dumps(env_config, sort_keys=True, default=str),
             int(episodes), int(seed), steps, int(drift_episode), _digest(params))
@@ -170,8 +166,14 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     npow, term = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
-    out = EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
-                                           inference_s_per_step=elapsed / steps))
+    summary = summarize(npow, measurements_per_step=1 + probes[0], inference_s_per_step=elapsed / steps)
+    npow_best, summary["score"] = npow, "P/Pmax"
+    if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
+        npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
+        best = summarize(npow_best)
+        summary.update(final_mean_best=best["final_mean"], final_std_best=best["final_std"],
+                       mean_last10_best=best["mean_last10"], score="P/P_best")
+    out = EvalResult(npow, term, summary, npow_best)
     _RESULTS[memo] = out
     if len(_RESULTS) > _RESULTS_MAX:
         _RESULTS.popitem(last=False)
@@ -227,7 +229,7 @@ def _source_ident(source, policy: Policy):
     """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
     configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
     if isinstance(source, TrainResult):
-        static = ops_jax.make(**source.env_config)[0].config
+        static = built(source.env_config)[0].config
         return ("result", source.algo, static, json.dumps(source.hyper, sort_keys=True, default=str))
     return ("policy", policy)
 

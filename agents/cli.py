@@ -7,7 +7,7 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
+the testing environment, wall time); it prints the testing score, P/P_best with imperfections, else P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal,
 plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
 """
 
@@ -109,9 +109,11 @@ def main(argv=None) -> dict:
                    train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0)
     write_json_atomic(out / "summary.json", summary)
     s = ev.summary
-    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing P/Pmax "
-          f"{s['final_mean']:.4f} +- {s['final_std']:.4f} (last 10 steps {s['mean_last10']:.4f}), "
-          f"steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
+    best = "_best" if s["score"] == "P/P_best" else ""  # with imperfections: the ratio to the best reachable P
+    also = f"; P/Pmax {s['final_mean']:.4f}" if best else ""
+    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
+          f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
+          f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
           f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
           f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
           f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}")

@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from ops_jax import physics, render
 from agents import base
+from agents.envs import built
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
 
@@ -63,7 +63,7 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
     """One episode of ``policy`` (probes allowed) through ``agents.base.evaluator``: the offsets
     after the reset and after every step, and their exact P / P_max (field model)."""
     env_config = base.check_env_config(env_config)
-    env, env_params = ops_jax.make(**env_config)
+    env, env_params = built(env_config)
     steps = int(env.config.max_steps if steps is None else steps)
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -105,7 +105,7 @@ def main(argv=None) -> Path:
     if args.command == "frame":
         from PIL import Image
 
-        env, _ = ops_jax.make(**env_config)
+        env, _ = built(env_config)
         scope = render.Oscilloscope(env.config.stages, env.config.detector, dpi=args.dpi or 120)
         frame = scope.frame(ep.deltas_wl[-1], len(ep.deltas_wl) - 1)
         out.parent.mkdir(parents=True, exist_ok=True)

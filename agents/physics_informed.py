@@ -51,10 +51,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from ops_jax import optics, physics
-from agents.base import Policy, TrainResult, check_env_config, evaluated_result
+from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import PhysicsConfig
+from agents.envs import built, check_env_config
 
 def params_template(env_config, hyper):
     del env_config, hyper
@@ -65,7 +65,7 @@ def policy_params(env_config: dict) -> dict:
     """The controller's numbers from its environment: ``action_scale`` (wl per action unit) and
     ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
     program, so one compiled policy serves every mode (make_policy reads only the static config)."""
-    _, env_params = ops_jax.make(**check_env_config(env_config))
+    _, env_params = built(env_config)
     return {"action_scale": np.float32(env_params.action_scale), "window": np.float32(env_params.window)}
 
 
@@ -117,7 +117,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
     h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
-    env, _ = ops_jax.make(**env_config)
+    env, _ = built(env_config)
     cfg = env.config
     n = cfg.stages
     frame = env.frame_size

@@ -39,6 +39,7 @@ import numpy as np
 
 from agents import base, brax_compat
 from agents.config import PPOConfig
+from agents.envs import built
 
 EVAL_FIRST_EPISODE = 10
 
@@ -160,9 +161,7 @@ def _network_factory(c: PPOConfig):
 def _networks(env_config: dict, c: PPOConfig):
     from brax.training.acme import running_statistics
 
-    import ops_jax
-
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
     net = _network_factory(c)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
     return net, env.observation_size

@@ -25,6 +25,7 @@ import jax
 
 from agents import base, brax_compat
 from agents.config import SACConfig
+from agents.envs import built
 from agents.ppo import (
     EVAL_FIRST_EPISODE,
     Recorder,
@@ -44,9 +45,7 @@ def _network_factory(c: SACConfig):
 def _networks(env_config: dict, c: SACConfig):
     from brax.training.acme import running_statistics
 
-    import ops_jax
-
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
     net = _network_factory(c)(observation_size=env.observation_size, action_size=env.num_actions,
                               preprocess_observations_fn=normalize)

@@ -41,9 +41,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import TD3Config
+from agents.envs import built
 
 
 def train_env_config(env_config: dict) -> dict:
@@ -90,7 +90,7 @@ def _stored_config(hyper: dict) -> TD3Config:
 
 def params_template(env_config: dict, hyper: dict):
     """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
     d = env.observation_size
     return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
@@ -99,7 +99,7 @@ def params_template(env_config: dict, hyper: dict):
 
 def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     """The deterministic actor: a = tanh(MLP((obs - mean) / std)); ignores key, carry and probe."""
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
 
     def act(params, carry, obs, key, probe):
@@ -305,7 +305,7 @@ def _cached_build(env_config: dict, h: dict, num_seeds: int) -> dict:
     """Seed-vmapped jitted training functions, built once per (static env config, hyperparameters)
     in this process, so that other seeds or modes (their ``EnvParams`` are arguments) do not
     recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
-    env, env_params = ops_jax.make(**train_env_config(env_config))
+    env, env_params = built(train_env_config(env_config))
     sharding = base.split_over_devices(num_seeds, "seeds")
     key = (env.config, repr([(k, h[k]) for k in _BUILD_KEYS]), num_seeds > 1, sharding)
     if key not in _BUILDS:
@@ -340,7 +340,7 @@ def _check_seed(seed):
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
           **hyper) -> base.TrainResult:
-    """Train TD3 on ``ops_jax.make(**env_config)`` (phasor model unless set) for ``total_steps`` env
+    """Train TD3 on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
     steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
     "paper"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every evaluation
     with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Env steps are rounded
