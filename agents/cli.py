@@ -7,8 +7,9 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time); it prints the testing score, P/P_best with imperfections, else P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal,
-plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
+the testing environment, wall time); it prints the testing score, P/P_best with imperfections, else
+P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
+steps/s, the latest evaluation P/Pmax and the ETA.
 """
 
 from __future__ import annotations

@@ -67,25 +67,32 @@ class Algo:
         return importlib.import_module(self.module)
 
 
-REGISTRY: dict = {}
+class Registry(dict):
+    """Entries by their ``name``, in the order registered; ``what`` names an entry in messages."""
+
+    def __init__(self, what: str):
+        super().__init__()
+        self.what = what
+
+    def register(self, entry):
+        """Add ``entry`` (its name must be new); returns it."""
+        if entry.name in self:
+            raise ValueError(f"{self.what} {entry.name!r} is registered already")
+        self[entry.name] = entry
+        return entry
+
+    def unregister(self, name: str) -> None:
+        self.pop(name)
+
+    def entry(self, name: str):
+        """The entry ``name`` (ValueError listing the registered names otherwise)."""
+        if name not in self:
+            raise ValueError(f"{self.what} must be one of {sorted(self)}, got {name!r}")
+        return self[name]
 
 
-def register(algo: Algo) -> Algo:
-    """Add ``algo`` (its name must be new)."""
-    if algo.name in REGISTRY:
-        raise ValueError(f"algorithm {algo.name!r} is registered already")
-    REGISTRY[algo.name] = algo
-    return algo
-
-
-def unregister(name: str) -> None:
-    REGISTRY.pop(name)
-
-
-def get(name: str) -> Algo:
-    if name not in REGISTRY:
-        raise ValueError(f"algo must be one of {sorted(REGISTRY)}, got {name!r}")
-    return REGISTRY[name]
+REGISTRY = Registry("algo")  # name -> Algo
+register, unregister, get = REGISTRY.register, REGISTRY.unregister, REGISTRY.entry
 
 
 class _Column(Mapping):

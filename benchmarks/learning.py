@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import write_json_atomic
+from agents.io import write_json_atomic
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:

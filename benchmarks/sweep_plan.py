@@ -3,11 +3,12 @@
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
 testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
 ``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100) and,
-when named, ``reality`` (benchmarks/reality.py). ``register`` adds a section.
+when named, ``reality`` (benchmarks/reality.py). ``register(section)`` adds a section.
 """
 
 from __future__ import annotations
 
+from agents.registry import Registry
 from benchmarks import reality
 from benchmarks import sweep_report as report
 from benchmarks.paper import MODES
@@ -179,19 +180,8 @@ class Feedback(TableOneEvaluations):
         report.feedback(sweep.out, res, sweep.p)
 
 
-PLAN: dict = {}  # name -> Section, in the order the sweep runs and reports them
-
-
-def register(section: Section) -> Section:
-    """Add ``section`` to the plan (after those there); its name must be new."""
-    if section.name in PLAN:
-        raise ValueError(f"sweep section {section.name!r} exists already")
-    PLAN[section.name] = section
-    return section
-
-
-def unregister(name: str) -> None:
-    PLAN.pop(name)
+PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them
+register, unregister = PLAN.register, PLAN.unregister
 
 
 def default_sections() -> tuple:

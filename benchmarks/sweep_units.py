@@ -258,7 +258,7 @@ QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
 def quick_compilation():
     """``--quick`` compiles with XLA's backend optimisation level 0 (added to XLA_FLAGS unless that
     sets the level already; before jax's backend starts): compilation, not execution, is most of
-    its wall time (measured: 214 s instead of 244 s for the whole preset). Results differ from an
+    its wall time (docs/sweep.md). Results differ from an
     optimised build by rounding, which training amplifies; the disk cache keys include XLA_FLAGS,
     so the two builds are never mixed."""
     flags = os.environ.get("XLA_FLAGS", "")

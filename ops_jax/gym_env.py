@@ -556,25 +556,3 @@ class OPSVectorEnv(VectorEnv):
             self._scopes.close()
             self._scopes = None
 
-
-def step_cost(stages: int = 5, model: str = "phasor", num_envs: int | None = None, *, number: int = 1000,
-              repeats: int = 5, **options) -> dict:
-    """Steady-state cost of the adapters (for ``benchmarks.throughput``): ``num_envs=None`` times
-    ``OPSGymEnv.step`` (seconds per step, best of ``repeats`` runs of ``number`` steps, zero actions,
-    truncation disabled); an integer times ``OPSVectorEnv.step`` (env-steps per second)."""
-    import timeit
-
-    if num_envs is None:
-        env = OPSGymEnv(stages=stages, mode="hard", model=model, max_steps=2**30, **options)
-        action = np.zeros(stages, np.float32)
-    else:
-        env = OPSVectorEnv(num_envs=num_envs, stages=stages, mode="hard", model=model, **options)
-        action = np.zeros((num_envs, stages), np.float32)
-    env.reset(seed=0)
-    for _ in range(10):
-        env.step(action)  # compile and warm up
-    per_call = min(timeit.repeat(lambda: env.step(action), number=number, repeat=repeats)) / number
-    out = dict(stages=stages, model=model, num_envs=num_envs, seconds_per_call=per_call)
-    if num_envs is not None:
-        out["env_steps_per_second"] = num_envs / per_call
-    return out
