@@ -32,6 +32,11 @@ def built(env_config: dict) -> tuple:
     return _BUILT[key]
 
 
+def train_env_config(env_config: dict) -> dict:
+    """The env_config the learners train on: ``model="phasor"`` unless one is given."""
+    return {"model": "phasor", **env_config}
+
+
 def check_env_config(env_config) -> dict:
     """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises); a copy of it."""
     built(env_config)

@@ -43,12 +43,7 @@ import numpy as np
 
 from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import TD3Config
-from agents.envs import built
-
-
-def train_env_config(env_config: dict) -> dict:
-    """The env_config used for training: ``model="phasor"`` unless one is given."""
-    return {"model": "phasor", **env_config}
+from agents.envs import built, train_env_config
 
 
 # -- networks -----------------------------------------------------------------------------------
@@ -125,34 +120,10 @@ class TD3State(NamedTuple):
     env_params: Any  # an argument, not a constant: one program serves every mode
 
 
-def _build(env, h):
-    import optax
-    from brax.training.replay_buffers import UniformSamplingQueue
-    from flax.training.train_state import TrainState
-
-    actor, critic = _networks(h["hidden"], env.num_actions)
-    d, n, b = env.observation_size, env.num_actions, h["num_envs"]
-    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
-                 next_obs=jnp.zeros(d))
-    buffer = UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
-    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
-    gamma, tau = h["gamma"], h["tau"]
-
-    def explore(ts, key, obs, random):
-        k1, k2 = jax.random.split(key)
-        greedy = actor.apply(ts.actor.params, _normalise(ts.obs_norm, obs))
-        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
-        uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
-        return jnp.where(random, uniform, noisy)
-
-    def env_step(ts, key, random):
-        k_act, k_env = jax.random.split(key)
-        action = explore(ts, k_act, ts.obs, random)
-        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
-                                                               action, ts.env_params)
-        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
-                  next_obs=info["final_observation"])
-        return ts._replace(env_state=env_state, obs=obs2), tr
+def _losses(actor, critic, h):
+    """``(critic_loss, actor_loss)``: clipped double-Q regression on smoothed target actions, and -Q1
+    of the actor's actions."""
+    gamma = h["gamma"]
 
     def critic_loss(cp, ts, batch, key):
         nobs = _normalise(ts.obs_norm, batch["next_obs"])
@@ -169,6 +140,17 @@ def _build(env, h):
         obs = _normalise(ts.obs_norm, batch["obs"])
         q1, _ = critic.apply(ts.critic.params, obs, actor.apply(ap, obs))
         return -jnp.mean(q1)
+
+    return critic_loss, actor_loss
+
+
+def _update_fn(actor, critic, buffer, h):
+    """``update(ts, _)``: one gradient step of the critics on a sampled batch; every ``policy_delay``-th
+    step also of the actor, and the targets' Polyak update."""
+    import optax
+
+    tau = h["tau"]
+    critic_loss, actor_loss = _losses(actor, critic, h)
 
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
@@ -187,12 +169,54 @@ def _build(env, h):
                                  lambda ts: (ts, jnp.float32(jnp.nan)), ts)
         return ts._replace(updates=ts.updates + 1), (closs, aloss)
 
+    return update
+
+
+def _collect_fn(env, actor, buffer, h):
+    """``collect(ts, random)``: ``unroll`` steps of every environment with exploration noise (uniform
+    random actions when ``random``), stored in the replay buffer."""
+    b = h["num_envs"]
+
+    def explore(ts, key, obs, random):
+        k1, k2 = jax.random.split(key)
+        greedy = actor.apply(ts.actor.params, _normalise(ts.obs_norm, obs))
+        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
+        uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
+        return jnp.where(random, uniform, noisy)
+
+    def env_step(ts, key, random):
+        k_act, k_env = jax.random.split(key)
+        action = explore(ts, k_act, ts.obs, random)
+        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
+                                                               action, ts.env_params)
+        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
+                  next_obs=info["final_observation"])
+        return ts._replace(env_state=env_state, obs=obs2), tr
+
     def collect(ts, random):
         def body(ts, _):
             key, k = jax.random.split(ts.key)
             ts, tr = env_step(ts._replace(key=key), k, random)
             return ts._replace(buffer=buffer.insert(ts.buffer, tr)), (tr["reward"], tr["obs"])
         return jax.lax.scan(body, ts, None, length=h["unroll"])
+
+    return collect
+
+
+def _build(env, h):
+    """TD3's jitted pieces on ``env`` with hyperparameters ``h``: init, warmup, fit_norm, train_chunk."""
+    import optax
+    from brax.training.replay_buffers import UniformSamplingQueue
+    from flax.training.train_state import TrainState
+
+    actor, critic = _networks(h["hidden"], env.num_actions)
+    d, n, b = env.observation_size, env.num_actions, h["num_envs"]
+    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
+                 next_obs=jnp.zeros(d))
+    buffer = UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
+    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
+    update = _update_fn(actor, critic, buffer, h)
+    collect = _collect_fn(env, actor, buffer, h)
 
     def iteration(ts, _):
         ts, (reward, _) = collect(ts, False)
@@ -255,8 +279,8 @@ def _placed_first(place, out):
 
 def _over_seeds(fns: dict, evaluate_fn, ts_shape: TD3State, num_seeds: int, sharding) -> dict:
     """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
-    the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
-    measured ~10% slower on CPU). With a ``sharding`` of the seed axis, every returned state is
+    the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap is
+    slower on CPU: docs/results.md). With a ``sharding`` of the seed axis, every returned state is
     constrained to it (per-seed leaves split over devices, shared leaves replicated), so each
     compiled function gets the layout it was compiled for."""
     axes = _seed_axes(ts_shape)
@@ -337,6 +361,53 @@ def _check_seed(seed):
     return int(seed)
 
 
+def _schedule(h: dict) -> tuple:
+    """``(env steps per iteration, warm-up iterations, training chunks, iterations per chunk)`` of a
+    training of ``total_steps``, evaluated every ``eval_every`` env steps."""
+    per_iter = h["num_envs"] * h["unroll"]
+    warm_iters = -(-h["learning_starts"] // per_iter)
+    train_iters = max(0, -(-(h["total_steps"] - warm_iters * per_iter) // per_iter))
+    n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
+    chunk = -(-train_iters // n_chunks) if n_chunks else 0
+    return per_iter, warm_iters, n_chunks, chunk
+
+
+def _warm_start(fns: dict, env_params, seeds: list, warm_iters: int, timing: dict) -> tuple:
+    """The seeds' initial states after the random warm-up and the observation statistics: ``(state, evaluation
+    keys, seconds of simulation per warm-up iteration)``; compile and simulation seconds added to ``timing``."""
+    keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
+    k_init, k_eval = keys[:, 0], keys[:, 1]
+    if fns["sharding"] is not None:
+        k_init, k_eval = jax.device_put((k_init, k_eval), fns["sharding"])
+    ts = fns["init"](k_init, env_params)
+    t0 = time.perf_counter()
+    warmup = fns["compiled"]("warmup", ts, warm_iters)
+    t1 = time.perf_counter()
+    ts, warm_obs = jax.block_until_ready(warmup(ts))
+    t2 = time.perf_counter()
+    jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
+    sim_per_iter = min(t2 - t1, time.perf_counter() - t2) / warm_iters
+    timing["compile"] += t1 - t0
+    timing["simulation"] += t2 - t1
+    ts = fns["fit_norm"](ts, warm_obs)
+    return ts, k_eval, sim_per_iter
+
+
+def _results(env_config: dict, h: dict, seeds: list, params, curves: dict, timing: dict) -> list:
+    """One ``TrainResult`` per seed from the seed-batched ``params`` and ``curves`` (lists over evaluations
+    of arrays over seeds); wall times divided by the number of seeds."""
+    steps, npows, finals, closses, alosses = (curves[k] for k in ("step", "normalized_power", "final_normalized_power",
+                                                                  "critic_loss", "actor_loss"))
+    timing = {k: v / len(seeds) for k, v in timing.items()}
+    timing["seeds_in_call"] = len(seeds)
+    curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
+                  critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
+    return [base.TrainResult("td3", env_config, dict(h), jax.tree.map(lambda x: x[i], params),
+                             dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
+                             dict(timing), seed)
+            for i, seed in enumerate(seeds)]
+
+
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
           **hyper) -> base.TrainResult:
@@ -355,8 +426,7 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
     """``train`` for several seeds at once: one jitted call vmapped over the seeds (sharded over the
     local devices when they divide the seed count). Each seed makes the same random draws as when
     trained alone, but the batched matrix products round differently and training amplifies the
-    difference (measured, 5-stage hard: parameters equal to 4e-7 after 40 gradient steps, apart by
-    0.13 after 800), so a seed's result depends on the seed list it was trained with, bitwise
+    difference (docs/results.md), so a seed's result depends on the seed list it was trained with, bitwise
     reproducibly for the same list; on as many devices as seeds it is the solo result. Wall times
     are the call's divided by the number of seeds (``wall_time["seeds_in_call"]``); ``progress_fn``
     gets means over seeds."""
@@ -371,29 +441,11 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
     fns, env_params = _cached_build(env_config, h, len(seeds))
     eval_ids = jnp.arange(h["eval_episodes"])
 
-    per_iter = h["num_envs"] * h["unroll"]
-    warm_iters = -(-h["learning_starts"] // per_iter)
-    train_iters = max(0, -(-(h["total_steps"] - warm_iters * per_iter) // per_iter))
-    n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
-    chunk = -(-train_iters // n_chunks) if n_chunks else 0
+    per_iter, warm_iters, n_chunks, chunk = _schedule(h)
 
     t_start = time.perf_counter()
     timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
-    keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
-    k_init, k_eval = keys[:, 0], keys[:, 1]
-    if fns["sharding"] is not None:
-        k_init, k_eval = jax.device_put((k_init, k_eval), fns["sharding"])
-    ts = fns["init"](k_init, env_params)
-    t0 = time.perf_counter()
-    warmup = fns["compiled"]("warmup", ts, warm_iters)
-    t1 = time.perf_counter()
-    ts, warm_obs = jax.block_until_ready(warmup(ts))
-    t2 = time.perf_counter()
-    jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
-    sim_per_iter = min(t2 - t1, time.perf_counter() - t2) / warm_iters
-    timing["compile"] += t1 - t0
-    timing["simulation"] += t2 - t1
-    ts = fns["fit_norm"](ts, warm_obs)
+    ts, k_eval, sim_per_iter = _warm_start(fns, env_params, seeds, warm_iters, timing)
 
     def params_of(ts):
         return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
@@ -440,12 +492,6 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
         closses.append(np.asarray(m["critic_loss"])), alosses.append(np.asarray(m["actor_loss"]))
         report(step, npow, m)
     timing["total"] = time.perf_counter() - t_start
-    timing = {k: v / len(seeds) for k, v in timing.items()}
-    timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(params_of(ts))
-    curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
-                  critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
-    return [base.TrainResult("td3", env_config, dict(h), jax.tree.map(lambda x: x[i], params),
-                             dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
-                             dict(timing), seed)
-            for i, seed in enumerate(seeds)]
+    curves = dict(step=steps, normalized_power=npows, final_normalized_power=finals, critic_loss=closses,
+                  actor_loss=alosses)
+    return _results(env_config, h, seeds, jax.device_get(params_of(ts)), curves, timing)
