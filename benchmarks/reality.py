@@ -115,7 +115,7 @@ def best_ratios() -> dict:
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
     """reality.md (Welch-bolded table), reality.csv, reality.json and reality.png in ``out``."""
-    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask
+    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask, bold_rule
 
     names = [n for n, _ in LEVELS]
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
@@ -124,8 +124,8 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         "# Reality gap: controllers tested with lab imperfections",
         "",
         f"Final P / P_best (mean ± std over {seeds} seeds; each seed: {preset['episodes']} test "
-        "episodes of 200 steps), 5 stages, hard mode, phasor model; bold: best per level and those not "
-        "different from it (Welch's t-test, p >= 0.05). Levels: the lab preset of docs/imperfections.md x 0, 1, 2.",
+        "episodes of 200 steps), 5 stages, hard mode, phasor model. Levels: the lab preset of "
+        "docs/imperfections.md x 0, 1, 2.",
         "",
         "| controller | " + " | ".join(names) + " |",
         "|---|" + "---|" * len(names),
@@ -134,6 +134,7 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         cells = [_fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names]
         a, training = algo.split("/")
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
+    lines += ["", bold_rule(seeds)]
     took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
     lines += ["", "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
               "identify (ideal, with online identification of the imperfections), readout (identify, "

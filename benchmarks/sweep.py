@@ -95,8 +95,14 @@ def main(argv=None):
     from benchmarks import sweep_ray  # imports jax: after the environment above is set
 
     jobs = args.jobs or (None if args.ray else min(2, os.cpu_count() or 1))
-    computed, reused = sweep_ray.run(preset, out, sections, address=args.ray, jobs=jobs, restarts=args.restarts,
-                                       worker_gpus=args.worker_gpus)
+    try:
+        computed, reused = sweep_ray.run(preset, out, sections, address=args.ray, jobs=jobs, restarts=args.restarts,
+                                           worker_gpus=args.worker_gpus)
+    except KeyboardInterrupt:  # Ray's workers are stopped by then (sweep_ray.run shuts Ray down on the way out)
+        stored = len(list((out / "cells").glob("*.json")))
+        print(f"interrupted: {stored} finished cells are kept in {out}/cells; run the same command again to resume",
+              file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
     print(f"wrote {out}/summary.md ({computed} cells computed, {reused} reused)")
     return out
 

@@ -125,11 +125,35 @@ def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
     return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
 
 
-def _show(bar, spent: Counter, in_flight: float, left: float) -> None:
+class SmoothedTotal:
+    """The progress line's total worker-seconds: each new projection moves it by ``weight`` of the way
+    (an exponential moving average, so the remaining time does not jump with each finished unit's
+    correction; exactly the projection when nothing is left), and it is cut where needed so that the
+    fraction done never decreases."""
+
+    def __init__(self, weight: float = 0.3):
+        self.weight = weight
+        self.total = None
+        self.fraction = 0.0
+
+    def __call__(self, done: float, projected: float) -> float:
+        """The total to show for ``done`` worker-seconds out of a ``projected`` total."""
+        if self.total is None or projected <= done:  # the first projection, or nothing left: as projected
+            total = projected
+        else:
+            total = self.total + self.weight * (projected - self.total)
+        total = max(total, done)
+        if total > 0 and done / total < self.fraction:
+            total = done / self.fraction
+        self.total, self.fraction = total, (done / total if total > 0 else 0.0)
+        return total
+
+
+def _show(bar, smoothed: SmoothedTotal, spent: Counter, in_flight: float, left: float) -> None:
     """Progress in worker-seconds: finished units' measured seconds plus the running units' time so
-    far, out of that plus the projected work left beyond what is running."""
+    far, out of that plus the projected work left beyond what is running (``SmoothedTotal``)."""
     done = sum(spent.values()) + in_flight
-    bar.total = round(done + max(left - in_flight, 0.0), 1)
+    bar.total = round(smoothed(done, done + max(left - in_flight, 0.0)), 1)
     bar.update(round(done - bar.n, 1))
 
 
@@ -177,22 +201,23 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     units = sweep.units(sections)
     todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
     done = {u["key"] for u in units} - set(todo)
+    reused = sum(len(u["cells"]) for u in units) - sum(len(u["cells"]) for u in todo.values())
     workers, computed = [], 0
     if todo:
         import ray
 
         connect(address, jobs)
         try:
-            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset)
+            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset, reused)
         finally:
             ray.shutdown()
     return Sweep(preset, out, _stderr).run(sections, workers, computed, started)
 
 
 def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
-             preset: dict):
-    """The scheduling loop: units to idle workers, returned files into the store. Returns (cells
-    computed, a record per worker for the summary)."""
+             preset: dict, reused: int = 0):
+    """The scheduling loop: units to idle workers, returned files into the store (``reused``: the plan's
+    cells stored before, said on the progress line). Returns (cells computed, a record per worker)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
@@ -206,7 +231,9 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"
     bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
                    unit="worker-s", smoothing=0)
-    bar.set_postfix_str(f"cells 0/{cells_total}")
+    cells = (lambda k: f"cells {k}/{cells_total}" + (f", {reused} reused from an earlier run" if reused else ""))
+    smoothed = SmoothedTotal()
+    bar.set_postfix_str(cells(0))
     idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
     busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
     try:
@@ -233,7 +260,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
                             for _, u, t in running.values())
             if not finished:
-                _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+                _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
                 continue
             ref = finished[0]
             i, unit, t = running.pop(ref)
@@ -256,8 +283,8 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
             computed += result["computed"]
             cells_done += len(unit["cells"])
-            bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
-            _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+            bar.set_postfix_str(cells(cells_done))
+            _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
     finally:
         bar.close()
     ray.get([a.close.remote() for a in actors])

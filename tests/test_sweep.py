@@ -16,7 +16,7 @@ from scipy.stats import ttest_ind
 from benchmarks import sweep
 from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
-from benchmarks.sweep_report import bold_mask, convergence_step
+from benchmarks.sweep_report import _steps_cell, bold_mask, bold_rule, convergence_step
 from processes import descendants
 
 REPO = Path(__file__).resolve().parents[1]
@@ -32,13 +32,20 @@ def test_bold_rule_matches_welch():
     assert mask == {"a": True, "b": ttest_ind(samples["a"], samples["b"], equal_var=False).pvalue >= 0.05, "c": False}
     assert mask["b"] is True
     # Equal constant samples: not different; different constants: different.
-    assert bold_mask({"x": [1.0, 1.0], "y": [1.0, 1.0], "z": [0.5, 0.5]}) == {"x": True, "y": True, "z": False}
+    assert bold_mask({"x": [1.0] * 3, "y": [1.0] * 3, "z": [0.5] * 3}) == {"x": True, "y": True, "z": False}
+    # Fewer than 3 seeds: nothing is bold, however far apart (two seeds of 0.999 against 0.315 +- 0.231).
+    assert bold_mask({"spgd": [0.999, 0.999], "td3": [0.084, 0.546]}) == {"spgd": False, "td3": False}
+    assert "No bold" in bold_rule(2) and "Welch" in bold_rule(5)
 
 
 def test_convergence_step():
     steps = np.arange(10) * 100
     values = [0.1, 0.3, 0.6, 0.8, 0.9, 0.95, 0.94, 0.95, 0.96, 0.95]
     assert convergence_step(steps, values) == 500
+    flat = [0.3, 0.31, 0.3, 0.29]  # never changed: nothing converged
+    assert np.isnan(convergence_step(np.arange(4) * 100, flat))
+    assert _steps_cell([np.nan, np.nan]) == "not reached"
+    assert _steps_cell([500.0, np.nan]) == "500 ± 0 (1 of 2 seeds)" and _steps_cell([400.0, 600.0]) == "500 ± 100"
 
 
 def test_cell_store_resumes_and_detects_corruption(tmp_path):
@@ -163,6 +170,7 @@ def test_resume_after_sigkill(tmp_path):
     stamp = {p.name: p.stat().st_mtime_ns for p in first}
     stdout, stderr = _run_sweep(args).communicate(timeout=400)
     assert "reused" in stdout, stderr[-2000:]
+    assert "reused from an earlier run" in stderr  # the resumed run's progress line says so
     for p in first:
         assert p.stat().st_mtime_ns == stamp[p.name], f"{p.name} was recomputed"
     reused = int(stdout.split(" reused")[0].rsplit(", ", 1)[1])
@@ -259,3 +267,51 @@ def test_docs_section_snippet_runs(tmp_path):
         assert "'square': 1" in (tmp_path / "squares.md").read_text()
     finally:
         sweep_plan.unregister("squares")
+
+
+def test_progress_fraction_never_decreases_and_its_total_is_smoothed():
+    from benchmarks.sweep_ray import SmoothedTotal
+
+    smoothed = SmoothedTotal(weight=0.3)
+    shown = []
+    # (done, projected total): a slow unit finishes at 2.5x its estimate, the projection jumps from 100 to 250
+    for done, projected in [(10, 100), (20, 100), (30, 250), (40, 240), (60, 200), (90, 120), (120, 120)]:
+        shown.append((done, smoothed(done, projected)))
+    fractions = [d / t for d, t in shown]
+    assert all(b >= a for a, b in zip(fractions, fractions[1:])), fractions
+    assert shown[2][1] < 250  # the jump is smoothed: part of the way at once
+    assert shown[-1][1] == 120 and fractions[-1] == 1.0  # nothing left: exactly done
+
+
+def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
+    """SIGINT (Ctrl-C) during a sweep: one line saying what was kept and how to resume, no traceback, exit
+    status 130, the local Ray instance's workers gone within seconds."""
+    out = tmp_path / "run"
+    proc = _run_sweep(["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)])
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and not list((out / "cells").glob("*.json")) and proc.poll() is None:
+            time.sleep(0.2)
+        assert proc.poll() is None and list((out / "cells").glob("*.json")), "no cell finished before the deadline"
+        spawned = descendants([proc.pid])
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)  # the watchdog: a hang fails here
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr, stderr[-3000:]
+    kept = len(list((out / "cells").glob("*.json")))
+    last = stderr.strip().splitlines()[-1]
+    assert last == f"interrupted: {kept} finished cells are kept in {out}/cells; run the same command again to resume"
+    if sys.platform == "linux":
+        workers = {pid for pid in spawned if "ray::" in _cmdline(pid) and not _cmdline(pid).startswith(RAY_AGENTS)}
+        deadline = time.time() + 10
+        while time.time() < deadline and [pid for pid in workers if Path(f"/proc/{pid}").exists()]:
+            time.sleep(0.2)
+        assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+        for pid in spawned:  # what is left of the local instance (idle agents) does not outlive the test
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
