@@ -104,11 +104,11 @@ class Reality(Section):
 
 def best_ratios() -> dict:
     """P_max / P_best of each level (1 for the ideal level)."""
-    import ops_jax
+    from agents.envs import built
 
     ratios = {}
     for name, scale in LEVELS:
-        env, params = ops_jax.make(**env_config(scale))
+        env, params = built(env_config(scale))
         ratios[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
     return ratios
 
