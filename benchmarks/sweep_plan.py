@@ -22,7 +22,7 @@ PRESETS = {
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
-    "default": dict(  # ~45 min on 2 CPU cores (docs/results.md)
+    "default": dict(  # its wall time: docs/results.md
         seeds=5, config="fast", episodes=32,
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
