@@ -6,7 +6,8 @@ A controller is a ``Policy``: ``init(key, obs) -> carry`` and
 the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``evaluate`` counts
 every probe as a measurement. Learned policies ignore carry and probe.
 
-Each algorithm module (``agents.spgd``, ``agents.ppo``, ...) provides
+Each algorithm module (``agents.spgd``, ``agents.ppo``, ...; registered in ``agents.registry``,
+its interface ``agents.registry.AlgoModule``) provides
 ``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
 (``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
 fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib
 import json
 import os
 import shutil
@@ -36,15 +36,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
+from agents import registry
+from agents.envs import built, check_env_config  # noqa: F401  (check_env_config: the algorithms' validation)
 
-ALGOS = {
-    "spgd": "agents.spgd",
-    "ppo": "agents.ppo",
-    "sac": "agents.sac",
-    "td3": "agents.td3",
-    "physics": "agents.physics_informed",
-}
+ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
 
 
@@ -78,32 +73,26 @@ class TrainResult:
 
 
 class EvalResult(NamedTuple):
-    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``summary``: final
-    mean/std, steps to reach 0.9 (median over episodes that reach it) and the fraction that do,
-    measurements per control step, inference time per control step (s, batched)."""
+    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``normalized_power_best``:
+    P/P_best, P_best the best P reachable with the configuration's static imperfections (P_max on the
+    ideal system: then the same array); ``summary``: final mean/std, steps to reach 0.9 (median over
+    episodes that reach it) and the fraction that do, measurements per control step, inference time per
+    control step (s, batched), ``score``: the ratio to report ("P/P_best" with imperfections, then with
+    ``final_mean_best``, ``final_std_best`` and ``mean_last10_best``; else "P/Pmax")."""
 
     normalized_power: np.ndarray
     terminated: np.ndarray
     summary: dict
+    normalized_power_best: np.ndarray
 
 
-def algo_module(algo: str):
-    if algo not in ALGOS:
-        raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {algo!r}")
-    return importlib.import_module(ALGOS[algo])
-
-
-def check_env_config(env_config) -> dict:
-    """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises)."""
-    if not isinstance(env_config, dict):
-        raise TypeError(f"env_config must be a dict of ops_jax.make keyword arguments, got {type(env_config).__name__}")
-    ops_jax.make(**env_config)
-    return dict(env_config)
+def algo_module(algo: str) -> registry.AlgoModule:
+    return registry.get(algo).load()
 
 
 def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> TrainResult:
-    """Train ``algo`` ("spgd", "ppo", "sac", "td3", "physics") on ``ops_jax.make(**env_config)``.
+    """Train ``algo`` (a name of ``ALGOS``) on ``ops_jax.make(**env_config)``.
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
     fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
     module = algo_module(algo)
@@ -114,12 +103,12 @@ def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None
 
 
 def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
-    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it (TD3:
-    see ``agents.td3.train_seeds``), else one call per seed."""
+    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
+    (``Algo.vmaps_seeds``, e.g. ``agents.td3.train_seeds``), else one call per seed."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     seeds = list(seeds)
-    if hasattr(module, "train_seeds"):
+    if registry.get(algo).vmaps_seeds:
         return module.train_seeds(env_config, seeds=seeds, total_steps=total_steps, **hyper)
     return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
 
@@ -165,7 +154,7 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     env_config = check_env_config(env_config)
     if not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
-    env, env_params = ops_jax.make(**env_config)
+    env, env_params = built(env_config)
     steps = int(steps or env.config.max_steps)
     memo = (_source_ident(result_or_policy, policy), json.dumps(env_config, sort_keys=True, default=str),
             int(episodes), int(seed), steps, int(drift_episode), _digest(params))
@@ -183,8 +172,14 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     npow, term = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
-    out = EvalResult(npow, term, summarize(npow, measurements_per_step=1 + probes[0],
-                                           inference_s_per_step=elapsed / steps))
+    summary = summarize(npow, measurements_per_step=1 + probes[0], inference_s_per_step=elapsed / steps)
+    npow_best, summary["score"] = npow, "P/Pmax"
+    if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
+        npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
+        best = summarize(npow_best)
+        summary.update(final_mean_best=best["final_mean"], final_std_best=best["final_std"],
+                       mean_last10_best=best["mean_last10"], score="P/P_best")
+    out = EvalResult(npow, term, summary, npow_best)
     _RESULTS[memo] = out
     if len(_RESULTS) > _RESULTS_MAX:
         _RESULTS.popitem(last=False)
@@ -240,7 +235,7 @@ def _source_ident(source, policy: Policy):
     """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
     configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
     if isinstance(source, TrainResult):
-        static = ops_jax.make(**source.env_config)[0].config
+        static = built(source.env_config)[0].config
         return ("result", source.algo, static, json.dumps(source.hyper, sort_keys=True, default=str))
     return ("policy", policy)
 

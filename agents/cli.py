@@ -7,9 +7,10 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
-plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops
-it with one line saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
+the testing environment, wall time); it prints the testing score, P/P_best with imperfections, else
+P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
+steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
+(nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 import agents
 from agents import base
-from agents.config import CONFIG_TYPES
+from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
 from ops_jax.progress import exit_interrupted, progress
 from ops_jax.cli import ArgumentParser
@@ -127,9 +128,11 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
                    train_steps=result.env_steps)
     write_json_atomic(out / "summary.json", summary)
     s = ev.summary
-    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing P/Pmax "
-          f"{s['final_mean']:.4f} +- {s['final_std']:.4f} (last 10 steps {s['mean_last10']:.4f}), "
-          f"steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
+    best = "_best" if s["score"] == "P/P_best" else ""  # with imperfections: the ratio to the best reachable P
+    also = f"; P/Pmax {s['final_mean']:.4f}" if best else ""
+    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
+          f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
+          f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
           f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
           f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
           f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}")

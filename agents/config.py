@@ -5,7 +5,8 @@ overridable per field, validated in one place.
     TD3Config.make("paper")                        # make(config, **overrides): a preset name or a config
     SPGDConfig.from_hyper(result.hyper)            # back from the stored dict (``to_hyper``)
 
-A value out of range raises ValueError naming the field and its accepted range; an unknown field
+A value out of range raises ValueError naming the field and its accepted range (``ops_jax.ranges.Range``,
+the one range check of the package); an unknown field
 raises TypeError listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``,
 checkpoints): the fields (tuples as lists) and, for the learners, ``config``, the preset's name.
 The presets' tuning is described in each algorithm's module (``agents.ppo``, ``agents.sac``, ...).
@@ -14,29 +15,11 @@ The presets' tuning is described in each algorithm's module (``agents.ppo``, ``a
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import ClassVar
 
 import numpy as np
 
-
-@dataclasses.dataclass(frozen=True)
-class Range:
-    """A number in [lo, hi] (``lo_open`` / ``hi_open``: an open end), an integer when ``integer``."""
-
-    lo: float
-    hi: float = math.inf
-    integer: bool = False
-    lo_open: bool = False
-
-    def __call__(self, name: str, v):
-        kinds = (int, np.integer) if self.integer else (int, float, np.integer, np.floating)
-        ok = not isinstance(v, (bool, np.bool_)) and isinstance(v, kinds) and math.isfinite(v)
-        if not ok or not ((self.lo < v) if self.lo_open else (self.lo <= v)) or not v <= self.hi:
-            what = "an integer" if self.integer else "a finite number"
-            hi = "inf)" if math.isinf(self.hi) else f"{self.hi:g}]"
-            raise ValueError(f"{name} must be {what} in {'(' if self.lo_open else '['}{self.lo:g}, {hi}, got {v!r}")
-        return int(v) if self.integer else float(v)
+from ops_jax.ranges import Range
 
 
 def _flag(name: str, v):
@@ -328,5 +311,3 @@ class TD3Config(AlgoConfig):
         if self.batch_size > self.buffer_size:
             raise ValueError(f"batch_size must be <= buffer_size = {self.buffer_size}, got {self.batch_size}")
 
-
-CONFIG_TYPES = {"spgd": SPGDConfig, "physics": PhysicsConfig, "ppo": PPOConfig, "sac": SACConfig, "td3": TD3Config}

@@ -23,10 +23,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from ops_jax import physics, render
 from agents import base
 from ops_jax.cli import ArgumentParser
+from agents.envs import built
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
 
@@ -64,7 +64,7 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
     """One episode of ``policy`` (probes allowed) through ``agents.base.evaluator``: the offsets
     after the reset and after every step, and their exact P / P_max (field model)."""
     env_config = base.check_env_config(env_config)
-    env, env_params = ops_jax.make(**env_config)
+    env, env_params = built(env_config)
     steps = int(env.config.max_steps if steps is None else steps)
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -103,7 +103,7 @@ def main(argv=None) -> Path:
         print(f"note: the checkpoint's env_config {env_config} is used", file=sys.stderr)
     steps = args.steps if args.steps is not None else (None if args.command == "episode" else 0)
     ep = run_episode(env_config, policy, params, steps=steps, seed=args.seed)
-    env, _ = ops_jax.make(**env_config)
+    env, _ = built(env_config)
     stages = env.config.stages
     if args.command == "frame":
         from PIL import Image, PngImagePlugin

@@ -53,10 +53,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from ops_jax import optics, physics
-from agents.base import Policy, TrainResult, check_env_config, evaluated_result
+from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import PhysicsConfig
+from agents.envs import built, check_env_config
 
 def params_template(env_config, hyper):
     del env_config, hyper
@@ -67,7 +67,7 @@ def policy_params(env_config: dict) -> dict:
     """The controller's numbers from its environment: ``action_scale`` (wl per action unit) and
     ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
     program, so one compiled policy serves every mode (make_policy reads only the static config)."""
-    _, env_params = ops_jax.make(**check_env_config(env_config))
+    _, env_params = built(env_config)
     return {"action_scale": np.float32(env_params.action_scale), "window": np.float32(env_params.window)}
 
 
@@ -134,29 +134,11 @@ def _per_theta(n: int, fit: int, column: int) -> np.ndarray:
     return out
 
 
-def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
-    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
-    env_config = check_env_config(env_config)
-    h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
-    env, _ = ops_jax.make(**env_config)
-    cfg = env.config
-    n = cfg.stages
-    frame = env.frame_size
-    ny = 2**n  # P and the 2^n - 1 samples
-    fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
-    default = policy_params(env_config)
+def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict) -> tuple:
+    """The fit: ``(moved, residual, estimate_one)``: the length change of a commanded move, the misfit of
+    the measurement model and the multi-start Levenberg-Marquardt estimate of the offsets of one instance."""
     p_max = physics.p_max(n, cfg.detector)
     peak = physics.peak_intensity(n)
-    identify = h["identify"] and fit > 0 and not h["lengths_only"]
-    readout = identify and h["use_lengths"]
-    cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
-    cal_mean = jnp.array([0.0, 1.0])
-    layout = _theta_layout(n, fit)
-    column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
-    theta0, theta_lo, theta_hi = column(0), column(2), column(3)
-    n_theta = theta0.size
-    prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
-    max_step = 0.1 * (theta_hi - theta_lo)  # per control step
 
     def full(z):
         return jnp.concatenate([z, jnp.zeros((n - fit,), z.dtype)])
@@ -203,6 +185,12 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         zs, cost = jax.vmap(lm, in_axes=(0, None, None, None))(cands, th, y, hist)
         return zs[jnp.argmin(cost)]
 
+    return moved, residual, estimate_one
+
+
+def _identify_function(fit: int, n_theta: int, h: dict, residual, max_step, theta_lo, theta_hi):
+    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance."""
+
     def identify_one(z, th, info, y, hist):
         """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
         the information update (the Schur complement of z: what this step tells about theta alone)."""
@@ -221,6 +209,14 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
         info_new = h["forget"] * info + schur
         return z_new, th_new, 0.5 * (info_new + info_new.T)
+
+    return identify_one
+
+
+def _calibrate_function(h: dict):
+    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line."""
+    cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
+    cal_mean = jnp.array([0.0, 1.0])
 
     def calibrate_one(info, vec, z, r):
         """One line's readout calibration: the recursive least squares update with the fitted offset
@@ -242,6 +238,33 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         x_cal = (r - beta[0]) / beta[1]
         d = jnp.array([-1.0, -x_cal]) / beta[1]  # gradient of x_cal in (o, 1 + g)
         return info, vec, wrap(x_cal), jnp.sqrt(d @ cov @ d)
+
+    return calibrate_one
+
+
+def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
+    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
+    env_config = check_env_config(env_config)
+    h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
+    env, _ = built(env_config)
+    cfg = env.config
+    n = cfg.stages
+    frame = env.frame_size
+    ny = 2**n  # P and the 2^n - 1 samples
+    fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
+    default = policy_params(env_config)
+    identify = h["identify"] and fit > 0 and not h["lengths_only"]
+    readout = identify and h["use_lengths"]
+    layout = _theta_layout(n, fit)
+    column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
+    theta0, theta_lo, theta_hi = column(0), column(2), column(3)
+    n_theta = theta0.size
+    prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
+    max_step = 0.1 * (theta_hi - theta_lo)  # per control step
+
+    moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
+    identify_one = _identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
+    calibrate_one = _calibrate_function(h)
 
     def init(key, obs):
         del key

@@ -32,139 +32,21 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-import warnings
 
 import jax
-import jax.numpy as jnp
-import numpy as np
 
 from agents import base, brax_compat
+from agents.brax_training import (
+    EVAL_FIRST_EPISODE,
+    Recorder,
+    activation,
+    deterministic_policy,
+    fit_budget,
+    make_brax_env,
+    obs_spec,
+)
 from agents.config import PPOConfig
-
-EVAL_FIRST_EPISODE = 10
-
-
-# -- shared with agents.sac ----------------------------------------------------------------------
-
-def train_env_config(env_config: dict) -> dict:
-    """The env_config used for training: ``model="phasor"`` unless one is given."""
-    return {"model": "phasor", **env_config}
-
-
-def activation(name: str):
-    import flax.linen as nn
-
-    return {"tanh": nn.tanh, "relu": nn.relu, "swish": nn.swish, "elu": nn.elu}[name]
-
-
-def make_brax_env(env_config: dict, first_episode: int = 0):
-    from ops_jax.brax_env import OPSBraxEnv
-
-    return OPSBraxEnv(first_episode=first_episode, **train_env_config(env_config))
-
-
-def obs_spec(size: int):
-    from brax.training.acme import specs
-
-    return specs.Array((size,), jnp.dtype("float32"))
-
-
-_SIM_SECONDS: dict = {}
-
-
-def seconds_per_env_step(env, num_envs: int, steps: int = 64, seed: int = 0) -> float:
-    """Wall seconds per single-instance env step of brax's training-wrapped ``env`` (``num_envs``
-    instances, a jitted scan of ``steps`` batched steps with uniform random actions, timed after
-    compilation). Measured once per process and (static configuration, ``num_envs``, ``steps``):
-    the step program is the same for every mode (its parameters are state) and seed, so later
-    trainings reuse the number instead of compiling a mode's reset and timing again. Noisy on a
-    shared machine."""
-    memo = (env.ops_env.config, int(num_envs), int(steps))
-    if memo not in _SIM_SECONDS:
-        _SIM_SECONDS[memo] = _time_env_steps(env, num_envs, steps, seed)
-    return _SIM_SECONDS[memo]
-
-
-def _time_env_steps(env, num_envs: int, steps: int, seed: int) -> float:
-    from brax.envs.wrappers import training as wrappers
-
-    wrapped = wrappers.wrap(env, episode_length=env.max_steps)
-    n = env.action_size
-
-    @jax.jit
-    def run(state, key):
-        def body(s, k):
-            a = jax.random.uniform(k, (num_envs, n), minval=-1.0, maxval=1.0)
-            s = wrapped.step(s, a)
-            return s, s.reward.mean()
-
-        return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
-
-    key = jax.random.PRNGKey(seed)
-    state = jax.jit(wrapped.reset)(jax.random.split(key, num_envs))
-    jax.block_until_ready(run(state, key))
-    t0 = time.perf_counter()
-    jax.block_until_ready(run(state, jax.random.fold_in(key, 1)))
-    return max(time.perf_counter() - t0, 1e-9) / (steps * num_envs)
-
-
-class Recorder:
-    """brax ``progress_fn``: collects the evaluation curve and passes each evaluation on to
-    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s)."""
-
-    def __init__(self, progress_fn=None):
-        self.t0 = time.perf_counter()
-        self.rows = []
-        self.progress_fn = progress_fn
-
-    def __call__(self, step, metrics):
-        row = dict(
-            step=int(step),
-            normalized_power=float(metrics.get("eval/episode_final_normalized_power", np.nan)),
-            reward=float(metrics.get("eval/episode_reward", np.nan)),
-            wall=time.perf_counter() - self.t0,
-        )
-        self.rows.append(row)
-        if self.progress_fn is not None:
-            self.progress_fn(row["step"], dict(normalized_power=row["normalized_power"], reward=row["reward"],
-                                               elapsed_s=row["wall"]))
-
-    def curve(self) -> dict:
-        keys = ("step", "normalized_power", "reward", "wall")
-        return {k: np.asarray([r[k] for r in self.rows], np.int64 if k == "step" else np.float64) for k in keys}
-
-    def result(self, algo: str, env, env_config: dict, c, params, total: float, seed: int) -> base.TrainResult:
-        """The TrainResult of a brax training call of ``total`` seconds (wall time split as above)."""
-        curve = self.curve()
-        steps = int(curve["step"][-1]) if curve["step"].size else 0
-        eval_steps = len(self.rows) * c.num_eval_envs * env.max_steps
-        sim = seconds_per_env_step(env, c.num_envs, seed=seed)
-        return base.TrainResult(algo, env_config, c.to_hyper(), jax.device_get(params), curve,
-                                wall_split(total, sim, steps + eval_steps), int(seed))
-
-
-def fit_budget(algo: str, total: int, fixed: int, unit: int, num_evals: int) -> tuple[int, int]:
-    """``(num_timesteps, num_evals)`` for a brax trainer that runs ``fixed`` env steps first (SAC's
-    replay prefill) and then ``num_evals - 1`` epochs of a whole number of ``unit``-step training steps:
-    the most env steps <= ``total`` it can run, with at most the requested evaluations. brax rounds
-    ``num_timesteps`` up to whole epochs; given these numbers it runs exactly ``num_timesteps``. When
-    ``total`` cannot hold one training step, one step is run and a warning says so."""
-    units = (total - fixed) // unit
-    if units < 1:
-        warnings.warn(f"{algo}: total_steps = {total:,} holds no whole training step of {unit:,} env steps"
-                      f"{f' after the {fixed:,} of the replay prefill' if fixed else ''}; training "
-                      f"{fixed + unit:,} env steps", stacklevel=3)
-        units = 1
-    epochs = min(max(num_evals - 1, 1), units)
-    return fixed + epochs * (units // epochs) * unit, (epochs + 1 if num_evals > 1 else 1)
-
-
-def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
-    sim = min(sim_per_step * env_steps, total)
-    return {"simulation": sim, "optimisation": total - sim, "total": total}
-
-
-# -- PPO -----------------------------------------------------------------------------------------
+from agents.envs import built, train_env_config
 
 def _network_factory(c: PPOConfig):
     from brax.training.agents.ppo import networks as ppo_networks
@@ -177,9 +59,7 @@ def _network_factory(c: PPOConfig):
 def _networks(env_config: dict, c: PPOConfig):
     from brax.training.acme import running_statistics
 
-    import ops_jax
-
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
     net = _network_factory(c)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
     return net, env.observation_size
@@ -200,14 +80,7 @@ def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     from brax.training.agents.ppo import networks as ppo_networks
 
     net, _ = _networks(env_config, PPOConfig.from_hyper(hyper))
-    make = ppo_networks.make_inference_fn(net)
-
-    def act(params, carry, obs, key, probe):
-        del probe
-        actions, _ = make(params, deterministic=True)(obs, key)
-        return actions, carry
-
-    return base.Policy(lambda key, obs: (), act)
+    return deterministic_policy(ppo_networks.make_inference_fn, net)
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,

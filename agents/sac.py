@@ -1,6 +1,6 @@
 """SAC: ``brax.training.agents.sac.train`` on the Brax adapter (``ops_jax.brax_env.OPSBraxEnv``),
 unchanged; this module only chooses hyperparameters, records the curve and wraps the result
-(curve, wall-time split and evaluation as in ``agents.ppo``, whose helpers it shares).
+(curve, wall-time split and evaluation as in ``agents.ppo``; shared helpers: ``agents.brax_training``).
 
 Presets of ``agents.config.SACConfig`` (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 SAC (Table 6): 2 x 256 ReLU networks, lr 3e-4, gamma 0.99, tau 0.002,
@@ -24,16 +24,18 @@ import time
 import jax
 
 from agents import base, brax_compat
-from agents.config import SACConfig
-from agents.ppo import (
+from agents.brax_training import (
     EVAL_FIRST_EPISODE,
     Recorder,
     activation,
+    deterministic_policy,
     fit_budget,
     make_brax_env,
     obs_spec,
-    train_env_config,
 )
+from agents.config import SACConfig
+from agents.envs import built, train_env_config
+
 
 def _network_factory(c: SACConfig):
     from brax.training.agents.sac import networks as sac_networks
@@ -45,9 +47,7 @@ def _network_factory(c: SACConfig):
 def _networks(env_config: dict, c: SACConfig):
     from brax.training.acme import running_statistics
 
-    import ops_jax
-
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
     net = _network_factory(c)(observation_size=env.observation_size, action_size=env.num_actions,
                               preprocess_observations_fn=normalize)
@@ -68,14 +68,7 @@ def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     from brax.training.agents.sac import networks as sac_networks
 
     net, _ = _networks(env_config, SACConfig.from_hyper(hyper))
-    make = sac_networks.make_inference_fn(net)
-
-    def act(params, carry, obs, key, probe):
-        del probe
-        actions, _ = make(params, deterministic=True)(obs, key)
-        return actions, carry
-
-    return base.Policy(lambda key, obs: (), act)
+    return deterministic_policy(sac_networks.make_inference_fn, net)
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,

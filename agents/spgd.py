@@ -45,9 +45,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
-from agents.base import Policy, TrainResult, check_env_config, evaluated_result
+from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import SPGDConfig
+from agents.envs import built, check_env_config
 
 def gains(hyper: dict | SPGDConfig, action_scale: float = 0.01) -> dict:
     """The controller's parameters (float32 scalars) from hyperparameters (a ``SPGDConfig`` or
@@ -68,7 +68,7 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     """SPGD-PID policy. ``params``: ``gains(hyper, action_scale)``; ``None`` uses ``hyper`` and
     the environment's default action scale."""
     env_config = check_env_config(env_config)
-    env, env_params = ops_jax.make(**env_config)
+    env, env_params = built(env_config)
     n = env.num_actions
     frame = env.frame_size
     default = gains(hyper or {}, float(env_params.action_scale))
@@ -127,7 +127,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
     ignored (0 env steps used)."""
     env_config = check_env_config(env_config)
     c = SPGDConfig.make(config, **hyper)
-    _, env_params = ops_jax.make(**env_config)
+    _, env_params = built(env_config)
     params = {k: np.asarray(v) for k, v in gains(c, float(env_params.action_scale)).items()}
     return evaluated_result("spgd", env_config, c.to_hyper(), params, seed, curve_episodes, progress_fn)
 
@@ -144,7 +144,7 @@ def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episod
     runs = {}
     for m in modes:
         cfg = {"stages": stages, "mode": m, "model": "phasor"}
-        env, env_params = ops_jax.make(**cfg)
+        env, env_params = built(cfg)
         runs[m] = (evaluator(env, make_policy(cfg), env.config.max_steps, 10)[0], env_params)
     ids, key = episode_ids(episodes), jax.random.key(seed)
     rows = []

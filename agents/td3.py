@@ -41,14 +41,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
 from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import TD3Config
-
-
-def train_env_config(env_config: dict) -> dict:
-    """The env_config used for training: ``model="phasor"`` unless one is given."""
-    return {"model": "phasor", **env_config}
+from agents.envs import built, train_env_config
 
 
 # -- networks -----------------------------------------------------------------------------------
@@ -90,7 +85,7 @@ def _stored_config(hyper: dict) -> TD3Config:
 
 def params_template(env_config: dict, hyper: dict):
     """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
     d = env.observation_size
     return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
@@ -99,7 +94,7 @@ def params_template(env_config: dict, hyper: dict):
 
 def make_policy(env_config: dict, hyper: dict) -> base.Policy:
     """The deterministic actor: a = tanh(MLP((obs - mean) / std)); ignores key, carry and probe."""
-    env, _ = ops_jax.make(**train_env_config(env_config))
+    env, _ = built(train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
 
     def act(params, carry, obs, key, probe):
@@ -125,34 +120,10 @@ class TD3State(NamedTuple):
     env_params: Any  # an argument, not a constant: one program serves every mode
 
 
-def _build(env, h):
-    import optax
-    from brax.training.replay_buffers import UniformSamplingQueue
-    from flax.training.train_state import TrainState
-
-    actor, critic = _networks(h["hidden"], env.num_actions)
-    d, n, b = env.observation_size, env.num_actions, h["num_envs"]
-    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
-                 next_obs=jnp.zeros(d))
-    buffer = UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
-    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
-    gamma, tau = h["gamma"], h["tau"]
-
-    def explore(ts, key, obs, random):
-        k1, k2 = jax.random.split(key)
-        greedy = actor.apply(ts.actor.params, _normalise(ts.obs_norm, obs))
-        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
-        uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
-        return jnp.where(random, uniform, noisy)
-
-    def env_step(ts, key, random):
-        k_act, k_env = jax.random.split(key)
-        action = explore(ts, k_act, ts.obs, random)
-        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
-                                                               action, ts.env_params)
-        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
-                  next_obs=info["final_observation"])
-        return ts._replace(env_state=env_state, obs=obs2), tr
+def _losses(actor, critic, h):
+    """``(critic_loss, actor_loss)``: clipped double-Q regression on smoothed target actions, and -Q1
+    of the actor's actions."""
+    gamma = h["gamma"]
 
     def critic_loss(cp, ts, batch, key):
         nobs = _normalise(ts.obs_norm, batch["next_obs"])
@@ -169,6 +140,17 @@ def _build(env, h):
         obs = _normalise(ts.obs_norm, batch["obs"])
         q1, _ = critic.apply(ts.critic.params, obs, actor.apply(ap, obs))
         return -jnp.mean(q1)
+
+    return critic_loss, actor_loss
+
+
+def _update_fn(actor, critic, buffer, h):
+    """``update(ts, _)``: one gradient step of the critics on a sampled batch; every ``policy_delay``-th
+    step also of the actor, and the targets' Polyak update."""
+    import optax
+
+    tau = h["tau"]
+    critic_loss, actor_loss = _losses(actor, critic, h)
 
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
@@ -187,12 +169,54 @@ def _build(env, h):
                                  lambda ts: (ts, jnp.float32(jnp.nan)), ts)
         return ts._replace(updates=ts.updates + 1), (closs, aloss)
 
+    return update
+
+
+def _collect_fn(env, actor, buffer, h):
+    """``collect(ts, random)``: ``unroll`` steps of every environment with exploration noise (uniform
+    random actions when ``random``), stored in the replay buffer."""
+    b = h["num_envs"]
+
+    def explore(ts, key, obs, random):
+        k1, k2 = jax.random.split(key)
+        greedy = actor.apply(ts.actor.params, _normalise(ts.obs_norm, obs))
+        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
+        uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
+        return jnp.where(random, uniform, noisy)
+
+    def env_step(ts, key, random):
+        k_act, k_env = jax.random.split(key)
+        action = explore(ts, k_act, ts.obs, random)
+        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
+                                                               action, ts.env_params)
+        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
+                  next_obs=info["final_observation"])
+        return ts._replace(env_state=env_state, obs=obs2), tr
+
     def collect(ts, random):
         def body(ts, _):
             key, k = jax.random.split(ts.key)
             ts, tr = env_step(ts._replace(key=key), k, random)
             return ts._replace(buffer=buffer.insert(ts.buffer, tr)), (tr["reward"], tr["obs"])
         return jax.lax.scan(body, ts, None, length=h["unroll"])
+
+    return collect
+
+
+def _build(env, h):
+    """TD3's jitted pieces on ``env`` with hyperparameters ``h``: init, warmup, fit_norm, train_chunk."""
+    import optax
+    from brax.training.replay_buffers import UniformSamplingQueue
+    from flax.training.train_state import TrainState
+
+    actor, critic = _networks(h["hidden"], env.num_actions)
+    d, n, b = env.observation_size, env.num_actions, h["num_envs"]
+    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
+                 next_obs=jnp.zeros(d))
+    buffer = UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
+    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
+    update = _update_fn(actor, critic, buffer, h)
+    collect = _collect_fn(env, actor, buffer, h)
 
     def iteration(ts, _):
         ts, (reward, _) = collect(ts, False)
@@ -255,8 +279,8 @@ def _placed_first(place, out):
 
 def _over_seeds(fns: dict, evaluate_fn, ts_shape: TD3State, num_seeds: int, sharding) -> dict:
     """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
-    the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
-    measured ~10% slower on CPU). With a ``sharding`` of the seed axis, every returned state is
+    the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap is
+    slower on CPU: docs/results.md). With a ``sharding`` of the seed axis, every returned state is
     constrained to it (per-seed leaves split over devices, shared leaves replicated), so each
     compiled function gets the layout it was compiled for."""
     axes = _seed_axes(ts_shape)
@@ -305,7 +329,7 @@ def _cached_build(env_config: dict, h: dict, num_seeds: int) -> dict:
     """Seed-vmapped jitted training functions, built once per (static env config, hyperparameters)
     in this process, so that other seeds or modes (their ``EnvParams`` are arguments) do not
     recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
-    env, env_params = ops_jax.make(**train_env_config(env_config))
+    env, env_params = built(train_env_config(env_config))
     sharding = base.split_over_devices(num_seeds, "seeds")
     key = (env.config, repr([(k, h[k]) for k in _BUILD_KEYS]), num_seeds > 1, sharding)
     if key not in _BUILDS:
@@ -337,23 +361,11 @@ def _check_seed(seed):
     return int(seed)
 
 
-def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
-          progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
-          **hyper) -> base.TrainResult:
-    """Train TD3 on ``ops_jax.make(**env_config)`` (phasor model unless set) for ``total_steps`` env
-    steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
-    "paper"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every evaluation
-    with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most ``total_steps``
-    env steps (whole iterations, ``_schedule``); the curve's 'step' holds the true counts."""
-    return train_seeds(env_config, seeds=[_check_seed(seed)], total_steps=total_steps, progress_fn=progress_fn,
-                       config=config, **hyper)[0]
-
-
-def _schedule(h: dict) -> tuple[int, int, int]:
-    """(warm-up iterations, training chunks, iterations per chunk) of ``h["total_steps"]`` env steps:
-    the warm-up collects at least ``learning_starts`` steps, then chunks of about ``eval_every`` steps
-    run whole iterations of ``num_envs * unroll`` steps, never past ``total_steps`` (the remainder of
-    less than one iteration per chunk is not run)."""
+def _schedule(h: dict) -> tuple:
+    """``(env steps per iteration, warm-up iterations, training chunks, iterations per chunk)`` of a
+    training of ``total_steps``, evaluated every ``eval_every`` env steps: the warm-up collects at least
+    ``learning_starts`` steps, then chunks of about ``eval_every`` steps run whole iterations of
+    ``num_envs * unroll`` steps, never past ``total_steps`` (a remainder under one iteration per chunk is not run)."""
     per_iter = h["num_envs"] * h["unroll"]
     warm_iters = -(-h["learning_starts"] // per_iter)
     if warm_iters * per_iter > h["total_steps"]:
@@ -362,35 +374,12 @@ def _schedule(h: dict) -> tuple[int, int, int]:
                          f"got {h['total_steps']}")
     train_iters = max(0, (h["total_steps"] - warm_iters * per_iter) // per_iter)
     n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
-    return warm_iters, n_chunks, (train_iters // n_chunks if n_chunks else 0)
+    return per_iter, warm_iters, n_chunks, (train_iters // n_chunks if n_chunks else 0)
 
 
-def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | None = None,
-                progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
-                **hyper) -> list[base.TrainResult]:
-    """``train`` for several seeds at once: one jitted call vmapped over the seeds (sharded over the
-    local devices when they divide the seed count). Each seed makes the same random draws as when
-    trained alone, but the batched matrix products round differently and training amplifies the
-    difference (measured, 5-stage hard: parameters equal to 4e-7 after 40 gradient steps, apart by
-    0.13 after 800), so a seed's result depends on the seed list it was trained with, bitwise
-    reproducibly for the same list; on as many devices as seeds it is the solo result. Wall times
-    are the call's divided by the number of seeds (``wall_time["seeds_in_call"]``); ``progress_fn``
-    gets means over seeds."""
-    env_config = base.check_env_config(env_config)
-    seeds = [_check_seed(s) for s in seeds]
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
-    c = TD3Config.make(config, **hyper)
-    if total_steps is not None:
-        c = dataclasses.replace(c, total_steps=total_steps)
-    h = c.to_hyper()
-    warm_iters, n_chunks, chunk = _schedule(h)
-    per_iter = h["num_envs"] * h["unroll"]
-    fns, env_params = _cached_build(env_config, h, len(seeds))
-    eval_ids = jnp.arange(h["eval_episodes"])
-
-    t_start = time.perf_counter()
-    timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
+def _warm_start(fns: dict, env_params, seeds: list, warm_iters: int, timing: dict) -> tuple:
+    """The seeds' initial states after the random warm-up and the observation statistics: ``(state, evaluation
+    keys, seconds of simulation per warm-up iteration)``; compile and simulation seconds added to ``timing``."""
     keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
     k_init, k_eval = keys[:, 0], keys[:, 1]
     if fns["sharding"] is not None:
@@ -406,6 +395,61 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
     timing["compile"] += t1 - t0
     timing["simulation"] += t2 - t1
     ts = fns["fit_norm"](ts, warm_obs)
+    return ts, k_eval, sim_per_iter
+
+
+def _results(env_config: dict, h: dict, seeds: list, params, curves: dict, timing: dict) -> list:
+    """One ``TrainResult`` per seed from the seed-batched ``params`` and ``curves`` (lists over evaluations
+    of arrays over seeds); wall times divided by the number of seeds."""
+    steps, npows, finals, closses, alosses = (curves[k] for k in ("step", "normalized_power", "final_normalized_power",
+                                                                  "critic_loss", "actor_loss"))
+    timing = {k: v / len(seeds) for k, v in timing.items()}
+    timing["seeds_in_call"] = len(seeds)
+    curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
+                  critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
+    return [base.TrainResult("td3", env_config, dict(h), jax.tree.map(lambda x: x[i], params),
+                             dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
+                             dict(timing), seed)
+            for i, seed in enumerate(seeds)]
+
+
+def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
+          progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
+          **hyper) -> base.TrainResult:
+    """Train TD3 on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
+    steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
+    "paper"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every evaluation
+    with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most ``total_steps``
+    env steps (whole iterations, ``_schedule``); the curve's 'step' holds the true counts."""
+    return train_seeds(env_config, seeds=[_check_seed(seed)], total_steps=total_steps, progress_fn=progress_fn,
+                       config=config, **hyper)[0]
+
+
+def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | None = None,
+                progress_fn: Callable[[int, dict], None] | None = None, config: TD3Config | str | None = None,
+                **hyper) -> list[base.TrainResult]:
+    """``train`` for several seeds at once: one jitted call vmapped over the seeds (sharded over the
+    local devices when they divide the seed count). Each seed makes the same random draws as when
+    trained alone, but the batched matrix products round differently and training amplifies the
+    difference (docs/results.md), so a seed's result depends on the seed list it was trained with, bitwise
+    reproducibly for the same list; on as many devices as seeds it is the solo result. Wall times
+    are the call's divided by the number of seeds (``wall_time["seeds_in_call"]``); ``progress_fn``
+    gets means over seeds."""
+    env_config = base.check_env_config(env_config)
+    seeds = [_check_seed(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
+    c = TD3Config.make(config, **hyper)
+    if total_steps is not None:
+        c = dataclasses.replace(c, total_steps=total_steps)
+    h = c.to_hyper()
+    per_iter, warm_iters, n_chunks, chunk = _schedule(h)  # a budget below the warm-up fails before compiling
+    fns, env_params = _cached_build(env_config, h, len(seeds))
+    eval_ids = jnp.arange(h["eval_episodes"])
+
+    t_start = time.perf_counter()
+    timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
+    ts, k_eval, sim_per_iter = _warm_start(fns, env_params, seeds, warm_iters, timing)
 
     def params_of(ts):
         return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
@@ -452,12 +496,6 @@ def train_seeds(env_config: dict, *, seeds: Sequence[int], total_steps: int | No
         closses.append(np.asarray(m["critic_loss"])), alosses.append(np.asarray(m["actor_loss"]))
         report(step, npow, m)
     timing["total"] = time.perf_counter() - t_start
-    timing = {k: v / len(seeds) for k, v in timing.items()}
-    timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(params_of(ts))
-    curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
-                  critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
-    return [base.TrainResult("td3", env_config, dict(h), jax.tree.map(lambda x: x[i], params),
-                             dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
-                             dict(timing), seed)
-            for i, seed in enumerate(seeds)]
+    curves = dict(step=steps, normalized_power=npows, final_normalized_power=finals, critic_loss=closses,
+                  actor_loss=alosses)
+    return _results(env_config, h, seeds, jax.device_get(params_of(ts)), curves, timing)

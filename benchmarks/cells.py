@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import Callable
 
-from benchmarks.common import write_json_atomic
+from agents.io import write_json_atomic
 
 
 def config_hash(config: dict) -> str:

@@ -1,12 +1,10 @@
-"""Shared helpers of the benchmark scripts: reference data location and atomic writes."""
+"""Shared helpers of the benchmark scripts: the reference data's location and timing."""
 
 from __future__ import annotations
 
 import json
 import os
 from pathlib import Path
-
-from agents.io import write_json_atomic  # noqa: F401  (re-exported for the benchmark scripts)
 
 
 VENDORED_REFERENCE = Path(__file__).resolve().parent / "reference"

@@ -126,7 +126,7 @@ def main(argv=None):
         return None
     import platform
 
-    from benchmarks.common import write_json_atomic
+    from agents.io import write_json_atomic
 
     rows = measure_modes(args.models, args.stages, args.num_envs, args.big, args.repeats)
     write_json_atomic(args.out, dict(meta=dict(host=platform.node(), platform=platform.platform(),

@@ -30,10 +30,10 @@ STEPS = {"ppo": 262_144, "sac": 30_000, "td3": 30_000}
 
 def _sweep_hyper(algo: str) -> dict:
     """The default sweep preset's hyperparameters of ``algo`` (its config name and overrides)."""
-    from benchmarks.sweep_units import PRESETS
+    from benchmarks.sweep_plan import preset
 
-    preset = PRESETS["default"]
-    return {"config": preset["config"], **preset.get("hyper", {}).get(algo, {})}
+    default = preset("default")
+    return {"config": default["config"], **default.get("hyper", {}).get(algo, {})}
 
 
 def measure_one(algo: str, steps: int) -> dict:

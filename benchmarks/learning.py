@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import write_json_atomic
+from agents.io import write_json_atomic
 from ops_jax.cli import ArgumentParser
 
 
@@ -37,7 +37,7 @@ def run_key(algo: str, mode: str, seed: int) -> str:
 
 def expected_hyper(algo: str, steps, config) -> dict:
     """The hyperparameters a run with these arguments trains with, in the stored (JSON) form."""
-    from agents.config import CONFIG_TYPES
+    from agents.registry import CONFIG_TYPES
 
     h = CONFIG_TYPES[algo].make(config).to_hyper()
     if steps is not None and "total_steps" in h:

@@ -6,7 +6,7 @@ tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor m
 docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
 reachable with the level's static optics). Its trainings and evaluations are cells of the sweep's
 store like every other section's (resumable, computed by the sweep's workers); this module holds
-the plan and the report (reality.md / .csv / .json and reality.png).
+the section (``Reality``: its cells and its report: reality.md / .csv / .json and reality.png).
 
     python -m benchmarks.sweep --only reality
     python -m benchmarks.sweep --quick --only reality --out results/quick
@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.sweep_section import TEST_SEED_OFFSET, Section
+
 LEVELS = (("none", 0.0), ("lab", 1.0), ("2x lab", 2.0))
 BASE_ENV = dict(stages=5, mode="hard", model="phasor")
 RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners' randomised training
@@ -35,33 +37,85 @@ def env_config(scale: float) -> dict:
 def trainings(algos, learners) -> list:
     """(algo, training, env config, hyperparameter overrides) of each controller of the section:
     every algorithm on the ideal system; the ``learners`` also randomised; the physics-informed
-    controller also with online identification ("identify") and with it reading the calibrated length
-    readout ("readout")."""
+    controller as the ideal model ("ideal": the "frames" preset), with online identification ("identify")
+    and, its default, with it reading the calibrated length readout ("readout")."""
     out = []
     for algo in algos:
-        out.append((algo, "ideal", env_config(0.0), {}))
+        out.append((algo, "ideal", env_config(0.0), {"config": "frames"} if algo == "physics" else {}))
         if algo in learners:
             out.append((algo, "randomised", dict(RANDOMISED), {}))
         if algo == "physics":
-            out.append((algo, "identify", env_config(0.0), {"identify": True}))
-            out.append((algo, "readout", env_config(0.0), {"identify": True, "use_lengths": True}))
+            out.append((algo, "identify", env_config(0.0), {"config": "frames", "identify": True}))
+            out.append((algo, "readout", env_config(0.0), {}))
     return out
+
+
+class Reality(Section):
+    """The reality section: each controller of ``trainings`` trained (``reality_seeds`` seeds, the
+    preset's ``reality_budgets`` where given), then tested at each of ``LEVELS``."""
+
+    name = "reality"
+    default = False
+
+    @staticmethod
+    def _trainings(sweep) -> list:
+        """(label prefix, algo, env config, hyperparameter overrides, budget or None) of each controller."""
+        from agents.registry import REGISTRY
+
+        learners = [a for a in sweep.algos if REGISTRY[a].learner]
+        return [(f"reality-{training}-{algo}", algo, env, extra, sweep.p.get("reality_budgets", {}).get(algo))
+                for algo, training, env, extra in trainings(sweep.algos, learners)]
+
+    @staticmethod
+    def _seeds(sweep) -> range:
+        return range(sweep.p.get("reality_seeds", sweep.p["seeds"]))
+
+    @staticmethod
+    def _tests(prefix: str, seed: int) -> list:
+        """(level, cell label, test env config) of one trained controller."""
+        return [(level, f"{prefix}-{level.replace(' ', '')}-s{seed}", env_config(scale)) for level, scale in LEVELS]
+
+    def units(self, sweep) -> list:
+        units = []
+        for prefix, algo, env, extra, steps in self._trainings(sweep):
+            units += sweep.train_units(prefix, algo, env, self._seeds(sweep), extra, steps)
+            for seed in self._seeds(sweep):
+                evals = [(label, test_env, seed + TEST_SEED_OFFSET) for _, label, test_env in self._tests(prefix, seed)]
+                units.append(sweep.eval_unit(f"evals-{prefix}-s{seed}", algo,
+                                             sweep.train_cell(f"{prefix}-s{seed}", algo, env, seed, extra, steps), evals))
+        return units
+
+    def results(self, sweep) -> dict:
+        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
+        ratios = best_ratios()
+        res = {}
+        for prefix, algo, env, extra, steps in self._trainings(sweep):
+            records = sweep.trained_seeds(algo, env, self._seeds(sweep), lambda s: f"{prefix}-s{s}", extra, steps)
+            row = res[f"{algo}/{prefix.split('-')[1]}"] = {level: [] for level, _ in LEVELS}
+            for seed, record in records.items():
+                for level, label, test_env in self._tests(prefix, seed):
+                    ev = sweep.evaluated(label, record, test_env, seed + TEST_SEED_OFFSET)
+                    row[level].append(float(np.mean(ev["final"]) * ratios[level]))
+        return res
+
+    def report(self, sweep, results) -> None:
+        report(sweep.out, results, sweep.p, sweep.p.get("command", "python -m benchmarks.sweep --only reality"))
 
 
 def best_ratios() -> dict:
     """P_max / P_best of each level (1 for the ideal level)."""
-    import ops_jax
+    from agents.envs import built
 
     ratios = {}
     for name, scale in LEVELS:
-        env, params = ops_jax.make(**env_config(scale))
+        env, params = built(env_config(scale))
         ratios[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
     return ratios
 
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
     """reality.md (Welch-bolded table), reality.csv, reality.json and reality.png in ``out``."""
-    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask
+    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask, bold_rule
 
     names = [n for n, _ in LEVELS]
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
@@ -70,8 +124,8 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         "# Reality gap: controllers tested with lab imperfections",
         "",
         f"Final P / P_best (mean ± std over {seeds} seeds; each seed: {preset['episodes']} test "
-        "episodes of 200 steps), 5 stages, hard mode, phasor model; bold: best per level and those not "
-        "different from it (Welch's t-test, p >= 0.05). Levels: the lab preset of docs/imperfections.md x 0, 1, 2.",
+        "episodes of 200 steps), 5 stages, hard mode, phasor model. Levels: the lab preset of "
+        "docs/imperfections.md x 0, 1, 2.",
         "",
         "| controller | " + " | ".join(names) + " |",
         "|---|" + "---|" * len(names),
@@ -80,6 +134,7 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         cells = [_fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names]
         a, training = algo.split("/")
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
+    lines += ["", bold_rule(seeds)]
     took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
     lines += ["", "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
               "identify (ideal, with online identification of the imperfections), readout (identify, "

@@ -6,16 +6,16 @@
     python -m benchmarks.sweep --only table1 --out results/mine
     python -m benchmarks.sweep --preset paper --seeds 20 --ray auto   # on a Ray cluster (docs/scale.md)
 
-Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds: final P/Pmax in the training
-and testing environments, Welch's t-test bolding), ``table2`` (timings of the paper's Table 2, from
-the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on one mode, test on each),
-``feedback`` (train at k = 1, test at k = 1..100); when named with ``--only``, ``reality``
-(controllers under lab imperfections, benchmarks/reality.py). Everything lands in ``results/<name>/``: tables
-(.md, .csv), figures (.png), ``summary.md``. Finished work units are stored in ``cells/`` the
-moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips them. The
-work is cut into units (``Sweep.units``) that Ray actors compute, on a local Ray instance with
-``--jobs`` workers by default or on a cluster with ``--ray ADDRESS`` (benchmarks/sweep_ray.py); this
-process stores what they return and then writes the reports (docs/sweep.md).
+Sections (benchmarks/sweep_plan.py): ``table1`` (5-stage x easy/medium/hard x algorithms x seeds:
+final P/Pmax in the training and testing environments, Welch's t-test bolding), ``table2`` (timings of
+the paper's Table 2, from the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on
+one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100); when named with ``--only``,
+``reality`` (controllers under lab imperfections, benchmarks/reality.py). Everything lands in
+``results/<name>/``: tables (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored
+in ``cells/`` the moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips
+them. The work is cut into units (``Sweep.units``, from each section's declared cells) that Ray actors
+compute, on a local Ray instance with ``--jobs`` workers by default or on a cluster with ``--ray ADDRESS``
+(benchmarks/sweep_ray.py); this process stores what they return and then writes the reports (docs/sweep.md).
 
 Evaluation as in the paper: P/Pmax at the end of 200-step test episodes. The training environment
 uses the training seed's draws; the testing environment another seed, so in hard mode it has a
@@ -35,24 +35,19 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from benchmarks.sweep_units import (  # noqa: F401  (Sweep, SECTIONS, PRESETS: the sweep's public names)
-    EXTRA_SECTIONS,
-    PRESETS,
-    QUICK_XLA_FLAG,
-    SECTIONS,
-    Sweep,
-    enable_compilation_cache,
-    quick_compilation,
-)
+from benchmarks import sweep_plan  # noqa: E402
+from benchmarks.sweep_units import enable_compilation_cache, quick_compilation  # noqa: E402
+
+SECTIONS = sweep_plan.default_sections()  # a run without --only
 
 
 def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
-    preset = json.loads(json.dumps(PRESETS[name]))  # deep copy
-    preset["name"] = name
+    preset = json.loads(json.dumps(sweep_plan.preset(name)))  # deep copy
     if args.seeds is not None:
         if args.seeds < 2:
-            raise SystemExit("--seeds must be >= 2 (Welch's t-test needs two samples per algorithm)")
+            raise SystemExit("python -m benchmarks.sweep: --seeds must be >= 2 (Welch's t-test needs two samples "
+                             "per algorithm)")
         preset["seeds"] = args.seeds
     if args.algos:
         preset["algos"] = list(args.algos)
@@ -61,14 +56,15 @@ def build_preset(args) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.sweep", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", choices=("default", "paper"), default="default")
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
-    ap.add_argument("--algos", nargs="+", choices=PRESETS["default"]["algos"])
-    ap.add_argument("--only", nargs="+", choices=(*SECTIONS, *EXTRA_SECTIONS),
-                    help=f"sections to run (default: {' '.join(SECTIONS)}; reality only when named: "
-                         "benchmarks/reality.py)")
+    ap.add_argument("--algos", nargs="+", choices=sweep_plan.preset("default")["algos"])
+    ap.add_argument("--only", nargs="+", choices=tuple(sweep_plan.PLAN),
+                    help=f"sections to run (default: {' '.join(SECTIONS)}; the others only when named, e.g. "
+                         "reality: benchmarks/reality.py)")
     ap.add_argument("--out", type=Path, help="output folder (default results/<preset>)")
     ap.add_argument("--ray", metavar="ADDRESS",
                     help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or HOST:PORT); "
@@ -83,24 +79,30 @@ def main(argv=None):
                     help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)")
     args = ap.parse_args(argv)
     if args.worker_gpus < 0:
-        raise SystemExit(f"--worker-gpus must be >= 0, got {args.worker_gpus}")
+        raise SystemExit(f"python -m benchmarks.sweep: --worker-gpus must be >= 0, got {args.worker_gpus}")
     if args.restarts < 0:
-        raise SystemExit(f"--restarts must be >= 0, got {args.restarts}")
+        raise SystemExit(f"python -m benchmarks.sweep: --restarts must be >= 0, got {args.restarts}")
     if args.jobs is not None and args.jobs < 1:
-        raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
+        raise SystemExit(f"python -m benchmarks.sweep: --jobs must be >= 1, got {args.jobs}")
     preset = build_preset(args)
     preset["command"] = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
     out = (args.out or Path("results") / preset["name"]).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    sections = args.only or list(SECTIONS)
+    sections = args.only or list(sweep_plan.default_sections())
     if args.quick:
         quick_compilation()
     enable_compilation_cache()
     from benchmarks import sweep_ray  # imports jax: after the environment above is set
 
     jobs = args.jobs or (None if args.ray else min(2, os.cpu_count() or 1))
-    computed, reused = sweep_ray.run(preset, out, sections, address=args.ray, jobs=jobs, restarts=args.restarts,
-                                       worker_gpus=args.worker_gpus)
+    try:
+        computed, reused = sweep_ray.run(preset, out, sections, address=args.ray, jobs=jobs, restarts=args.restarts,
+                                           worker_gpus=args.worker_gpus)
+    except KeyboardInterrupt:  # Ray's workers are stopped by then (sweep_ray.run shuts Ray down on the way out)
+        stored = len(list((out / "cells").glob("*.json")))
+        print(f"interrupted: {stored} finished cells are kept in {out}/cells; run the same command again to resume",
+              file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
     print(f"wrote {out}/summary.md ({computed} cells computed, {reused} reused)")
     return out
 

@@ -23,12 +23,10 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from benchmarks.sweep_units import Sweep, crash_injection, enable_compilation_cache
+from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
-FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "OPS_SWEEP_CRASH_AFTER", "JAX_PLATFORMS",
-                 "XLA_PYTHON_CLIENT_PREALLOCATE")
-CRASH_MARKER = ".crash-injected"  # in the output folder: OPS_SWEEP_CRASH_AFTER crashes a worker once per folder
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE")
 PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
@@ -40,8 +38,8 @@ def _stderr(msg: str) -> None:
 class SweepWorker:
     """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
 
-    def __init__(self, preset: dict, env: dict, crash_marker: str):
-        """``env``: variables set before jax starts (XLA_FLAGS, ...); ``crash_marker``: see ``crash_injection``."""
+    def __init__(self, preset: dict, env: dict):
+        """``env``: variables set before jax starts (XLA_FLAGS, ...)."""
         import ray
 
         faulthandler.enable()  # a crash prints the Python stack into the worker's log (shown by the driver)
@@ -50,10 +48,9 @@ class SweepWorker:
         self.where = dict(node_id=ray.get_runtime_context().get_node_id(), hostname=socket.gethostname())
         self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
         self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
-        crash_injection(self.sweep, Path(crash_marker))
 
     def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
-        """Compute ``unit`` (an eval unit gets its controller's table-1 ``record`` and ``checkpoint``
+        """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
         files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
         "node_id", "hostname"}."""
         t0 = time.perf_counter()
@@ -109,8 +106,9 @@ def store_files(out: Path, files: dict) -> None:
 
 
 def _kind(unit: dict) -> str:
-    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), or evaluation."""
-    return f"train {unit['algo']}" if unit["kind"] == "train" else "eval"
+    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
+    or a section's own cells."""
+    return {"train": f"train {unit['algo']}", "eval": "eval"}.get(unit["kind"], f"cell {unit['algo']}")
 
 
 def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
@@ -127,11 +125,35 @@ def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
     return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
 
 
-def _show(bar, spent: Counter, in_flight: float, left: float) -> None:
+class SmoothedTotal:
+    """The progress line's total worker-seconds: each new projection moves it by ``weight`` of the way
+    (an exponential moving average, so the remaining time does not jump with each finished unit's
+    correction; exactly the projection when nothing is left), and it is cut where needed so that the
+    fraction done never decreases."""
+
+    def __init__(self, weight: float = 0.3):
+        self.weight = weight
+        self.total = None
+        self.fraction = 0.0
+
+    def __call__(self, done: float, projected: float) -> float:
+        """The total to show for ``done`` worker-seconds out of a ``projected`` total."""
+        if self.total is None or projected <= done:  # the first projection, or nothing left: as projected
+            total = projected
+        else:
+            total = self.total + self.weight * (projected - self.total)
+        total = max(total, done)
+        if total > 0 and done / total < self.fraction:
+            total = done / self.fraction
+        self.total, self.fraction = total, (done / total if total > 0 else 0.0)
+        return total
+
+
+def _show(bar, smoothed: SmoothedTotal, spent: Counter, in_flight: float, left: float) -> None:
     """Progress in worker-seconds: finished units' measured seconds plus the running units' time so
-    far, out of that plus the projected work left beyond what is running."""
+    far, out of that plus the projected work left beyond what is running (``SmoothedTotal``)."""
     done = sum(spent.values()) + in_flight
-    bar.total = round(done + max(left - in_flight, 0.0), 1)
+    bar.total = round(smoothed(done, done + max(left - in_flight, 0.0)), 1)
     bar.update(round(done - bar.n, 1))
 
 
@@ -179,27 +201,28 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     units = sweep.units(sections)
     todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
     done = {u["key"] for u in units} - set(todo)
+    reused = sum(len(u["cells"]) for u in units) - sum(len(u["cells"]) for u in todo.values())
     workers, computed = [], 0
     if todo:
         import ray
 
         connect(address, jobs)
         try:
-            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset)
+            computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset, reused)
         finally:
             ray.shutdown()
     return Sweep(preset, out, _stderr).run(sections, workers, computed, started)
 
 
 def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
-             preset: dict):
-    """The scheduling loop: units to idle workers, returned files into the store. Returns (cells
-    computed, a record per worker for the summary)."""
+             preset: dict, reused: int = 0):
+    """The scheduling loop: units to idle workers, returned files into the store (``reused``: the plan's
+    cells stored before, said on the progress line). Returns (cells computed, a record per worker)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
     actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
-    actors = [actor.remote(preset, env, str(out / CRASH_MARKER)) for _ in range(n)]
+    actors = [actor.remote(preset, env) for _ in range(n)]
     remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
     for u in todo.values():
         remaining[u["algo"]] += u["cost"]
@@ -208,7 +231,9 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"
     bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
                    unit="worker-s", smoothing=0)
-    bar.set_postfix_str(f"cells 0/{cells_total}")
+    cells = (lambda k: f"cells {k}/{cells_total}" + (f", {reused} reused from an earlier run" if reused else ""))
+    smoothed = SmoothedTotal()
+    bar.set_postfix_str(cells(0))
     idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
     busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
     try:
@@ -235,7 +260,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
                             for _, u, t in running.values())
             if not finished:
-                _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+                _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
                 continue
             ref = finished[0]
             i, unit, t = running.pop(ref)
@@ -258,8 +283,8 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
             computed += result["computed"]
             cells_done += len(unit["cells"])
-            bar.set_postfix_str(f"cells {cells_done}/{cells_total}")
-            _show(bar, spent, in_flight, projected_seconds(est_left, est_done, spent))
+            bar.set_postfix_str(cells(cells_done))
+            _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
     finally:
         bar.close()
     ray.get([a.close.remote() for a in actors])

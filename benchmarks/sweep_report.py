@@ -9,17 +9,31 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.registry import NAMES
 from benchmarks.paper import MODES, PAPER_TABLE1, PAPER_TABLE2
 
 ENVS = ("training", "testing")
-NAMES = {"spgd": "SPGD", "ppo": "PPO", "sac": "SAC", "td3": "TD3", "physics": "Physics"}
+
+
+MIN_BOLD_SEEDS = 3  # fewer seeds per cell cannot support a Welch's t-test verdict: nothing is bold
+
+
+def bold_rule(seeds: int) -> str:
+    """The bolding rule as stated under a table of ``seeds`` seeds per cell."""
+    if seeds < MIN_BOLD_SEEDS:
+        return f"No bold: {seeds} seeds per cell are too few to tell values apart (bold needs {MIN_BOLD_SEEDS} or more)."
+    return ("Bold: the best mean of the row and every value not significantly different from it (Welch's t-test, "
+            f"p >= 0.05 over the {seeds} seeds); nothing is bold with fewer than {MIN_BOLD_SEEDS} seeds.")
 
 
 def bold_mask(samples: dict, alpha: float = 0.05) -> dict:
     """Best mean per row, and every algorithm not significantly different from it (Welch's
-    t-test, p >= alpha), are bold. Identical constant samples count as not different."""
+    t-test, p >= alpha), are bold; nothing is with fewer than ``MIN_BOLD_SEEDS`` samples in any
+    cell. Identical constant samples count as not different."""
     from scipy.stats import ttest_ind
 
+    if min(len(v) for v in samples.values()) < MIN_BOLD_SEEDS:
+        return {a: False for a in samples}
     means = {a: float(np.mean(v)) for a, v in samples.items()}
     best = max(means, key=means.get)
     mask = {}
@@ -69,9 +83,8 @@ def table1(out: Path, runs: dict, p: dict):
     sep = "|" + "---|" * (len(algos) + 2)
     text = (f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
             f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes). "
-            "Bold: best per row and every algorithm not significantly different from it (Welch's t-test, "
-            "p < 0.05). The 'paper' rows are the published values (20 seeds, stable-baselines3).\n\n"
-            + "\n".join([header, sep, *rows_md]) + "\n")
+            "The 'paper' rows are the published values (20 seeds, stable-baselines3).\n\n"
+            + "\n".join([header, sep, *rows_md]) + "\n\n" + bold_rule(p["seeds"]) + "\n")
     (out / "table1.md").write_text(text)
     with open(out / "table1.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -81,14 +94,26 @@ def table1(out: Path, runs: dict, p: dict):
 
 def convergence_step(steps, values, tol=0.02):
     """First step from which the curve stays within ``tol`` (P/Pmax) of its final value (the mean
-    of its last three points): where it 'reaches its peak and stops changing'."""
+    of its last three points): where it 'reaches its peak and stops changing'. NaN ("not reached")
+    for an empty curve or one that never left that band: it did not change, so it converged to nothing."""
     steps, values = np.asarray(steps, float), np.asarray(values, float)
     if len(values) == 0:
         return float("nan")
     final = values[-3:].mean()
     outside = np.nonzero(np.abs(values - final) > tol)[0]
-    idx = 0 if len(outside) == 0 else min(outside[-1] + 1, len(values) - 1)
-    return float(steps[idx])
+    if len(outside) == 0:
+        return float("nan")
+    return float(steps[min(outside[-1] + 1, len(values) - 1)])
+
+
+def _steps_cell(values) -> str:
+    """Mean ± std of convergence steps, "not reached" where none is, the count where some are not."""
+    values = np.asarray(values, float)
+    reached = values[~np.isnan(values)]
+    if not reached.size:
+        return "not reached"
+    cell = f"{reached.mean():.0f} ± {reached.std():.0f}"
+    return cell if reached.size == values.size else f"{cell} ({reached.size} of {values.size} seeds)"
 
 
 def table2(out: Path, runs: dict, p: dict):
@@ -97,7 +122,8 @@ def table2(out: Path, runs: dict, p: dict):
         "",
         "Ours: this machine, batched JAX; per-step times are wall time divided by environment steps "
         "(simulation = stepping the environment, optimisation = the rest of training). Convergence "
-        "step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value. "
+        "step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value; \"not "
+        "reached\": the curve never changed by more than that (nothing converged). "
         "Inference TPS: one batched control step (policy, probes and environment) divided by the number of "
         "test episodes. Test-time convergence step: the same rule on the mean test curve. Total control time "
         "= test-time convergence steps x inference TPS (the paper adds its simulation TPS; ours is inside).",
@@ -119,12 +145,11 @@ def table2(out: Path, runs: dict, p: dict):
             opt = np.mean([r["wall_time"].get("optimisation", 0.0) for r in recs]) / steps
             conv = [convergence_step(r["curve"].get("step", []), r["curve"].get("normalized_power", [])) for r in recs]
             total = [r["wall_time"].get("total", 0.0) for r in recs]
-            train_cols = (f"{sim:.2e} | {opt:.2e} | {np.nanmean(conv):.0f} ± {np.nanstd(conv):.0f} | "
-                          f"{np.mean(total):.1f} ± {np.std(total):.1f}")
+            train_cols = f"{sim:.2e} | {opt:.2e} | {_steps_cell(conv)} | {np.mean(total):.1f} ± {np.std(total):.1f}"
         else:  # no training (SPGD, physics-informed)
             train_cols = "– | – | – | –"
-        lines.append(f"| {NAMES[algo]} | {train_cols} | {inf:.2e} | {np.mean(test_conv):.0f} ± {np.std(test_conv):.0f} | "
-                     f"{np.mean(ctrl):.4f} ± {np.std(ctrl):.4f} |")
+        lines.append(f"| {NAMES[algo]} | {train_cols} | {inf:.2e} | {_steps_cell(test_conv)} | "
+                     f"{np.nanmean(ctrl):.4f} ± {np.nanstd(ctrl):.4f} |")
         if algo in PAPER_TABLE2:
             lines.append("| paper | " + " | ".join(str(v) for v in PAPER_TABLE2[algo]) + " |")
     (out / "table2.md").write_text("\n".join(lines) + "\n")
@@ -137,10 +162,31 @@ def _band(ax, x, runs_y, label):
     ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
 
 
-def training_curves(out: Path, runs: dict, p: dict):
+def _save(fig, legend_ax, path: Path) -> None:
+    """Legend on ``legend_ax``, tight layout, ``path`` written at 110 dpi, figure closed."""
+    legend_ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _plt().close(fig)
+
+
+def _per_mode_figure(out: Path, filename: str, title: str, xlabel: str, ylabel: str, draw, ylim=None):
+    """One panel per mode (``draw(ax, mode)`` plots into it), shared y axis, written to ``out/filename``."""
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
     for ax, mode in zip(axes, MODES):
+        draw(ax, mode)
+        ax.set_title(f"{title}, 5-stage {mode}")
+        ax.set_xlabel(xlabel)
+        if ylim is not None:
+            ax.set_ylim(*ylim)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(ylabel)
+    _save(fig, axes[0], out / filename)
+
+
+def training_curves(out: Path, runs: dict, p: dict):
+    def draw(ax, mode):
         for algo in p["algos"]:
             curves = [runs[mode, algo, s]["curve"] for s in range(p["seeds"])]
             if not all(len(c.get("step", [])) >= 2 for c in curves):
@@ -148,32 +194,18 @@ def training_curves(out: Path, runs: dict, p: dict):
             grid = np.linspace(0, min(c["step"][-1] for c in curves), 50)
             ys = [np.interp(grid, c["step"], c["normalized_power"]) for c in curves]
             _band(ax, grid, ys, NAMES[algo])
-        ax.set_title(f"training, 5-stage {mode}")
-        ax.set_xlabel("environment steps")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("evaluation P/Pmax")
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(out / "training_curves.png", dpi=110)
-    plt.close(fig)
+
+    _per_mode_figure(out, "training_curves.png", "training", "environment steps", "evaluation P/Pmax", draw)
 
 
 def testing_curves(out: Path, runs: dict, p: dict):
-    plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
-    for ax, mode in zip(axes, MODES):
+    def draw(ax, mode):
         for algo in p["algos"]:
             ys = [runs[mode, algo, s]["test_env"]["mean_curve"] for s in range(p["seeds"])]
             _band(ax, np.arange(1, len(ys[0]) + 1), ys, NAMES[algo])
-        ax.set_title(f"testing, 5-stage {mode}")
-        ax.set_xlabel("control iteration")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("P/Pmax (mean over test episodes)")
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(out / "testing_curves.png", dpi=110)
-    plt.close(fig)
+
+    _per_mode_figure(out, "testing_curves.png", "testing", "control iteration", "P/Pmax (mean over test episodes)",
+                     draw, ylim=(0, 1.02))
 
 
 def stages(out: Path, res: dict, p: dict):
@@ -207,10 +239,7 @@ def stages(out: Path, res: dict, p: dict):
     ax.set_xlabel("stages N")
     ax.set_ylabel("environment steps")
     ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(out / "stages.png", dpi=110)
-    plt.close(fig)
+    _save(fig, axes[0], out / "stages.png")
     (out / "stages.md").write_text("\n".join(lines) + "\n")
 
 
@@ -258,10 +287,7 @@ def feedback(out: Path, res: dict, p: dict):
         ax.set_xlabel("feedback delay factor k (free-run draws per control step)")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(out / "feedback.png", dpi=110)
-    plt.close(fig)
+    _save(fig, axes[0], out / "feedback.png")
     (out / "feedback.md").write_text("\n".join(lines) + "\n")
 
 

@@ -1,82 +1,31 @@
-"""The sweep's plan and work: presets, sections, the work units (``Sweep.units``) and their
-computation into the cell store, the reports; compilation-cache setup of a worker process. The
+"""The sweep's work: the cells of the plan's sections (benchmarks/sweep_plan.py) as work units, their
+computation into the cell store, the report pass; compilation-cache setup of a worker process. The
 command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py (docs/sweep.md).
 """
 
 from __future__ import annotations
 
 import os
-import signal
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from benchmarks import reality
+from benchmarks import sweep_plan
 from benchmarks.cells import CellStore, config_hash
-from benchmarks.paper import MODES
-
-SECTIONS = ("table1", "table2", "stages", "transfer", "feedback")  # the default run
-EXTRA_SECTIONS = ("reality",)  # run when asked for (--only): benchmarks/reality.py
-
-# Training budgets (environment steps) per preset and algorithm; hyper config per preset.
-PRESETS = {
-    "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
-        seeds=2, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=8,
-        budgets={"spgd": 0, "physics": 0, "ppo": 32_768, "sac": 3_000, "td3": 3_000},
-        hyper={"ppo": {"num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64], "num_updates_per_batch": 2},
-               "sac": {"min_replay_size": 1024, "num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64],
-                       "grad_updates_per_step": 4, "batch_size": 256},
-               "td3": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
-               "physics": {"starts": 4, "iters": 4}},
-        stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
-        feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
-    ),
-    "default": dict(  # ~45 min on 2 CPU cores (docs/results.md)
-        seeds=5, algos=("spgd", "physics", "ppo", "sac", "td3"), config="fast", episodes=32,
-        budgets={"spgd": 0, "physics": 0, "ppo": 2_000_000, "sac": 100_000, "td3": 60_000},
-        hyper={"sac": {"min_replay_size": 2048}, "td3": {"eval_every": 5000},
-               "physics": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8 (hard 0.997 vs 0.9995)
-        stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
-        feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
-        reality_budgets={"sac": 300_000},  # SAC's randomised training is far from done at 100k (docs/imperfections.md)
-    ),
-    "paper": dict(
-        seeds=20, algos=("spgd", "physics", "ppo", "sac", "td3"), config="paper", episodes=100,
-        budgets={"spgd": 0, "physics": 0, "ppo": 200_000, "sac": 200_000, "td3": 250_000},
-        stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
-        feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
-    ),
-}
-TEST_SEED_OFFSET = 10_000
-LEARNERS = ("ppo", "sac", "td3")  # algorithms with a "paper" / "fast" hyperparameter config
+from benchmarks.sweep_section import EVAL_S, IMPERFECT_COST, TEST_SEED_OFFSET
 
 
-# Seconds of one cell on one worker of a 2-core CPU (compilation shared over an algorithm's cells): a
-# training cell costs TRAIN_FIXED_S + TRAIN_S_PER_STEP x its budget, an evaluation cell EVAL_S. Fitted
-# to the default preset's measured run (docs/results.md, JAX 0.10: PPO 2M steps ~135 s, SAC 100k ~88 s,
-# TD3 60k ~12 s per seed of a 5-seed call, physics-informed ~12 s with its evaluations, SPGD ~2 s).
-# They weight the progress bar, so its remaining time follows cost rather than cell count, and order the work.
-TRAIN_FIXED_S = {"ppo": 5.0, "sac": 5.0, "td3": 3.0, "physics": 12.0, "spgd": 2.0}
-TRAIN_S_PER_STEP = {"ppo": 6.6e-5, "sac": 8.5e-4, "td3": 1.6e-4}
-EVAL_S = 1.0
-IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
+def algo_entry(name: str):
+    """The ``agents.registry.Algo`` of ``name`` (imported here: jax loads after the sweep's settings)."""
+    from agents import registry
+
+    return registry.get(name)
 
 
-def cell_seconds(algo: str, steps: int) -> float:
-    """Estimated seconds of one training cell of ``algo`` with a budget of ``steps`` env steps."""
-    return TRAIN_FIXED_S.get(algo, 5.0) + TRAIN_S_PER_STEP.get(algo, 0.0) * steps
-
-
-class _Silent:
-    """A progress bar that shows nothing (for workers and the report pass)."""
-
-    def set_description(self, desc: str = "") -> None:
-        pass
-
-    def update(self, n: float = 1) -> None:
-        pass
+def is_learner(algo: str) -> bool:
+    return algo_entry(algo).learner
 
 
 class Sweep:
@@ -89,6 +38,7 @@ class Sweep:
         self.cells = CellStore(out / "cells", log, meta)
         self.ckpt_dir = out / "checkpoints"
         self.timing = {}
+        self.memo = {}  # results read once and shared by sections (the table-1 runs)
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- trained controllers --------------------------------------------------------------------
@@ -96,7 +46,7 @@ class Sweep:
                       steps: int | None = None) -> dict:
         """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant);
         ``steps``: a budget other than the preset's (a section's own)."""
-        hyper = {"config": self.p["config"]} if algo in LEARNERS else {}
+        hyper = {"config": self.p["config"]} if is_learner(algo) else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
         hyper.update(extra or {})
         return dict(kind="train", algo=algo, env=env_config, seed=seed,
@@ -131,7 +81,7 @@ class Sweep:
 
         # A controller with nothing to train records an evaluation as its curve: the same one as
         # the training-environment evaluation below, which is then served from memory.
-        curve = {} if algo in LEARNERS else {"curve_episodes": config["episodes"]}
+        curve = {} if is_learner(algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
             trained = result if result is not None else agents.train(
@@ -154,25 +104,22 @@ class Sweep:
             record = self.cells.get(label, config, compute)
         return record
 
-    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], bar=_Silent(),
-                      extra=None, steps=None) -> dict:
+    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], extra=None,
+                      steps=None) -> dict:
         """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
         train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
 
         results = {}
-        if hasattr(agents.base.algo_module(algo), "train_seeds"):
+        if algo_entry(algo).vmaps_seeds:
             todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra, steps))]
             if len(todo) > 1:
-                bar.set_description(f"{label(todo[0]).rsplit('-s', 1)[0]} seeds {todo} (one vmapped call)")
                 config = self._train_config(algo, env_config, todo[0], extra, steps)
                 results = dict(zip(todo, agents.train_seeds(algo, env_config, seeds=todo, total_steps=config["steps"],
                                                             **config["hyper"])))
         records = {}
         for seed in seeds:
-            bar.set_description(f"{label(seed)}")
             records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed), extra, steps)
-            bar.update()
         return records
 
     def policy(self, record: dict):
@@ -187,101 +134,54 @@ class Sweep:
         return self.cells.get(label, config, lambda: _eval_record(
             agents.evaluate(self.policy(record), env_config, episodes=config["episodes"], seed=seed)))
 
-    def table1_runs(self, bar):
-        runs = {}
-        for mode in MODES:
-            for algo in self.algos:
-                records = self.trained_seeds(algo, {"stages": 5, "mode": mode}, range(self.p["seeds"]),
-                                             lambda s: f"table1-{mode}-{algo}-s{s}", bar)
-                runs.update({(mode, algo, seed): r for seed, r in records.items()})
-        return runs
+    # -- the plan's work units ---------------------------------------------------------------------
+    def train_cell(self, label: str, algo: str, env: dict, seed: int, extra=None, steps=None) -> tuple:
+        """(label, configuration) of one training cell."""
+        return label, self._train_config(algo, env, seed, extra, steps)
 
-    # -- sections -----------------------------------------------------------------------------
-    def _stage_algos(self) -> list:
-        return [a for a in self.p["stage_algos"] if a in self.algos]
-
-    def units(self, sections) -> list:
-        """The cells of ``sections`` as work units, in order: dicts with ``key``, ``algo``, ``kind``
-        ("train": one ``trained_seeds`` call of ``seeds``, labels ``prefix``-s<seed>; "eval": the
-        transfer and feedback evaluations (``evals``: label, env, seed) of one table-1 controller
-        ``train`` (label, config)), ``cells`` [(label, config)], ``deps`` (keys of the units whose
-        checkpoints it needs) and ``cost`` (estimated seconds, ``cell_seconds``)."""
-        import agents
-
-        units, producer = [], {}
-
-        def train(prefix, algo, env, seeds, extra=None, steps=None):
-            groups = [list(seeds)] if hasattr(agents.base.algo_module(algo), "train_seeds") else [[s] for s in seeds]
-            factor = IMPERFECT_COST if "imperfections" in env else 1.0
-            for group in groups:
-                cells = [(f"{prefix}-s{s}", self._train_config(algo, env, s, extra, steps)) for s in group]
-                key = prefix if len(groups) == 1 else cells[0][0]
-                cost = len(group) * cell_seconds(algo, cells[0][1]["steps"]) * factor
-                units.append(dict(key=key, algo=algo, kind="train", env=env, seeds=group, prefix=prefix, cells=cells,
-                                  deps=[], cost=round(cost, 1), hyper=extra or {}, steps=steps))
-                producer.update({label: key for label, _ in cells})
-
-        p = self.p
-        table1 = {"table1", "table2", "transfer", "feedback"} & set(sections)
-        for mode in MODES if table1 else ():
-            for algo in self.algos:
-                train(f"table1-{mode}-{algo}", algo, {"stages": 5, "mode": mode}, range(p["seeds"]))
-        lo, hi = p["stage_range"]
-        for n in range(lo, hi + 1) if "stages" in sections else ():
-            for mode in p["stage_modes"]:
-                for algo in self._stage_algos():
-                    train(f"stages-N{n}-{mode}-{algo}", algo, {"stages": n, "mode": mode}, range(p["stage_seeds"]))
-        for mode in MODES:
-            for algo in self.algos:
-                for seed in range(self.aux_seeds):
-                    evals = [(f"transfer-{mode}-{test}-{algo}-s{seed}", {"stages": 5, "mode": test},
-                              seed + TEST_SEED_OFFSET) for test in MODES if "transfer" in sections]
-                    evals += [(f"feedback-k{k}-{algo}-s{seed}", {"stages": 5, "mode": "hard", "feedback_k": k},
-                               seed + TEST_SEED_OFFSET)
-                              for k in p["feedback_ks"] if "feedback" in sections and mode == "hard"]
-                    if not evals:
-                        continue
-                    label = f"table1-{mode}-{algo}-s{seed}"
-                    config = self._train_config(algo, {"stages": 5, "mode": mode}, seed)
-                    ckpt = f"checkpoints/{label}-{config_hash(config)}"
-                    cells = [(lab, self._eval_config(ckpt, env, s)) for lab, env, s in evals]
-                    units.append(dict(key=f"evals-{mode}-{algo}-s{seed}", algo=algo, kind="eval", train=(label, config),
-                                      evals=evals, cells=cells, deps=[producer[label]], cost=len(cells) * EVAL_S))
-        if "reality" in sections:
-            for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
-                prefix = f"reality-{training}-{algo}"
-                steps = self._reality_budget(algo)
-                train(prefix, algo, env, range(self._reality_seeds()), extra, steps)
-                for seed in range(self._reality_seeds()):
-                    label, config = f"{prefix}-s{seed}", self._train_config(algo, env, seed, extra, steps)
-                    ckpt = f"checkpoints/{label}-{config_hash(config)}"
-                    evals = [(self._reality_label(prefix, level, seed), test_env, seed + TEST_SEED_OFFSET)
-                             for level, test_env in self._reality_levels()]
-                    cells = [(lab, self._eval_config(ckpt, e, s)) for lab, e, s in evals]
-                    units.append(dict(key=f"evals-{prefix}-s{seed}", algo=algo, kind="eval", train=(label, config),
-                                      evals=evals, cells=cells, deps=[producer[label]],
-                                      cost=len(cells) * EVAL_S * IMPERFECT_COST))
+    def train_units(self, prefix: str, algo: str, env: dict, seeds, extra=None, steps=None) -> list:
+        """Training units of ``algo`` on ``env``, cells ``prefix``-s<seed>: one unit of all ``seeds`` for an
+        algorithm that vmaps seeds, else one per seed; ``extra``, ``steps``: as ``_train_config``."""
+        groups = [list(seeds)] if algo_entry(algo).vmaps_seeds else [[s] for s in seeds]
+        factor = IMPERFECT_COST if "imperfections" in env else 1.0
+        units = []
+        for group in groups:
+            cells = [self.train_cell(f"{prefix}-s{s}", algo, env, s, extra, steps) for s in group]
+            cost = len(group) * algo_entry(algo).sweep.cell_seconds(cells[0][1]["steps"]) * factor
+            units.append(dict(key=prefix if len(groups) == 1 else cells[0][0], algo=algo, kind="train", env=env,
+                              seeds=group, prefix=prefix, cells=cells, deps=[], cost=round(cost, 1),
+                              hyper=extra or {}, steps=steps))
         return units
 
-    def _reality_seeds(self) -> int:
-        return self.p.get("reality_seeds", self.p["seeds"])
+    def eval_unit(self, key: str, algo: str, train: tuple, evals: list) -> dict:
+        """The unit evaluating the controller of training cell ``train`` (label, config) in ``evals``
+        [(label, env config, seed)]; it needs that cell's unit (``deps``, resolved by ``units``)."""
+        ckpt = f"checkpoints/{train[0]}-{config_hash(train[1])}"
+        cells = [(label, self._eval_config(ckpt, env, seed)) for label, env, seed in evals]
+        factor = IMPERFECT_COST if any("imperfections" in env for _, env, _ in evals) else 1.0
+        return dict(key=key, algo=algo, kind="eval", train=train, evals=evals, cells=cells, deps=[],
+                    cost=len(cells) * EVAL_S * factor)
 
-    def _reality_budget(self, algo: str) -> int:
-        """``algo``'s training budget (env steps) in the reality section: ``reality_budgets``, else the preset's."""
-        return self.p.get("reality_budgets", {}).get(algo, self.p["budgets"][algo])
-
-    @staticmethod
-    def _reality_levels() -> list:
-        """(level name, test env config) of the reality section."""
-        return [(name, reality.env_config(scale)) for name, scale in reality.LEVELS]
-
-    @staticmethod
-    def _reality_label(prefix: str, level: str, seed: int) -> str:
-        return f"{prefix}-{level.replace(' ', '')}-s{seed}"
+    def units(self, sections) -> list:
+        """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once:
+        dicts with ``key``, ``algo``, ``kind`` ("train": one ``trained_seeds`` call of ``seeds``,
+        labels ``prefix``-s<seed>; "eval": evaluations (``evals``: label, env, seed) of one trained
+        controller ``train`` (label, config); "cell": a ``CellSection``'s cell), ``cells`` [(label,
+        config)], ``deps`` (keys of the units whose checkpoints it needs) and ``cost`` (estimated seconds)."""
+        units, producer = {}, {}
+        for name, section in sweep_plan.PLAN.items():
+            for unit in section.units(self) if name in sections else ():
+                if unit["key"] not in units:
+                    units[unit["key"]] = unit
+                    producer.update({label: unit["key"] for label, _ in unit["cells"]})
+        for unit in units.values():
+            if unit["kind"] == "eval":
+                unit["deps"] = [producer[unit["train"][0]]]
+        return list(units.values())
 
     def todo(self, unit: dict):
         """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
-        if unit["kind"] == "eval":
+        if unit["kind"] != "train":
             return unit if any(self.cells.load(label, config) is None for label, config in unit["cells"]) else None
         left = [(label, config) for label, config in unit["cells"] if not self._finished(label, config, quiet=False)]
         if not left:
@@ -292,108 +192,43 @@ class Sweep:
 
     def compute_unit(self, unit: dict, record: dict | None = None) -> None:
         """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's
-        table-1 ``record`` (and checkpoint in this folder)."""
+        training ``record`` (and checkpoint in this folder)."""
         if unit["kind"] == "train":
             self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}",
-                               extra=unit.get("hyper"), steps=unit.get("steps"))
-        else:
+                               unit.get("hyper"), unit.get("steps"))
+        elif unit["kind"] == "eval":
             for label, env, seed in unit["evals"]:
                 self.evaluated(label, record, env, seed)
+        else:
+            section = sweep_plan.PLAN[unit["section"]]
+            for label, config in unit["cells"]:
+                self.cells.get(label, config, lambda c=config: section.compute(c))
 
     def run(self, sections, workers=(), computed=0, started=float("nan")):
-        """Load every cell (computing any not stored), then write the tables, figures and summary;
-        returns (cells computed, cells reused). ``workers``: a record (algos, timing) per worker
-        that computed ``computed`` cells for this run before; ``started``: the command's start
-        (time.time()), if known."""
-        from benchmarks import sweep_report as report
+        """Load every cell of ``sections`` (computing any not stored), then write each section's report
+        and the summary; returns (cells computed, cells reused). ``workers``: a record (algos, timing)
+        per worker that computed ``computed`` cells for this run before; ``started``: the command's
+        start (time.time()), if known."""
+        from benchmarks import sweep_report
 
-        self._sections(sections, report)
+        t0 = time.perf_counter()
+        chosen = [s for name, s in sweep_plan.PLAN.items() if name in sections]
+        results = {}
+        for section in chosen:
+            t = time.perf_counter()
+            results[section.name] = section.results(self)
+            self.timing[section.name] = time.perf_counter() - t
+        t = time.perf_counter()
+        for section in chosen:
+            section.report(self, results[section.name])
+        self.timing["tables and figures"] = time.perf_counter() - t
+        self.timing["total"] = time.perf_counter() - t0
         counts = (self.cells.computed + computed, self.cells.reused - computed)
-        report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
+        sweep_report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
         return counts
 
     def _eval_config(self, checkpoint: str, env_config: dict, seed: int) -> dict:
         return dict(kind="eval", checkpoint=checkpoint, env=env_config, seed=seed, episodes=self.p["episodes"])
-
-    def _sections(self, sections, report, bar=_Silent()):
-        """Compute (or load) the cells of ``sections``, then write their reports unless ``report`` is None."""
-        t0 = time.perf_counter()
-        runs = self.table1_runs(bar) if {"table1", "table2", "transfer", "feedback"} & set(sections) else {}
-        self.timing["table1 training + evaluation"] = time.perf_counter() - t0
-        results = {}
-        for name, compute in (("stages", lambda: self.stage_scan(bar)), ("transfer", lambda: self.transfer(runs, bar)),
-                              ("feedback", lambda: self.feedback(runs, bar)), ("reality", lambda: self.reality(bar))):
-            if name in sections:
-                t = time.perf_counter()
-                results[name] = compute()
-                self.timing[name] = time.perf_counter() - t
-        if report is not None:
-            t = time.perf_counter()
-            if "table1" in sections:
-                report.table1(self.out, runs, self.p)
-                report.training_curves(self.out, runs, self.p)
-                report.testing_curves(self.out, runs, self.p)
-            if "table2" in sections:
-                report.table2(self.out, runs, self.p)
-            for name, res in results.items():
-                if name == "reality":
-                    reality.report(self.out, res, self.p, self.p.get("command", "python -m benchmarks.sweep --only reality"))
-                else:
-                    getattr(report, name)(self.out, res, self.p)
-            self.timing["tables and figures"] = time.perf_counter() - t
-        self.timing["total"] = time.perf_counter() - t0
-
-    def stage_scan(self, bar):
-        res = {}
-        lo, hi = self.p["stage_range"]
-        for n in range(lo, hi + 1):
-            for mode in self.p["stage_modes"]:
-                for algo in self._stage_algos():
-                    records = self.trained_seeds(algo, {"stages": n, "mode": mode}, range(self.p["stage_seeds"]),
-                                                 lambda s: f"stages-N{n}-{mode}-{algo}-s{s}", bar)
-                    res.update({(n, mode, algo, seed): r for seed, r in records.items()})
-        return res
-
-    def reality(self, bar) -> dict:
-        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
-        ratios = reality.best_ratios()
-        res = {}
-        for algo, training, env, extra in reality.trainings(self.algos, LEARNERS):
-            prefix = f"reality-{training}-{algo}"
-            records = self.trained_seeds(algo, env, range(self._reality_seeds()), lambda s: f"{prefix}-s{s}", bar, extra,
-                                         self._reality_budget(algo))
-            res[f"{algo}/{training}"] = {level: [] for level, _ in self._reality_levels()}
-            for seed, record in records.items():
-                for level, test_env in self._reality_levels():
-                    ev = self.evaluated(self._reality_label(prefix, level, seed), record, test_env, seed + TEST_SEED_OFFSET)
-                    res[f"{algo}/{training}"][level].append(float(np.mean(ev["final"]) * ratios[level]))
-        return res
-
-    def transfer(self, runs, bar):
-        res = {}
-        for (train_mode, algo, seed), record in runs.items():
-            if seed >= self.aux_seeds:
-                continue
-            for test_mode in MODES:
-                bar.set_description(f"transfer {algo} {train_mode}->{test_mode} seed {seed}")
-                res[train_mode, test_mode, algo, seed] = self.evaluated(
-                    f"transfer-{train_mode}-{test_mode}-{algo}-s{seed}", record,
-                    {"stages": 5, "mode": test_mode}, seed + TEST_SEED_OFFSET)
-                bar.update()
-        return res
-
-    def feedback(self, runs, bar):
-        res = {}
-        for (mode, algo, seed), record in runs.items():
-            if mode != "hard" or seed >= self.aux_seeds:
-                continue
-            for k in self.p["feedback_ks"]:
-                bar.set_description(f"feedback {algo} k={k} seed {seed}")
-                res[k, algo, seed] = self.evaluated(f"feedback-k{k}-{algo}-s{seed}", record,
-                                                    {"stages": 5, "mode": "hard", "feedback_k": k},
-                                                    seed + TEST_SEED_OFFSET)
-                bar.update()
-        return res
 
 
 def _eval_record(ev) -> dict:
@@ -404,24 +239,6 @@ def _eval_record(ev) -> dict:
         mean_curve=npow.mean(0).tolist(),
         std_curve=npow.std(0).tolist(),
     )
-
-
-def crash_injection(sweep: Sweep, marker: Path):
-    """Tests of crash recovery: with OPS_SWEEP_CRASH_AFTER=K the process kills itself with SIGSEGV
-    once it has computed K cells, once per ``marker`` file (created first)."""
-    after = int(os.environ.get("OPS_SWEEP_CRASH_AFTER", "0"))
-    if after <= 0 or marker.exists():
-        return
-    get = sweep.cells.get
-
-    def get_then_crash(*args, **kw):
-        record = get(*args, **kw)
-        if sweep.cells.computed >= after and not marker.exists():
-            marker.touch()
-            os.kill(os.getpid(), signal.SIGSEGV)
-        return record
-
-    sweep.cells.get = get_then_crash
 
 
 def enable_compilation_cache():
@@ -441,7 +258,7 @@ QUICK_XLA_FLAG = "--xla_backend_optimization_level=0"
 def quick_compilation():
     """``--quick`` compiles with XLA's backend optimisation level 0 (added to XLA_FLAGS unless that
     sets the level already; before jax's backend starts): compilation, not execution, is most of
-    its wall time (measured: 214 s instead of 244 s for the whole preset). Results differ from an
+    its wall time (docs/sweep.md). Results differ from an
     optimised build by rounding, which training amplifies; the disk cache keys include XLA_FLAGS,
     so the two builds are never mixed."""
     flags = os.environ.get("XLA_FLAGS", "")

@@ -20,10 +20,12 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import ops_jax
 from agents.base import split_over_devices
-from benchmarks.common import load_reference_timing, write_json_atomic
+from agents.io import write_json_atomic
+from benchmarks.common import load_reference_timing
 from ops_jax.cli import ArgumentParser
 from ops_jax.progress import exit_interrupted, progress
 
@@ -117,6 +119,31 @@ def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
     return statistics.median(times) / batch
 
 
+def step_cost(stages: int = 5, model: str = "phasor", num_envs: int | None = None, *, number: int = 1000,
+              repeats: int = 5, **options) -> dict:
+    """Steady-state cost of the Gymnasium adapters: ``num_envs=None`` times
+    ``OPSGymEnv.step`` (seconds per step, best of ``repeats`` runs of ``number`` steps, zero actions,
+    truncation disabled); an integer times ``OPSVectorEnv.step`` (env-steps per second)."""
+    import timeit
+
+    from ops_jax.gym_env import OPSGymEnv, OPSVectorEnv
+
+    if num_envs is None:
+        env = OPSGymEnv(stages=stages, mode="hard", model=model, max_steps=2**30, **options)
+        action = np.zeros(stages, np.float32)
+    else:
+        env = OPSVectorEnv(num_envs=num_envs, stages=stages, mode="hard", model=model, **options)
+        action = np.zeros((num_envs, stages), np.float32)
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(action)  # compile and warm up
+    per_call = min(timeit.repeat(lambda: env.step(action), number=number, repeat=repeats)) / number
+    out = dict(stages=stages, model=model, num_envs=num_envs, seconds_per_call=per_call)
+    if num_envs is not None:
+        out["env_steps_per_second"] = num_envs / per_call
+    return out
+
+
 def main(argv=None):
     ap = ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -183,8 +210,6 @@ def measure_all(args, results: dict) -> None:
         t = {m: measure_only(n, m, 1024, args.repeats) for m in args.models}
         results["physics_measure"].append(dict(stages=n, **{f"{m}_us": 1e6 * v for m, v in t.items()}))
         print(f"{n:>2} " + " ".join(f"{1e6 * t[m]:>8.2f}" for m in args.models))
-    from ops_jax.gym_env import step_cost
-
     ref5 = ref.get("5", {}).get("step_median_s")
     print("\nGymnasium adapters, N = 5, hard (single: ms per step; vector: env-steps/s)")
     for model in args.models:

@@ -1,7 +1,7 @@
 """ops-jax: a JAX-vectorised simulator of optical pulse stacking (OPS) for control and RL.
 
-``import ops_jax`` pulls in jax and numpy only; the Brax adapter, the agents and rendering
-import their own dependencies when used.
+``import ops_jax`` pulls in jax, numpy and Gymnasium (it registers the "ops_jax/OPS-v0" environments);
+the Brax adapter, the agents and rendering import their own dependencies when used.
 """
 
 from ops_jax import extras, noise, physics

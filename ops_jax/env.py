@@ -22,7 +22,6 @@ Non-finite actions (inside jit): every non-finite entry is replaced by 0 before 
 from __future__ import annotations
 
 import dataclasses
-import math
 from functools import partial
 from typing import Any, Callable, NamedTuple
 
@@ -30,8 +29,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.custom_batching import custom_vmap
+from jax.typing import ArrayLike
 
 from ops_jax import imperfections, noise, physics
+from ops_jax.ranges import Range, check_fields, ranged, ranges
+
+INT32_MAX = 2**31 - 1  # step counters are int32
 
 MODES = ("easy", "medium", "hard", "custom")
 REWARDS = ("paper", "reference")
@@ -59,9 +62,9 @@ class EnvConfig:
     model: str = "field"
     detector: str = "total"
     reward: str = "paper"
-    max_steps: int = 200
-    feedback_k: int = 1
-    frame_stack: int = 1
+    max_steps: int = ranged(Range(1, INT32_MAX, integer=True), 200)
+    feedback_k: int = ranged(Range(1, INT32_MAX, integer=True), 1)
+    frame_stack: int = ranged(Range(1, INT32_MAX, integer=True), 1)
     include_noise: bool = False
     imperfect: bool = False
 
@@ -78,18 +81,23 @@ class EnvParams:
     drawn in +-amplitude; amplitude 0 disables it. action_scale: wl per unit action.
     obs_noise: std of the observation noise. window: termination bound |x_i| > window.
     lab: the lab imperfections (``imperfections.Imperfections``), used when ``imperfect``.
+
+    Each range excludes values that leave no meaningful task: actions without effect (action_scale 0),
+    a window nothing fits in (and window > init_spread), phases randomised every step (offsets repeat
+    every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more information),
+    observations drowned in noise (entries live in about [-1, 1]).
     """
 
-    init_spread: Any = 0.13
-    step_sigma: Any = 5e-4
-    drift_cap: Any = 0.0
-    drift_ramp: Any = 0.1
-    drift_amplitude: Any = 0.0
-    drift_segment: Any = 50
-    action_scale: Any = 0.01
-    obs_noise: Any = 1e-4
-    window: Any = 3.0
-    lab: Any = dataclasses.field(default_factory=imperfections.Imperfections)
+    init_spread: ArrayLike = ranged(Range(0.0, 1.0, unit="wl"), 0.13)  # 0: every episode starts at the optimum
+    step_sigma: ArrayLike = ranged(Range(0.0, 0.1, unit="wl"), 5e-4)  # 0: noise-free
+    drift_cap: ArrayLike = ranged(Range(0.0, 10.0), 0.0)
+    drift_ramp: ArrayLike = ranged(Range(0.0), 0.1)
+    drift_amplitude: ArrayLike = ranged(Range(0.0, 0.1, unit="wl per step"), 0.0)
+    drift_segment: ArrayLike = ranged(Range(1, INT32_MAX, integer=True, unit="steps"), 50)
+    action_scale: ArrayLike = ranged(Range(0.0, 1.0, lo_open=True, unit="wl per unit action"), 0.01)
+    obs_noise: ArrayLike = ranged(Range(0.0, 1.0), 1e-4)  # 0: noise-free observations
+    window: ArrayLike = ranged(Range(0.0, lo_open=True, unit="wl"), 3.0)
+    lab: imperfections.Imperfections = dataclasses.field(default_factory=imperfections.Imperfections)
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -110,59 +118,8 @@ class EnvState:
     lab: Any = ()
 
 
-class _Range(NamedTuple):
-    """An option's accepted interval ("[" / "]": bound included; ``integer``: whole numbers only)."""
-
-    low: float
-    high: float
-    low_open: bool = False
-    high_open: bool = False
-    integer: bool = False
-    unit: str = ""
-
-    def __str__(self):
-        fmt = lambda v: "inf" if v == math.inf else (str(int(v)) if float(v).is_integer() else f"{v:g}")
-        interval = f"{'(' if self.low_open else '['}{fmt(self.low)}, {fmt(self.high)}{')' if self.high_open else ']'}"
-        return f"{'an integer' if self.integer else 'a finite number'} in {interval}{' ' + self.unit if self.unit else ''}"
-
-    def contains(self, value) -> bool:
-        v = np.asarray(value)
-        if v.dtype == bool or not np.issubdtype(v.dtype, np.number) or not np.all(np.isfinite(v)):
-            return False
-        above = v > self.low if self.low_open else v >= self.low
-        below = v < self.high if self.high_open else v <= self.high
-        return bool(np.all(above & below) and (not self.integer or np.all(v == np.round(v))))
-
-
-INT32_MAX = 2**31 - 1  # step counters are int32
-
-# Accepted ranges of the numeric options. Each excludes values that leave no meaningful task:
-# actions without effect (action_scale 0), a window nothing fits in, phases randomised every step
-# (offsets repeat every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more
-# information), observations drowned in noise (entries live in about [-1, 1]).
-_PARAM_RANGES = {
-    "init_spread": _Range(0.0, 1.0, unit="wl"),  # 0: every episode starts at the optimum
-    "step_sigma": _Range(0.0, 0.1, unit="wl"),  # 0: noise-free
-    "drift_cap": _Range(0.0, 10.0),
-    "drift_ramp": _Range(0.0, math.inf, high_open=True),
-    "drift_amplitude": _Range(0.0, 0.1, unit="wl per step"),
-    "drift_segment": _Range(1, INT32_MAX, integer=True, unit="steps"),
-    "action_scale": _Range(0.0, 1.0, low_open=True, unit="wl per unit action"),
-    "obs_noise": _Range(0.0, 1.0),  # 0: noise-free observations
-    "window": _Range(0.0, math.inf, low_open=True, high_open=True, unit="wl"),  # and > init_spread
-}
-_CONFIG_RANGES = {
-    "max_steps": _Range(1, INT32_MAX, integer=True),
-    "feedback_k": _Range(1, INT32_MAX, integer=True),
-    "frame_stack": _Range(1, INT32_MAX, integer=True),
-}
-
-
 def _validate_params(params: EnvParams) -> None:
-    for name, accepted in _PARAM_RANGES.items():
-        value = getattr(params, name)
-        if not accepted.contains(value):
-            raise ValueError(f"{name} must be {accepted}, got {value!r}")
+    check_fields(params)
     if not np.all(np.asarray(params.window) > np.asarray(params.init_spread)):
         raise ValueError(f"window must be > init_spread (most episodes would end at their first step), "
                          f"got window={params.window!r}, init_spread={params.init_spread!r}")
@@ -173,10 +130,8 @@ def _validate_config(cfg: EnvConfig) -> None:
     physics._check_choice("model", cfg.model, physics.MODELS)
     physics._check_choice("detector", cfg.detector, physics.DETECTORS)
     physics._check_choice("reward", cfg.reward, REWARDS)
-    for name, accepted in _CONFIG_RANGES.items():
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not accepted.contains(v):
-            raise ValueError(f"{name} must be {accepted}, got {v!r}")
+    for name, accepted in ranges(cfg).items():
+        accepted(name, getattr(cfg, name))
     for name in ("include_noise", "imperfect"):
         if not isinstance(getattr(cfg, name), (bool, np.bool_)):
             raise TypeError(f"{name} must be a bool, got {getattr(cfg, name)!r}")

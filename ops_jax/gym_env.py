@@ -315,6 +315,40 @@ def _reset_key(env, seed, options):
     return key if env.device is None else jax.device_put(key, env.device)
 
 
+
+def _setup(adapter, stages: int, mode: str, render_mode, device, options: dict):
+    """What both adapters' constructors set: the environment and its options, render mode, device spec,
+    sizes; returns the observation bound."""
+    if render_mode is not None and render_mode not in adapter.metadata["render_modes"]:
+        raise ValueError(f"render_mode must be None or one of {adapter.metadata['render_modes']}, got {render_mode!r}")
+    adapter.env, adapter.params = make(stages, mode, **options)
+    adapter.options = dict(stages=stages, mode=mode, **options)
+    adapter.render_mode = render_mode
+    adapter._device_spec = _check_device(device)
+    adapter.device = None  # resolved when JAX starts (first reset)
+    adapter._n, adapter._d = adapter.env.num_actions, adapter.env.observation_size
+    adapter.max_episode_steps = adapter.env.config.max_steps
+    return _observation_bounds(adapter.env, adapter.params)
+
+
+def _jax_options(adapter) -> dict:
+    """The ``make`` options of a starting adapter's jitted functions (refused in a forked child)."""
+    _refuse_after_fork()
+    return {k: v for k, v in adapter.options.items() if k not in ("stages", "mode")}
+
+
+def _render_scope(adapter, started: bool, scope, modes: str):
+    """``(ops_jax.render, oscilloscope)`` for an adapter's ``render()`` (the scope made on first use), or
+    ``(None, scope)`` with a warning naming ``modes`` without a render_mode; RuntimeError before reset."""
+    if adapter.render_mode is None:
+        gymnasium.logger.warn(f"render() called without a render_mode; pass render_mode={modes}")
+        return None, scope
+    if not started:
+        raise RuntimeError("call reset() before render()")
+    from ops_jax import render as _render
+
+    return _render, scope if scope is not None else _render.Oscilloscope(adapter._n, detector=adapter.env.config.detector)
+
 class OPSGymEnv(gymnasium.Env):
     """One OPS instance behind the Gymnasium 1.x ``Env`` API (see the module docstring).
 
@@ -328,19 +362,10 @@ class OPSGymEnv(gymnasium.Env):
     def __init__(self, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
                  device: Any = "cpu", **options):
         _refuse_after_fork()
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
-        self.env, self.params = make(stages, mode, **options)
-        self.options = dict(stages=stages, mode=mode, **options)
-        self.render_mode = render_mode
-        self._device_spec = _check_device(device)
-        self.device = None  # resolved when JAX starts (first reset)
-        n, d = self.env.num_actions, self.env.observation_size
-        self._n, self._d = n, d
-        bound = _observation_bounds(self.env, self.params)
+        bound = _setup(self, stages, mode, render_mode, device, options)
+        n, d = self._n, self._d
         self.observation_space = spaces.Box(-bound, bound, (d,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
-        self.max_episode_steps = self.env.config.max_steps
         self._step = self._reset = self._codec = self._head = None
         self._buf = None  # (packed step, key, state): a device array once started, host after unpickling
         self._started = False
@@ -352,9 +377,7 @@ class OPSGymEnv(gymnasium.Env):
         """Start JAX for this instance: device, jitted functions (shared cache), carry on the device."""
         if self._step is not None:
             return
-        _refuse_after_fork()
-        options = {k: v for k, v in self.options.items() if k not in ("stages", "mode")}
-        fns = _single_fns(self.options["stages"], self.options["mode"], options)
+        fns = _single_fns(self.options["stages"], self.options["mode"], _jax_options(self))
         self.device = _device(self._device_spec)
         buf = self._buf if self._buf is not None else np.zeros(fns[3] + fns[2].size, np.float32)
         self._buf = jax.device_put(buf, self.device)
@@ -415,15 +438,9 @@ class OPSGymEnv(gymnasium.Env):
     def render(self):
         """``"rgb_array"``: an (H, W, 3) uint8 oscilloscope frame of the current pulse train (exact
         field model); ``"human"``: the same frame in a matplotlib window (no-op without a display)."""
-        if self.render_mode is None:
-            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+        _render, self._scope = _render_scope(self, self._last is not None, self._scope, "'rgb_array' or 'human'")
+        if _render is None:
             return None
-        if self._last is None:
-            raise RuntimeError("call reset() before render()")
-        from ops_jax import render as _render
-
-        if self._scope is None:
-            self._scope = _render.Oscilloscope(self._n, detector=self.env.config.detector)
         frame = self._scope.frame(self._last["deltas_wl"], step=self._last["step"])
         if self.render_mode == "rgb_array":
             return frame
@@ -449,23 +466,14 @@ class OPSVectorEnv(VectorEnv):
         _refuse_after_fork()
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         options.pop("max_episode_steps", None)  # make_vec forwards the spec's (None); truncation is max_steps
-        self.env, self.params = make(stages, mode, **options)
-        self.options = dict(stages=stages, mode=mode, **options)
         self.num_envs = int(num_envs)
-        self.render_mode = render_mode
-        self._device_spec = _check_device(device)
-        self.device = None  # resolved when JAX starts (first reset)
-        n, d = self.env.num_actions, self.env.observation_size
-        self._n, self._d = n, d
-        bound = _observation_bounds(self.env, self.params)
+        bound = _setup(self, stages, mode, render_mode, device, options)
+        n, d = self._n, self._d
         self.single_observation_space = spaces.Box(-bound, bound, (d,), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.max_episode_steps = self.env.config.max_steps
         self._reset = self._step = None
         self._carry = None  # (key, states): on the device once started, host arrays after unpickling
         self._episode = 0
@@ -475,9 +483,7 @@ class OPSVectorEnv(VectorEnv):
         """Start JAX for this batch: device, jitted functions (shared cache), carry on the device."""
         if self._step is not None:
             return
-        _refuse_after_fork()
-        options = {k: v for k, v in self.options.items() if k not in ("stages", "mode")}
-        fns = _vector_fns(self.num_envs, self.options["stages"], self.options["mode"], options)
+        fns = _vector_fns(self.num_envs, self.options["stages"], self.options["mode"], _jax_options(self))
         self.device = _device(self._device_spec)
         if self._carry is not None:
             key_data, states = self._carry
@@ -538,15 +544,9 @@ class OPSVectorEnv(VectorEnv):
     def render(self):
         """``"rgb_array"``: a tuple of (H, W, 3) uint8 oscilloscope frames, one per instance (slow
         for large batches: about 20 ms per frame)."""
-        if self.render_mode is None:
-            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+        _render, self._scopes = _render_scope(self, self._carry is not None, self._scopes, "'rgb_array'")
+        if _render is None:
             return None
-        if self._carry is None:
-            raise RuntimeError("call reset() before render()")
-        from ops_jax import render as _render
-
-        if self._scopes is None:
-            self._scopes = _render.Oscilloscope(self._n, detector=self.env.config.detector)
         deltas = np.asarray(self._carry[1].deltas)
         steps = np.asarray(self._carry[1].t)
         return tuple(self._scopes.frame(deltas[i], step=int(steps[i])) for i in range(self.num_envs))
@@ -556,25 +556,3 @@ class OPSVectorEnv(VectorEnv):
             self._scopes.close()
             self._scopes = None
 
-
-def step_cost(stages: int = 5, model: str = "phasor", num_envs: int | None = None, *, number: int = 1000,
-              repeats: int = 5, **options) -> dict:
-    """Steady-state cost of the adapters (for ``benchmarks.throughput``): ``num_envs=None`` times
-    ``OPSGymEnv.step`` (seconds per step, best of ``repeats`` runs of ``number`` steps, zero actions,
-    truncation disabled); an integer times ``OPSVectorEnv.step`` (env-steps per second)."""
-    import timeit
-
-    if num_envs is None:
-        env = OPSGymEnv(stages=stages, mode="hard", model=model, max_steps=2**30, **options)
-        action = np.zeros(stages, np.float32)
-    else:
-        env = OPSVectorEnv(num_envs=num_envs, stages=stages, mode="hard", model=model, **options)
-        action = np.zeros((num_envs, stages), np.float32)
-    env.reset(seed=0)
-    for _ in range(10):
-        env.step(action)  # compile and warm up
-    per_call = min(timeit.repeat(lambda: env.step(action), number=number, repeat=repeats)) / number
-    out = dict(stages=stages, model=model, num_envs=num_envs, seconds_per_call=per_call)
-    if num_envs is not None:
-        out["env_steps_per_second"] = num_envs / per_call
-    return out

@@ -14,13 +14,13 @@ import dataclasses
 import functools
 import math
 from functools import partial
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from ops_jax import hardware, noise, optics, physics, vibration
+from ops_jax.ranges import Range, ranged, ranges
 
 NUM_RESONANCES = 2
 PRESETS = ("none", "lab")
@@ -47,59 +47,35 @@ class Imperfections:
     is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
     """
 
-    waveplate_error_deg: Any = 0.0
-    pbs_leakage: Any = 0.0
-    pulse_amplitude_noise: Any = 0.0
-    pulse_phase_noise: Any = 0.0
-    readout_offset: Any = 0.0
-    readout_gain_error: Any = 0.0
-    actuator_gain_error: Any = 0.0
-    backlash_wl: Any = 0.0
-    lag_steps: Any = 0.0
-    dac_bits: Any = 0.0
-    actuator_span_wl: Any = 20.0
-    detector_offset: Any = 0.0
-    detector_gain_error: Any = 0.0
-    detector_saturation: Any = math.inf
-    adc_bits: Any = 0.0
-    vib_rms: Any = 0.0
-    vib_alpha: Any = 1.0
-    resonance_freq: Any = (0.02, 0.3)
-    resonance_q: Any = (20.0, 20.0)
-    resonance_rms: Any = (0.0, 0.0)
-    p_best: Any = 0.0
-    randomize: Any = 0.0
+    waveplate_error_deg: ArrayLike = ranged(Range(-10.0, 10.0, unit="deg", shape="stage", scaled=True), 0.0)
+    pbs_leakage: ArrayLike = ranged(Range(0.0, 0.5, shape="stage", scaled=True), 0.0)
+    pulse_amplitude_noise: ArrayLike = ranged(Range(0.0, 0.5, scaled=True), 0.0)
+    pulse_phase_noise: ArrayLike = ranged(Range(0.0, math.pi, unit="rad", scaled=True), 0.0)
+    readout_offset: ArrayLike = ranged(Range(-1.0, 1.0, unit="wl", shape="stage", scaled=True), 0.0)
+    readout_gain_error: ArrayLike = ranged(Range(-0.5, 0.5, shape="stage", scaled=True), 0.0)
+    actuator_gain_error: ArrayLike = ranged(Range(-0.5, 0.5, shape="stage", scaled=True), 0.0)
+    backlash_wl: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", scaled=True), 0.0)
+    lag_steps: ArrayLike = ranged(Range(0.0, 100.0, unit="steps", scaled=True), 0.0)
+    dac_bits: ArrayLike = ranged(Range(0.0, 32.0), 0.0)
+    actuator_span_wl: ArrayLike = ranged(Range(1e-3, 1e4, unit="wl"), 20.0)
+    detector_offset: ArrayLike = ranged(Range(-1.0, 1.0, scaled=True), 0.0)
+    detector_gain_error: ArrayLike = ranged(Range(-0.5, 0.5, scaled=True), 0.0)
+    detector_saturation: ArrayLike = ranged(Range(0.1, inf_ok=True), math.inf)
+    adc_bits: ArrayLike = ranged(Range(0.0, 32.0), 0.0)
+    vib_rms: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", scaled=True), 0.0)
+    vib_alpha: ArrayLike = ranged(Range(0.0, 2.0), 1.0)
+    resonance_freq: ArrayLike = ranged(Range(1e-4, 0.5, unit="cycles per step", shape="resonance"), (0.02, 0.3))
+    resonance_q: ArrayLike = ranged(Range(0.5, 1e4, shape="resonance"), (20.0, 20.0))
+    resonance_rms: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", shape="resonance", scaled=True), (0.0, 0.0))
+    p_best: ArrayLike = ranged(Range(0.0, inf_ok=True), 0.0)
+    randomize: ArrayLike = ranged(Range(0.0, 1.0), 0.0)
 
 
-PER_STAGE = ("waveplate_error_deg", "pbs_leakage", "readout_offset", "readout_gain_error", "actuator_gain_error")
-PER_RESONANCE = ("resonance_freq", "resonance_q", "resonance_rms")
 FIELDS = tuple(f.name for f in dataclasses.fields(Imperfections))
-
-# Accepted ranges [lo, hi] (inf allowed only where hi is inf and the field may be infinite).
-RANGES = {
-    "waveplate_error_deg": (-10.0, 10.0),
-    "pbs_leakage": (0.0, 0.5),
-    "pulse_amplitude_noise": (0.0, 0.5),
-    "pulse_phase_noise": (0.0, math.pi),
-    "readout_offset": (-1.0, 1.0),
-    "readout_gain_error": (-0.5, 0.5),
-    "actuator_gain_error": (-0.5, 0.5),
-    "backlash_wl": (0.0, 1.0),
-    "lag_steps": (0.0, 100.0),
-    "dac_bits": (0.0, 32.0),
-    "actuator_span_wl": (1e-3, 1e4),
-    "detector_offset": (-1.0, 1.0),
-    "detector_gain_error": (-0.5, 0.5),
-    "detector_saturation": (0.1, math.inf),
-    "adc_bits": (0.0, 32.0),
-    "vib_rms": (0.0, 1.0),
-    "vib_alpha": (0.0, 2.0),
-    "resonance_freq": (1e-4, 0.5),
-    "resonance_q": (0.5, 1e4),
-    "resonance_rms": (0.0, 1.0),
-    "p_best": (0.0, math.inf),
-    "randomize": (0.0, 1.0),
-}
+RANGES = ranges(Imperfections)  # field -> Range: bounds, shape, scaled
+PER_STAGE = tuple(k for k, r in RANGES.items() if r.shape == "stage")
+PER_RESONANCE = tuple(k for k, r in RANGES.items() if r.shape == "resonance")
+SCALED = tuple(k for k, r in RANGES.items() if r.scaled)  # error magnitudes; bits, span, saturation, shapes are not
 
 # The "lab" preset (docs/imperfections.md: sources and assumptions). Per-stage patterns repeat
 # over the stages; signs alternate so that no error cancels by symmetry.
@@ -125,10 +101,6 @@ _LAB = dict(
     resonance_q=(20.0, 20.0),
     resonance_rms=(0.003, 0.002),
 )
-# Fields scaled by ``imperfection_scale`` (error magnitudes); bits, span, saturation, shapes are not.
-SCALED = ("waveplate_error_deg", "pbs_leakage", "pulse_amplitude_noise", "pulse_phase_noise", "readout_offset",
-           "readout_gain_error", "actuator_gain_error", "backlash_wl", "lag_steps", "detector_offset",
-           "detector_gain_error", "vib_rms", "resonance_rms")
 
 
 def preset(name: str, stages: int, scale: float = 1.0) -> dict:
@@ -152,10 +124,8 @@ def build(stages: int, **values) -> Imperfections:
     out = {}
     for name in FIELDS:
         v = np.asarray(getattr(lab, name), np.float32)
-        lo, hi = RANGES[name]
-        bad = np.isnan(v) | (v < lo) | (v > hi) | (np.isinf(v) & (hi != math.inf))
-        if np.any(bad):
-            raise ValueError(f"{name} must lie in [{lo}, {hi}], got {v}")
+        if not RANGES[name].contains(v):
+            raise ValueError(f"{name} must be {RANGES[name]}, got {v}")
         if name in PER_STAGE:
             if v.ndim and v.shape[-1] not in (1, stages):
                 raise ValueError(f"{name} must be a scalar or have trailing shape ({stages},), got {v.shape}")

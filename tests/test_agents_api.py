@@ -141,7 +141,7 @@ def test_every_algorithm_has_one_config_type(algo):
     """Presets build and round-trip through the stored form; one error style for every algorithm."""
     import dataclasses
 
-    from agents.config import CONFIG_TYPES
+    from agents.registry import CONFIG_TYPES
 
     cls = CONFIG_TYPES[algo]
     for name in cls.PRESETS:
@@ -156,3 +156,27 @@ def test_every_algorithm_has_one_config_type(algo):
         cls.preset(None, **{field: -1.0})
     with pytest.raises(TypeError, match=r"unknown .* hyperparameter\(s\) \['nope'\]; accepted: config, \["):
         agents.train(algo, ENV, nope=1)
+
+
+def test_evaluate_reports_p_best_and_builds_the_environment_once(monkeypatch):
+    """On an imperfect configuration ``evaluate`` runs the P_best search once and returns P/P_best
+    beside P/Pmax; on the ideal system the two are the same array."""
+    from agents import envs
+    from ops_jax import imperfections
+
+    calls = []
+    search = imperfections.best_power
+    monkeypatch.setattr(imperfections, "best_power", lambda *a: calls.append(1) or search(*a))
+    lab = {"stages": 5, "mode": "hard", "imperfections": "lab"}
+    result = agents.train("spgd", {"stages": 5, "mode": "hard"}, curve_episodes=2)
+    envs._BUILT.clear()
+    ev = agents.evaluate(result, lab, episodes=4, seed=1)
+    assert len(calls) == 1
+    env, params = envs.built(lab)
+    ratio = env.p_max / float(params.lab.p_best)
+    assert ratio > 1.0 and ev.summary["score"] == "P/P_best"
+    np.testing.assert_allclose(ev.normalized_power_best, ev.normalized_power * ratio, rtol=1e-6)
+    assert ev.summary["final_mean_best"] == pytest.approx(ev.normalized_power_best[:, -1].mean())
+    ideal = agents.evaluate(result, {"stages": 5, "mode": "hard"}, episodes=4, seed=1)
+    assert ideal.normalized_power_best is ideal.normalized_power and ideal.summary["score"] == "P/Pmax"
+    assert len(calls) == 1

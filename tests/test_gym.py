@@ -144,8 +144,10 @@ def test_vector_env_equals_instances_one_by_one():
 
 
 def test_step_cost_helper():
-    single = gym_env.step_cost(3, "phasor", number=20, repeats=1)
-    batch = gym_env.step_cost(3, "phasor", 8, number=5, repeats=1)
+    from benchmarks.throughput import step_cost
+
+    single = step_cost(3, "phasor", number=20, repeats=1)
+    batch = step_cost(3, "phasor", 8, number=5, repeats=1)
     assert 0 < single["seconds_per_call"] < 1.0
     assert batch["env_steps_per_second"] == pytest.approx(8 / batch["seconds_per_call"])
 

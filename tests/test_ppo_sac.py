@@ -9,7 +9,7 @@ import pytest
 
 import agents
 from agents import PPOConfig, SACConfig
-from agents.ppo import fit_budget
+from agents.brax_training import fit_budget
 from agents.base import Policy
 
 ENV = {"stages": 2, "mode": "easy", "max_steps": 50}

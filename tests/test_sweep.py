@@ -13,9 +13,11 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import ttest_ind
 
+from agents.config import PhysicsConfig
 from benchmarks import sweep
+from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
-from benchmarks.sweep_report import bold_mask, convergence_step
+from benchmarks.sweep_report import _steps_cell, bold_mask, bold_rule, convergence_step
 from processes import descendants
 
 REPO = Path(__file__).resolve().parents[1]
@@ -31,13 +33,20 @@ def test_bold_rule_matches_welch():
     assert mask == {"a": True, "b": ttest_ind(samples["a"], samples["b"], equal_var=False).pvalue >= 0.05, "c": False}
     assert mask["b"] is True
     # Equal constant samples: not different; different constants: different.
-    assert bold_mask({"x": [1.0, 1.0], "y": [1.0, 1.0], "z": [0.5, 0.5]}) == {"x": True, "y": True, "z": False}
+    assert bold_mask({"x": [1.0] * 3, "y": [1.0] * 3, "z": [0.5] * 3}) == {"x": True, "y": True, "z": False}
+    # Fewer than 3 seeds: nothing is bold, however far apart (two seeds of 0.999 against 0.315 +- 0.231).
+    assert bold_mask({"spgd": [0.999, 0.999], "td3": [0.084, 0.546]}) == {"spgd": False, "td3": False}
+    assert "No bold" in bold_rule(2) and "Welch" in bold_rule(5)
 
 
 def test_convergence_step():
     steps = np.arange(10) * 100
     values = [0.1, 0.3, 0.6, 0.8, 0.9, 0.95, 0.94, 0.95, 0.96, 0.95]
     assert convergence_step(steps, values) == 500
+    flat = [0.3, 0.31, 0.3, 0.29]  # never changed: nothing converged
+    assert np.isnan(convergence_step(np.arange(4) * 100, flat))
+    assert _steps_cell([np.nan, np.nan]) == "not reached"
+    assert _steps_cell([500.0, np.nan]) == "500 ± 0 (1 of 2 seeds)" and _steps_cell([400.0, 600.0]) == "500 ± 100"
 
 
 def test_cell_store_resumes_and_detects_corruption(tmp_path):
@@ -57,7 +66,7 @@ def test_cell_store_resumes_and_detects_corruption(tmp_path):
 
 def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
-    units = sweep.Sweep(preset, tmp_path, print).units(sweep.SECTIONS)
+    units = Sweep(preset, tmp_path, print).units(sweep.SECTIONS)
     labels = [label for u in units for label, _ in u["cells"]]
     assert len(labels) == len(set(labels)) == 253  # the default preset's cells, each in one unit
     produced = {}
@@ -76,7 +85,7 @@ def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
 
 def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=None, algos=None))
-    units = sweep.Sweep(preset, tmp_path, print).units(["reality"])
+    units = Sweep(preset, tmp_path, print).units(["reality"])
     trains = [u for u in units if u["kind"] == "train"]
     learners = ("ppo", "sac", "td3")
     prefixes = {f"reality-ideal-{a}" for a in preset["algos"]} | {f"reality-randomised-{a}" for a in learners}
@@ -86,8 +95,10 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
         config = u["cells"][0][1]
         assert config["env"]["stages"] == 5 and config["env"]["mode"] == "hard"
         assert (config["env"].get("randomize") == 1.0) == ("randomised" in u["prefix"])
-        assert config["hyper"].get("identify", False) == (u["prefix"] in physics)
-        assert config["hyper"].get("use_lengths", False) == ("readout" in u["prefix"])
+        if u["prefix"].endswith("-physics"):  # the frames-only model, identifying, identifying + readout (the default)
+            h = PhysicsConfig.from_hyper(config["hyper"])
+            assert h.identify == (u["prefix"] in physics)
+            assert h.use_lengths == ("readout" in u["prefix"])
     seeds = sorted(c["seed"] for u in trains for _, c in u["cells"] if u["prefix"] == "reality-randomised-sac")
     assert seeds == list(range(preset["reality_seeds"]))
     evals = [u for u in units if u["kind"] == "eval"]
@@ -95,10 +106,10 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     for u in evals:
         assert [c["env"].get("imperfection_scale", 0.0) for _, c in u["cells"]] == [0.0, 1.0, 2.0]
         assert u["cost"] > 0 and u["deps"]
-    assert not [u for u in sweep.Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
+    assert not [u for u in Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
     # The default preset's own reality budgets: SAC's trainings there run longer than its table-1 ones.
     default = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
-    steps = {(u["prefix"], config["steps"]) for u in sweep.Sweep(default, tmp_path, print).units(["reality", "table1"])
+    steps = {(u["prefix"], config["steps"]) for u in Sweep(default, tmp_path, print).units(["reality", "table1"])
              if u["kind"] == "train" and u["algo"] in ("sac", "ppo") for _, config in u["cells"]}
     assert {st for prefix, st in steps if prefix.startswith("reality-") and "sac" in prefix} == {300_000}
     assert {st for prefix, st in steps if prefix.startswith("table1-") and "sac" in prefix} == {default["budgets"]["sac"]}
@@ -162,6 +173,7 @@ def test_resume_after_sigkill(tmp_path):
     stamp = {p.name: p.stat().st_mtime_ns for p in first}
     stdout, stderr = _run_sweep(args).communicate(timeout=400)
     assert "reused" in stdout, stderr[-2000:]
+    assert "reused from an earlier run" in stderr  # the resumed run's progress line says so
     for p in first:
         assert p.stat().st_mtime_ns == stamp[p.name], f"{p.name} was recomputed"
     reused = int(stdout.split(" reused")[0].rsplit(", ", 1)[1])
@@ -184,7 +196,9 @@ def test_worker_crash_is_resumed(tmp_path):
     is restarted by Ray, which retries its unit; the run completes."""
     out = tmp_path / "run"
     args = ["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)]
-    proc = _run_sweep(args, env_extra={"OPS_SWEEP_CRASH_AFTER": "2"})
+    hook = str(REPO / "tests" / "crash_hook")  # its sitecustomize crashes a process of the run once
+    proc = _run_sweep(args, env_extra={"OPS_SWEEP_CRASH_AFTER": "2", "OPS_SWEEP_CRASH_MARKER": str(out / ".crash-injected"),
+                                       "PYTHONPATH": f"{hook}{os.pathsep}{REPO}"})
     stdout, stderr = proc.communicate(timeout=400)
     assert proc.returncode == 0, stderr[-2000:]
     assert (out / ".crash-injected").exists()
@@ -207,3 +221,100 @@ def test_remaining_work_follows_measured_cost_per_kind():
     # A kind not seen finish yet takes the overall ratio (here 101 / 60).
     assert abs(projected_seconds(Counter({"train sac": 60.0}), Counter({"train ppo": 50.0, "eval": 10.0}),
                                  Counter({"train ppo": 100.0, "eval": 1.0})) - 101.0) < 1e-9
+
+
+def test_a_section_plugs_into_the_plan(tmp_path):
+    """A section given as cells(preset), compute(cell) and report(records, out) is planned, computed into
+    the cell store, resumed and reported like the built-in ones."""
+    from benchmarks import sweep_plan
+    from benchmarks.sweep_section import CellSection
+
+    computed = []
+
+    def cells(preset):
+        return [dict(label=f"square-{x}", x=x, cost=0.5) for x in range(preset["seeds"])]
+
+    def compute(cell):
+        computed.append(cell["x"])
+        return {"square": cell["x"] ** 2}
+
+    def report(records, out):
+        text = "\n".join(f"{c['x']} {r['square']}" for c, r in records)
+        (out / "squares.md").write_text(text)
+        return text
+
+    sweep_plan.register(CellSection("squares", cells, compute, report))
+    try:
+        preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=3, algos=None))
+        plan = Sweep(preset, tmp_path, print)
+        units = plan.units(["squares"])
+        assert [u["key"] for u in units] == ["square-0", "square-1", "square-2"] and units[0]["cost"] == 0.5
+        plan.compute_unit(units[1])
+        assert computed == [1] and [u["key"] for u in units if plan.todo(u)] == ["square-0", "square-2"]
+        assert Sweep(preset, tmp_path, print).run(["squares"]) == (2, 1)
+        assert sorted(computed) == [0, 1, 2] and (tmp_path / "squares.md").read_text() == "0 0\n1 1\n2 4"
+        assert "squares" not in sweep.SECTIONS and "squares.md" in (tmp_path / "summary.md").read_text()
+    finally:
+        sweep_plan.unregister("squares")
+
+
+def test_docs_section_snippet_runs(tmp_path):
+    from benchmarks import sweep_plan
+
+    text = (REPO / "docs" / "sweep.md").read_text()
+    snippet = text.split("## Sections", 1)[1].split("```python", 1)[1].split("```", 1)[0]
+    exec(snippet, {})
+    try:
+        preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=2, algos=None))
+        assert Sweep(preset, tmp_path, print).run(["squares"]) == (2, 0)
+        assert "'square': 1" in (tmp_path / "squares.md").read_text()
+    finally:
+        sweep_plan.unregister("squares")
+
+
+def test_progress_fraction_never_decreases_and_its_total_is_smoothed():
+    from benchmarks.sweep_ray import SmoothedTotal
+
+    smoothed = SmoothedTotal(weight=0.3)
+    shown = []
+    # (done, projected total): a slow unit finishes at 2.5x its estimate, the projection jumps from 100 to 250
+    for done, projected in [(10, 100), (20, 100), (30, 250), (40, 240), (60, 200), (90, 120), (120, 120)]:
+        shown.append((done, smoothed(done, projected)))
+    fractions = [d / t for d, t in shown]
+    assert all(b >= a for a, b in zip(fractions, fractions[1:])), fractions
+    assert shown[2][1] < 250  # the jump is smoothed: part of the way at once
+    assert shown[-1][1] == 120 and fractions[-1] == 1.0  # nothing left: exactly done
+
+
+def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
+    """SIGINT (Ctrl-C) during a sweep: one line saying what was kept and how to resume, no traceback, exit
+    status 130, the local Ray instance's workers gone within seconds."""
+    out = tmp_path / "run"
+    proc = _run_sweep(["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)])
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and not list((out / "cells").glob("*.json")) and proc.poll() is None:
+            time.sleep(0.2)
+        assert proc.poll() is None and list((out / "cells").glob("*.json")), "no cell finished before the deadline"
+        spawned = descendants([proc.pid])
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)  # the watchdog: a hang fails here
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr, stderr[-3000:]
+    kept = len(list((out / "cells").glob("*.json")))
+    last = stderr.strip().splitlines()[-1]
+    assert last == f"interrupted: {kept} finished cells are kept in {out}/cells; run the same command again to resume"
+    if sys.platform == "linux":
+        workers = {pid for pid in spawned if "ray::" in _cmdline(pid) and not _cmdline(pid).startswith(RAY_AGENTS)}
+        deadline = time.time() + 10
+        while time.time() < deadline and [pid for pid in workers if Path(f"/proc/{pid}").exists()]:
+            time.sleep(0.2)
+        assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+        for pid in spawned:  # what is left of the local instance (idle agents) does not outlive the test
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import sweep
+from benchmarks.sweep_units import Sweep
 from processes import descendants, stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
@@ -94,7 +95,7 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
     assert "\x1b[" not in stderr and "\r" not in stderr  # a log file: plain lines, no control codes
     assert stderr.count("sweep on 2 workers") >= 1
     preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=None))
-    units = sweep.Sweep(preset, tmp_path / "plan", print).units(sweep.SECTIONS)
+    units = Sweep(preset, tmp_path / "plan", print).units(sweep.SECTIONS)
     expected = {label for u in units for label, _ in u["cells"]}
     cells = {}
     for path in (out / "cells").glob("*.json"):

@@ -1,0 +1,43 @@
+"""Environments built once per configuration: ``built(env_config)`` is ``ops_jax.make(**env_config)``
+memoised by the configuration's content, so the P_best search of an imperfect configuration (an
+ascent over the static optics, ``ops_jax.imperfections.best_power``) runs once per configuration
+and process, however many trainings, policies and evaluations use it."""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+
+import ops_jax
+
+_BUILT: "OrderedDict[str, tuple]" = OrderedDict()
+_BUILT_MAX = 64
+
+
+def built(env_config: dict) -> tuple:
+    """``(env, params)`` of ``ops_jax.make(**env_config)`` (raises what ``make`` raises), built once per
+    configuration (a configuration holding arrays or objects is built at every call). Shared: do not
+    modify the params' arrays in place."""
+    if not isinstance(env_config, dict):
+        raise TypeError(f"env_config must be a dict of ops_jax.make keyword arguments, got {type(env_config).__name__}")
+    try:
+        key = json.dumps(env_config, sort_keys=True)
+    except TypeError:
+        return ops_jax.make(**env_config)
+    if key not in _BUILT:
+        _BUILT[key] = ops_jax.make(**env_config)
+        if len(_BUILT) > _BUILT_MAX:
+            _BUILT.popitem(last=False)
+    _BUILT.move_to_end(key)
+    return _BUILT[key]
+
+
+def train_env_config(env_config: dict) -> dict:
+    """The env_config the learners train on: ``model="phasor"`` unless one is given."""
+    return {"model": "phasor", **env_config}
+
+
+def check_env_config(env_config) -> dict:
+    """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises); a copy of it."""
+    built(env_config)
+    return dict(env_config)

@@ -1,0 +1,193 @@
+"""The sweep's plan: its presets and its sections, each declared once (benchmarks/sweep_section.py).
+
+Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
+testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
+``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100) and,
+when named, ``reality`` (benchmarks/reality.py). ``register(section)`` adds a section.
+"""
+
+from __future__ import annotations
+
+from agents.registry import Registry
+from benchmarks import reality
+from benchmarks import sweep_report as report
+from benchmarks.paper import MODES
+from benchmarks.sweep_section import TEST_SEED_OFFSET, Section
+
+# Seeds, episodes and section settings per preset; each algorithm's budgets, hyperparameters and cost
+# come from its entry in agents.registry (``preset``).
+PRESETS = {
+    "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
+        seeds=2, config="fast", episodes=8,
+        stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
+        feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
+    ),
+    "default": dict(  # its wall time: docs/results.md
+        seeds=5, config="fast", episodes=32,
+        stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
+        feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
+    ),
+    "paper": dict(
+        seeds=20, config="paper", episodes=100,
+        stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
+        feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
+    ),
+}
+
+
+def preset(name: str) -> dict:
+    """The preset ``name`` with the registered algorithms' parts: ``algos``, ``budgets``, ``hyper`` and
+    (where any) ``reality_budgets``."""
+    from agents.registry import REGISTRY
+
+    algos = [a for a in REGISTRY.values() if a.sweep is not None and name in a.sweep.budgets]
+    out = dict(PRESETS[name], name=name, algos=tuple(a.name for a in algos),
+               budgets={a.name: a.sweep.budgets[name] for a in algos})
+    hyper = {a.name: a.sweep.hyper[name] for a in algos if name in a.sweep.hyper}
+    budgets = {a.name: a.sweep.reality_budgets[name] for a in algos if name in a.sweep.reality_budgets}
+    return {**out, **({"hyper": hyper} if hyper else {}), **({"reality_budgets": budgets} if budgets else {})}
+
+
+def _table1_label(mode: str, algo: str, seed: int) -> str:
+    return f"table1-{mode}-{algo}-s{seed}"
+
+
+def table1_units(sweep) -> list:
+    """The table-1 trainings: every algorithm on the 5-stage system in each mode, each seed."""
+    return [u for mode in MODES for algo in sweep.algos
+            for u in sweep.train_units(f"table1-{mode}-{algo}", algo, {"stages": 5, "mode": mode},
+                                       range(sweep.p["seeds"]))]
+
+
+def table1_runs(sweep) -> dict:
+    """{(mode, algo, seed): cell record} of the table-1 trainings (read once per sweep)."""
+    if "table1" not in sweep.memo:
+        runs = {}
+        for mode in MODES:
+            for algo in sweep.algos:
+                records = sweep.trained_seeds(algo, {"stages": 5, "mode": mode}, range(sweep.p["seeds"]),
+                                              lambda s: _table1_label(mode, algo, s))
+                runs.update({(mode, algo, seed): r for seed, r in records.items()})
+        sweep.memo["table1"] = runs
+    return sweep.memo["table1"]
+
+
+class Table1(Section):
+    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves."""
+
+    name = "table1"
+
+    def units(self, sweep):
+        return table1_units(sweep)
+
+    def results(self, sweep):
+        return table1_runs(sweep)
+
+    def report(self, sweep, runs):
+        report.table1(sweep.out, runs, sweep.p)
+        report.training_curves(sweep.out, runs, sweep.p)
+        report.testing_curves(sweep.out, runs, sweep.p)
+
+
+class Table2(Table1):
+    """The paper's Table 2 (time usage), from the table-1 runs."""
+
+    name = "table2"
+
+    def report(self, sweep, runs):
+        report.table2(sweep.out, runs, sweep.p)
+
+
+class Stages(Section):
+    """Stage scan N = lo..hi: final testing P/Pmax and training convergence step."""
+
+    name = "stages"
+
+    @staticmethod
+    def _runs(sweep):
+        lo, hi = sweep.p["stage_range"]
+        algos = [a for a in sweep.p["stage_algos"] if a in sweep.algos]
+        return [(n, mode, algo) for n in range(lo, hi + 1) for mode in sweep.p["stage_modes"] for algo in algos]
+
+    def units(self, sweep):
+        return [u for n, mode, algo in self._runs(sweep)
+                for u in sweep.train_units(f"stages-N{n}-{mode}-{algo}", algo, {"stages": n, "mode": mode},
+                                           range(sweep.p["stage_seeds"]))]
+
+    def results(self, sweep):
+        res = {}
+        for n, mode, algo in self._runs(sweep):
+            records = sweep.trained_seeds(algo, {"stages": n, "mode": mode}, range(sweep.p["stage_seeds"]),
+                                          lambda s: f"stages-N{n}-{mode}-{algo}-s{s}")
+            res.update({(n, mode, algo, seed): r for seed, r in records.items()})
+        return res
+
+    def report(self, sweep, res):
+        report.stages(sweep.out, res, sweep.p)
+
+
+class TableOneEvaluations(Section):
+    """Evaluations of the table-1 controllers (the first ``aux_seeds`` seeds) in other environments:
+    ``evals(sweep, mode) -> [(key, label, env config)]`` for the controllers trained in ``mode``."""
+
+    def evals(self, sweep, mode: str) -> list:
+        raise NotImplementedError
+
+    def _controllers(self, sweep):
+        return [(mode, algo, seed) for mode in MODES for algo in sweep.algos for seed in range(sweep.aux_seeds)
+                if self.evals(sweep, mode)]
+
+    def units(self, sweep):
+        units = table1_units(sweep)
+        for mode, algo, seed in self._controllers(sweep):
+            evals = [(f"{label}-{algo}-s{seed}", env, seed + TEST_SEED_OFFSET) for _, label, env in self.evals(sweep, mode)]
+            units.append(sweep.eval_unit(f"{self.name}-evals-{mode}-{algo}-s{seed}", algo,
+                                         sweep.train_cell(_table1_label(mode, algo, seed), algo,
+                                                          {"stages": 5, "mode": mode}, seed), evals))
+        return units
+
+    def results(self, sweep):
+        runs, res = table1_runs(sweep), {}
+        for mode, algo, seed in self._controllers(sweep):
+            for key, label, env in self.evals(sweep, mode):
+                res[(*key, algo, seed)] = sweep.evaluated(f"{label}-{algo}-s{seed}", runs[mode, algo, seed], env,
+                                                          seed + TEST_SEED_OFFSET)
+        return res
+
+
+class Transfer(TableOneEvaluations):
+    """Trained on one mode, tested on each."""
+
+    name = "transfer"
+
+    def evals(self, sweep, mode):
+        return [((mode, test), f"transfer-{mode}-{test}", {"stages": 5, "mode": test}) for test in MODES]
+
+    def report(self, sweep, res):
+        report.transfer(sweep.out, res, sweep.p)
+
+
+class Feedback(TableOneEvaluations):
+    """Trained at k = 1 (hard mode), tested at each feedback delay factor k."""
+
+    name = "feedback"
+
+    def evals(self, sweep, mode):
+        return [((k,), f"feedback-k{k}", {"stages": 5, "mode": "hard", "feedback_k": k})
+                for k in sweep.p["feedback_ks"] if mode == "hard"]
+
+    def report(self, sweep, res):
+        report.feedback(sweep.out, res, sweep.p)
+
+
+PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them
+register, unregister = PLAN.register, PLAN.unregister
+
+
+def default_sections() -> tuple:
+    """The sections of a run without ``--only``."""
+    return tuple(name for name, s in PLAN.items() if s.default)
+
+
+for _section in (Table1(), Table2(), Stages(), Transfer(), Feedback(), reality.Reality()):
+    register(_section)
