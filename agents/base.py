@@ -43,6 +43,7 @@ ALGOS = {
     "ppo": "agents.ppo",
     "sac": "agents.sac",
     "td3": "agents.td3",
+    "droq": "agents.droq",
     "physics": "agents.physics_informed",
 }
 CHECKPOINT_VERSION = 1

@@ -63,6 +63,13 @@ def normalise(norm, obs):
     return (obs - norm["mean"]) / norm["std"]
 
 
+def updates_per_iter(h: dict) -> int:
+    """Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio * num_envs * unroll``."""
+    if h["updates_per_iter"] is not None:
+        return h["updates_per_iter"]
+    return round(h["utd_ratio"] * h["num_envs"] * h["unroll"])
+
+
 def replay_buffer(env, h):
     """brax's uniform replay queue of (obs, action, reward, discount, next_obs) transitions."""
     from brax.training.replay_buffers import UniformSamplingQueue
@@ -104,7 +111,7 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
 
     def iteration(ts, _):
         ts, (reward, _) = collect(ts, False)
-        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=h["updates_per_iter"])
+        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=updates_per_iter(h))
         return ts, dict(reward=reward.mean(), critic_loss=closs.mean(), actor_loss=jnp.nanmean(aloss))
 
     def train_chunk(ts, length):
@@ -242,11 +249,28 @@ def schedule(h: dict) -> tuple[int, int, int]:
     return warm_iters, n_chunks, chunk
 
 
+def _warm_up(fns: dict, ts, warm_iters: int, timing: dict):
+    """(state after the random warm-up and the frozen observation statistics, simulation seconds
+    per iteration); adds the compile and simulation time to ``timing``."""
+    t0 = time.perf_counter()
+    warmup = fns["compiled"]("warmup", ts, warm_iters)
+    t1 = time.perf_counter()
+    ts, warm_obs = jax.block_until_ready(warmup(ts))
+    t2 = time.perf_counter()
+    jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
+    timing["compile"] += t1 - t0
+    timing["simulation"] += t2 - t1
+    return fns["fit_norm"](ts, warm_obs), min(t2 - t1, time.perf_counter() - t2) / warm_iters
+
+
 def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], total_steps: int | None = None,
                 progress_fn: Callable[[int, dict], None] | None = None, config=None,
-                **hyper) -> list[base.TrainResult]:
+                snapshot_fn: Callable[[int, list], None] | None = None, **hyper) -> list[base.TrainResult]:
     """Train ``learner`` for several seeds at once: one jitted call vmapped over the seeds (sharded
-    over the local devices when they divide the seed count). See ``agents.td3.train_seeds``."""
+    over the local devices when they divide the seed count). See ``agents.td3.train_seeds``.
+    ``snapshot_fn(step, params)`` (optional) gets each seed's policy params (host copies) after the
+    warm-up and after every training chunk: a run of ``total_steps`` T passes through the states of
+    the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up)."""
     env_config = base.check_env_config(env_config)
     seeds = [check_seed(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
@@ -266,17 +290,7 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     k_init, k_eval = keys[:, 0], keys[:, 1]
     if fns["sharding"] is not None:
         k_init, k_eval = jax.device_put((k_init, k_eval), fns["sharding"])
-    ts = fns["init"](k_init, env_params)
-    t0 = time.perf_counter()
-    warmup = fns["compiled"]("warmup", ts, warm_iters)
-    t1 = time.perf_counter()
-    ts, warm_obs = jax.block_until_ready(warmup(ts))
-    t2 = time.perf_counter()
-    jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
-    sim_per_iter = min(t2 - t1, time.perf_counter() - t2) / warm_iters
-    timing["compile"] += t1 - t0
-    timing["simulation"] += t2 - t1
-    ts = fns["fit_norm"](ts, warm_obs)
+    ts, sim_per_iter = _warm_up(fns, fns["init"](k_init, env_params), warm_iters, timing)
 
     def params_of(ts):
         return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
@@ -293,6 +307,9 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
         return npow[:, -10:].mean((1, 2)), npow[:, -1].mean(1)
 
     def report(step, npow, m=None):
+        if snapshot_fn is not None:
+            params = jax.device_get(params_of(ts))
+            snapshot_fn(step, [jax.tree.map(lambda x: x[i], params) for i in range(len(seeds))])
         if progress_fn is not None:
             extra = {} if m is None else dict(critic_loss=float(m["critic_loss"].mean()),
                                               actor_loss=float(np.nanmean(m["actor_loss"])),
