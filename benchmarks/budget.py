@@ -12,7 +12,7 @@ A learner's checkpoints are the states its one run passes through: with ``eval_e
 the checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exactly the state of a
 run of 10k (``agents.offpolicy.train_seeds``'s ``snapshot_fn``). Learners trained by brax (PPO,
 SAC) are trained once per checkpoint. SPGD and the physics-informed controller learn nothing:
-their one evaluation is drawn at every checkpoint, as references.
+their one evaluation (one cell, under the first seed) is drawn at every checkpoint, as references.
 
     python -m benchmarks.budget --out results/budget            # preset "default"
     python -m benchmarks.budget --quick --out results/budget-quick
@@ -68,7 +68,8 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
             for algo, hyper in algos.items():
                 if only is not None and algo not in only:
                     continue
-                for seed in p["seeds"] if seeds is None else seeds:
+                chosen = list(p["seeds"] if seeds is None else seeds)
+                for seed in chosen[:1] if kind == "reference" else chosen:  # references: no training seed
                     out.append(dict(kind=kind, algo=algo, hyper=dict(hyper), env=env_name, env_config=dict(env_config),
                                     seed=int(seed), checkpoints=list(p["checkpoints"]), episodes=p["episodes"],
                                     eval_seed=p["eval_seed"]))
