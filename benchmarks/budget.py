@@ -93,15 +93,19 @@ def _off_policy(cell: dict) -> dict:
 
     module = base.algo_module(cell["algo"])
     env_config, marks = cell["env_config"], set(cell["checkpoints"])
+    h = module.LEARNER.config_type.make(**cell["hyper"]).to_hyper()
+    warm, n_chunks, chunk = offpolicy.schedule({**h, "total_steps": max(marks)})
+    per_iter = h["num_envs"] * h["unroll"]
+    ends = {per_iter * (warm + chunk * i) for i in range(n_chunks + 1)}
+    if not marks <= ends:
+        raise ValueError(f"checkpoints {sorted(marks - ends)} are not chunk ends of this config (eval_every, "
+                         "learning_starts)")
     snapshots = {}
     t0 = time.perf_counter()
     (result,) = offpolicy.train_seeds(module.LEARNER, env_config, seeds=[cell["seed"]], total_steps=max(marks),
                                       snapshot_fn=lambda step, ps: snapshots.update({step: ps[0]}) if step in marks
                                       else None, **cell["hyper"])
     wall = time.perf_counter() - t0
-    missing = sorted(marks - set(snapshots))
-    if missing:
-        raise ValueError(f"checkpoints {missing} are not chunk ends of this config (eval_every, learning_starts)")
     policy = result.policy()
     return {"scores": {str(k): _score((policy, snapshots[k]), env_config, cell) for k in sorted(marks)},
             "train_s": wall}
