@@ -63,8 +63,7 @@ def params_template(env_config: dict, hyper: dict):
     env, _ = ops_jax.make(**offpolicy.train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).to_hyper(), env.num_actions)
     d = env.observation_size
-    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
-            "obs_norm": {"mean": jnp.zeros(d), "std": jnp.ones(d)}}
+    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": offpolicy.identity_norm(d)}
 
 
 def make_policy(env_config: dict, hyper: dict) -> base.Policy:
@@ -105,7 +104,6 @@ def _sample(actor, params, obs, key):
 
 def _build(env, h):
     import optax
-    from flax.training.train_state import TrainState
 
     actor, critic = _networks(h, env.num_actions)
     d, n = env.observation_size, env.num_actions
@@ -151,24 +149,15 @@ def _build(env, h):
             return ts._replace(actor=ts.actor.apply_gradients(grads=g),
                                log_alpha=ts.log_alpha.apply_gradients(grads={"log_alpha": alpha_grad})), aloss
 
-        ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step,
-                                 lambda ts: (ts, jnp.float32(jnp.nan)), ts)
-        return ts._replace(updates=ts.updates + 1), (closs, aloss)
+        ts, aloss = offpolicy.delayed(ts, h, actor_step)
+        return ts, (closs, aloss)
 
     def init(key, env_params):
-        k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
-        dummy_obs, dummy_act = jnp.zeros((1, d)), jnp.zeros((1, n))
-        ap = actor.init(k_a, dummy_obs)
-        cp = critic.init(k_c, dummy_obs, dummy_act)
-        buf, env_state, obs = offpolicy.start(env, h, buffer, k_buf, k_env, env_params)
-
-        def state(params, tx):  # an array step count (vmapped over seeds like every leaf)
-            return TrainState.create(apply_fn=None, params=params, tx=tx).replace(step=jnp.int32(0))
-
+        ap, cp, buf, env_state, obs, k_run = offpolicy.start(env, h, buffer, actor, critic, key, env_params)
         log_alpha = {"log_alpha": jnp.log(jnp.float32(h["init_alpha"]))}
-        return DroQState(state(ap, actor_tx), state(cp, critic_tx), cp, state(log_alpha, alpha_tx),
-                         {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buf, env_state, obs, k_run, jnp.int32(0),
-                         env_params)
+        return DroQState(offpolicy.train_state(ap, actor_tx), offpolicy.train_state(cp, critic_tx), cp,
+                         offpolicy.train_state(log_alpha, alpha_tx), offpolicy.identity_norm(d), buf, env_state, obs,
+                         k_run, jnp.int32(0), env_params)
 
     return dict(init=init, **offpolicy.replay_loop(env, h, buffer, explore, update))
 

@@ -70,6 +70,18 @@ def updates_per_iter(h: dict) -> int:
     return round(h["utd_ratio"] * h["num_envs"] * h["unroll"])
 
 
+def identity_norm(d: int) -> dict:
+    """Observation statistics that leave ``d``-dimensional observations unchanged."""
+    return {"mean": jnp.zeros(d), "std": jnp.ones(d)}
+
+
+def train_state(params, tx):
+    """A flax TrainState with an array step count (vmapped over seeds like every leaf)."""
+    from flax.training.train_state import TrainState
+
+    return TrainState.create(apply_fn=None, params=params, tx=tx).replace(step=jnp.int32(0))
+
+
 def replay_buffer(env, h):
     """brax's uniform replay queue of (obs, action, reward, discount, next_obs) transitions."""
     from brax.training.replay_buffers import UniformSamplingQueue
@@ -80,10 +92,20 @@ def replay_buffer(env, h):
     return UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
 
 
-def start(env, h, buffer, k_buf, k_env, env_params):
-    """(buffer state, env state, first observations) of a fresh run."""
+def start(env, h, buffer, actor, critic, key, env_params):
+    """(actor params, critic params, buffer state, env state, first observations, run key) of a fresh run."""
+    k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
+    dummy_obs, dummy_act = jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.num_actions))
     obs, env_state = env.reset_batch(jax.random.split(k_env, h["num_envs"]), env_params)
-    return buffer.init(k_buf), env_state, obs
+    return (actor.init(k_a, dummy_obs), critic.init(k_c, dummy_obs, dummy_act), buffer.init(k_buf), env_state, obs,
+            k_run)
+
+
+def delayed(ts, h, actor_step):
+    """``actor_step(ts) -> (ts, actor loss)`` every ``policy_delay`` gradient steps (NaN loss
+    otherwise), then the gradient step count advanced."""
+    ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step, lambda ts: (ts, jnp.float32(jnp.nan)), ts)
+    return ts._replace(updates=ts.updates + 1), aloss
 
 
 def replay_loop(env, h, buffer, explore, update) -> dict:

@@ -60,8 +60,7 @@ def params_template(env_config: dict, hyper: dict):
     env, _ = ops_jax.make(**offpolicy.train_env_config(env_config))
     actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
     d = env.observation_size
-    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
-            "obs_norm": {"mean": jnp.zeros(d), "std": jnp.ones(d)}}
+    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": offpolicy.identity_norm(d)}
 
 
 def make_policy(env_config: dict, hyper: dict) -> base.Policy:
@@ -94,10 +93,9 @@ class TD3State(NamedTuple):
 
 def _build(env, h):
     import optax
-    from flax.training.train_state import TrainState
 
     actor, critic = _networks(h["hidden"], env.num_actions)
-    d, n = env.observation_size, env.num_actions
+    d = env.observation_size
     buffer = offpolicy.replay_buffer(env, h)
     actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
     gamma, tau = h["gamma"], h["tau"]
@@ -138,23 +136,13 @@ def _build(env, h):
                                actor_target=optax.incremental_update(new_actor.params, ts.actor_target, tau),
                                critic_target=optax.incremental_update(ts.critic.params, ts.critic_target, tau)), aloss
 
-        ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step,
-                                 lambda ts: (ts, jnp.float32(jnp.nan)), ts)
-        return ts._replace(updates=ts.updates + 1), (closs, aloss)
+        ts, aloss = offpolicy.delayed(ts, h, actor_step)
+        return ts, (closs, aloss)
 
     def init(key, env_params):
-        k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
-        dummy_obs, dummy_act = jnp.zeros((1, d)), jnp.zeros((1, n))
-        ap = actor.init(k_a, dummy_obs)
-        cp = critic.init(k_c, dummy_obs, dummy_act)
-        buf, env_state, obs = offpolicy.start(env, h, buffer, k_buf, k_env, env_params)
-
-        def state(net, params, tx):  # an array step count (vmapped over seeds like every leaf)
-            return TrainState.create(apply_fn=net.apply, params=params, tx=tx).replace(step=jnp.int32(0))
-
-        return TD3State(state(actor, ap, actor_tx), state(critic, cp, critic_tx), ap, cp,
-                        {"mean": jnp.zeros(d), "std": jnp.ones(d)}, buf, env_state, obs, k_run, jnp.int32(0),
-                        env_params)
+        ap, cp, buf, env_state, obs, k_run = offpolicy.start(env, h, buffer, actor, critic, key, env_params)
+        return TD3State(offpolicy.train_state(ap, actor_tx), offpolicy.train_state(cp, critic_tx), ap, cp,
+                        offpolicy.identity_norm(d), buf, env_state, obs, k_run, jnp.int32(0), env_params)
 
     return dict(init=init, **offpolicy.replay_loop(env, h, buffer, explore, update))
 
