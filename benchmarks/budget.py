@@ -213,9 +213,12 @@ def report(records: list[dict], out_dir) -> str:
         for k in checkpoints:
             v = [r["result"]["scores"][str(k)] for r in rs if str(k) in r["result"]["scores"]]
             row.append(f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else "-")
-        seeds = ", ".join(str(r["cell"]["seed"]) for r in rs)
-        lines.append(f"| {env} | {NAMES.get(algo, algo)} (seeds {seeds}) | {_median_steps(rs)} | " + " | ".join(row)
-                     + " |")
+        if rs[0]["cell"]["kind"] == "reference":
+            who, steps = f"{NAMES.get(algo, algo)} (reference)", "no training"
+        else:
+            seeds = ", ".join(str(r["cell"]["seed"]) for r in rs)
+            who, steps = f"{NAMES.get(algo, algo)} (seeds {seeds})", _median_steps(rs)
+        lines.append(f"| {env} | {who} | {steps} | " + " | ".join(row) + " |")
     walls = {algo: np.median([r["result"]["train_s"] for (_, a), rs in groups.items() if a == algo for r in rs])
              for algo in dict.fromkeys(a for _, a in groups)}
     lines += ["", "Median wall time per cell (training to the last checkpoint, s): "
