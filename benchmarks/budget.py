@@ -36,6 +36,7 @@ ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
 OFF_POLICY = ("droq", "td3")  # trained once, evaluated at every checkpoint it passes
 REFERENCES = ("spgd", "physics")
 TARGET = 0.9
+OVERRUN = 1.01  # a run of brax's trainers may exceed its budget by this factor (rounding to whole env batches)
 NAMES = {"spgd": "SPGD", "physics": "Physics", "ppo": "PPO", "sac": "SAC", "td3": "TD3", "droq": "DroQ"}
 
 PRESETS = {
@@ -112,10 +113,12 @@ def _off_policy(cell: dict) -> dict:
 
 
 def _per_budget(cell: dict) -> dict:
-    """A run per checkpoint (brax's trainers); a budget the config refuses is recorded with its error."""
+    """A run per checkpoint (brax's trainers); a budget the config refuses, or one the trainer
+    overruns (its curve's last step past ``OVERRUN`` x the budget), is recorded as an error, without
+    a score; ``steps``: the env steps each scored run took."""
     import agents
 
-    scores, errors, wall = {}, {}, 0.0
+    scores, steps, errors, wall = {}, {}, {}, 0.0
     for k in cell["checkpoints"]:
         t0 = time.perf_counter()
         try:
@@ -124,8 +127,12 @@ def _per_budget(cell: dict) -> dict:
             errors[str(k)] = str(exc)
             continue
         wall += time.perf_counter() - t0
-        scores[str(k)] = _score(result, cell["env_config"], cell)
-    return {"scores": scores, "errors": errors, "train_s": wall}
+        trained = int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0
+        if trained > OVERRUN * k:  # a trainer that rounds the budget up to whole iterations may not fit it
+            errors[str(k)] = f"trained {trained} env steps for a budget of {k}"
+            continue
+        scores[str(k)], steps[str(k)] = _score(result, cell["env_config"], cell), trained
+    return {"scores": scores, "steps": steps, "errors": errors, "train_s": wall}
 
 
 def compute(cell: dict) -> dict:
