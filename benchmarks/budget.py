@@ -11,8 +11,10 @@ The plan is three functions, importable by any runner:
 A learner's checkpoints are the states its one run passes through: with ``eval_every`` dividing
 the checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exactly the state of a
 run of 10k (``agents.offpolicy.train_seeds``'s ``snapshot_fn``). Learners trained by brax (PPO,
-SAC) are trained once per checkpoint. SPGD and the physics-informed controller learn nothing:
-their one evaluation (one cell, under the first seed) is drawn at every checkpoint, as references.
+SAC) are trained once per checkpoint; a run that overruns its budget is recorded as an error. SPGD
+and the physics-informed controller learn nothing: their one evaluation (one cell, under the first
+seed) is drawn at every checkpoint, as references. Only protocol (a) (from scratch on the target)
+is planned here; pretraining on the simulator and adapting on a bench is not.
 
     python -m benchmarks.budget --out results/budget            # preset "default"
     python -m benchmarks.budget --quick --out results/budget-quick
@@ -47,7 +49,8 @@ PRESETS = {
                   references={"spgd": {}, "physics": {"starts": 4, "iters": 4}}),
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
                     learners={"droq": {"config": "budget"}, "td3": {"config": "budget"},
-                              "sac": {"config": "budget"}, "ppo": {"config": "paper"}},
+                              "sac": {"config": "budget"},  # PPO: 1,000 env steps per iteration (25 x 8 x 5)
+                              "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}},
                     references={"spgd": {}, "physics": {}}),
 }
 
