@@ -68,6 +68,12 @@ class TrainResult:
     wall_time: dict
     seed: int
 
+    @property
+    def env_steps(self) -> int:
+        """Env steps trained (the last curve point; 0 for a controller with nothing to train)."""
+        steps = np.asarray(self.curve.get("step", ()))
+        return int(steps[-1]) if steps.size else 0
+
     def policy(self) -> Policy:
         return algo_module(self.algo).make_policy(self.env_config, self.hyper)
 

@@ -8,12 +8,12 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
 the testing environment, wall time). A progress bar (``ops_jax.progress``: tqdm on a terminal,
-plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA.
+plain lines elsewhere) shows env steps, steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops
+it with one line saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
 
-import argparse
 import ast
 import csv
 from pathlib import Path
@@ -24,7 +24,8 @@ import agents
 from agents import base
 from agents.config import CONFIG_TYPES
 from agents.io import write_json_atomic
-from ops_jax.progress import progress
+from ops_jax.progress import exit_interrupted, progress
+from ops_jax.cli import ArgumentParser
 
 
 def parse_set(items) -> dict:
@@ -69,7 +70,7 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS))
     ap.add_argument("--stages", type=int, default=5)
     ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"])
@@ -86,19 +87,36 @@ def main(argv=None) -> dict:
     out = args.out or Path("runs") / args.algo
     env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
     config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+    try:
+        base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
+    except KeyboardInterrupt:
+        exit_interrupted(f"stopped while starting; nothing written to {out}")
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
     def show(step: int, metrics: dict) -> None:
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
-        bar.update(max(0, int(step) - bar.n))
+        bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
 
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
                             config=config)
+    except KeyboardInterrupt:
+        bar.close()
+        at = f"at step {bar.n:,} of {total:,}" if total else "during training"
+        exit_interrupted(f"stopped {at}; nothing written to {out}; run the same command again to train from the start")
     finally:
         bar.close()
+    try:
+        return finish(args, out, env_config, result)
+    except KeyboardInterrupt:
+        kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
+        exit_interrupted(f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
+                         "gives the trained policy)")
 
+
+def finish(args, out: Path, env_config: dict, result) -> dict:
+    """Write the checkpoint, curve and evaluation summary of a finished training into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     agents.save(out / "checkpoint", result)
     write_curve_csv(out / "curve.csv", result.curve)
@@ -106,7 +124,7 @@ def main(argv=None) -> dict:
     ev = agents.evaluate(result, env_config, episodes=args.episodes, seed=args.eval_seed)
     summary = dict(algo=args.algo, env_config=env_config, seed=args.seed, hyper=result.hyper,
                    wall_time=result.wall_time, evaluation=ev.summary,
-                   train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0)
+                   train_steps=result.env_steps)
     write_json_atomic(out / "summary.json", summary)
     s = ev.summary
     print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing P/Pmax "

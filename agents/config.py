@@ -165,9 +165,14 @@ class PhysicsConfig(AlgoConfig):
 
     NAME: ClassVar[str] = "physics"
     DEFAULT_PRESET: ClassVar[str] = "default"
-    PRESETS: ClassVar[dict] = {"default": dict(
-        starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
-        lengths_only=False, identify=False, forget=0.98)}
+    PRESETS: ClassVar[dict] = {
+        "default": dict(  # identifies the imperfections and reads the calibrated length readout
+            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=True,
+            lengths_only=False, identify=True, forget=0.98),
+        "frames": dict(  # the detector's frames alone, the ideal model: no identification, no length readout
+            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
+            lengths_only=False, identify=False, forget=0.98),
+    }
 
     starts: int = field(Range(0, 4096, integer=True))
     iters: int = field(Range(1, 1000, integer=True))

@@ -26,6 +26,7 @@ import numpy as np
 import ops_jax
 from ops_jax import physics, render
 from agents import base
+from ops_jax.cli import ArgumentParser
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
 
@@ -75,8 +76,8 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m agents.episode", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m agents.episode", description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", nargs="?", default="episode", choices=("episode", "frame"))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--mode", default="hard", help="easy | medium | hard | custom")
@@ -102,16 +103,22 @@ def main(argv=None) -> Path:
         print(f"note: the checkpoint's env_config {env_config} is used", file=sys.stderr)
     steps = args.steps if args.steps is not None else (None if args.command == "episode" else 0)
     ep = run_episode(env_config, policy, params, steps=steps, seed=args.seed)
+    env, _ = ops_jax.make(**env_config)
+    stages = env.config.stages
     if args.command == "frame":
-        from PIL import Image
+        from PIL import Image, PngImagePlugin
 
-        env, _ = ops_jax.make(**env_config)
-        scope = render.Oscilloscope(env.config.stages, env.config.detector, dpi=args.dpi or 120)
+        scope = render.Oscilloscope(stages, env.config.detector, dpi=args.dpi or 120)
         frame = scope.frame(ep.deltas_wl[-1], len(ep.deltas_wl) - 1)
         out.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(frame).save(out)
+        info = PngImagePlugin.PngInfo()
+        info.add_text("Title", scope.title.get_text())  # what the frame's title reads
+        Image.fromarray(frame).save(out, pnginfo=info)
     else:
-        render.write_gif(render.episode_frames(ep, every=args.every, dpi=args.dpi or 80), out, fps=args.fps)
+        titles = [render.frame_title(stages, ep.normalized_power[i], i)
+                  for i in render.frame_steps(len(ep.deltas_wl), args.every)]
+        render.write_gif(render.episode_frames(ep, every=args.every, dpi=args.dpi or 80), out, fps=args.fps,
+                         comment="\n".join(titles))
     print(f"wrote {out}  (final P/Pmax = {ep.normalized_power[-1]:.3f})")
     return out
 

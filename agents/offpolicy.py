@@ -262,14 +262,19 @@ def check_seed(seed):
 
 
 def schedule(h: dict) -> tuple[int, int, int]:
-    """(warm-up iterations, training chunks, iterations per chunk) of ``h``'s budget."""
+    """(warm-up iterations, training chunks, iterations per chunk) of ``h["total_steps"]`` env steps:
+    the warm-up collects at least ``learning_starts`` steps, then chunks of about ``eval_every`` steps
+    run whole iterations of ``num_envs * unroll`` steps, never past ``total_steps`` (the remainder of
+    less than one iteration per chunk is not run)."""
     per_iter = h["num_envs"] * h["unroll"]
     warm_iters = -(-h["learning_starts"] // per_iter)
-    train_iters = max(0, -(-(h["total_steps"] - warm_iters * per_iter) // per_iter))
+    if warm_iters * per_iter > h["total_steps"]:
+        raise ValueError(f"total_steps must be >= the warm-up of learning_starts = {h['learning_starts']} rounded up "
+                         f"to whole iterations of num_envs * unroll = {per_iter} ({warm_iters * per_iter}), "
+                         f"got {h['total_steps']}")
+    train_iters = max(0, (h["total_steps"] - warm_iters * per_iter) // per_iter)
     n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
-    chunk = -(-train_iters // n_chunks) if n_chunks else 0
-    return warm_iters, n_chunks, chunk
-
+    return warm_iters, n_chunks, (train_iters // n_chunks if n_chunks else 0)
 
 def _warm_up(fns: dict, ts, warm_iters: int, timing: dict):
     """(state after the random warm-up and the frozen observation statistics, simulation seconds
@@ -301,10 +306,10 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
     h = c.to_hyper()
+    warm_iters, n_chunks, chunk = schedule(h)
+    per_iter = h["num_envs"] * h["unroll"]
     fns, env_params = _cached_build(learner, env_config, h, len(seeds))
     eval_ids = jnp.arange(h["eval_episodes"])
-    per_iter = h["num_envs"] * h["unroll"]
-    warm_iters, n_chunks, chunk = schedule(h)
 
     t_start = time.perf_counter()
     timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)

@@ -22,13 +22,14 @@ Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
 adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
-them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). The
-default ``use_lengths=False`` never looks at them: it is the physics-informed controller proper.
+them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). With
+``use_lengths=False`` (the "frames" preset) the controller never looks at them.
 ``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
 
-Online identification (``identify=True``; off by default): the model also carries static unknowns
+Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False``
+turns it off): the model also carries static unknowns
 theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
 rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
 recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on
@@ -37,8 +38,9 @@ what that step tells about theta alone (the Schur complement of the offsets), di
 ``forget`` per step. Moves are divided by the identified actuator gains. With ``use_lengths=True``
 as well, each fitted line's length readout is calibrated against the fit (readout = (1 + g) x + o,
 recursive least squares, discounted by ``forget``) and, once the calibrated length is known to
-CAL_TRUST, read instead of the fitted offset: the readout sees the length at once and has no sign
-ambiguity, where the fit, near the optimum, has to tell +x from -x through the last move.
+CAL_TRUST, averaged with the fitted offset (``fuse``): the readout sees the length at once and has no sign
+ambiguity, where the fit, near the optimum, has to tell +x from -x through the last move; the fit is
+sharper where the model holds.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and
 docs/imperfections.md (with lab imperfections).
@@ -92,6 +94,25 @@ NOISE_Y = 0.01
 # o ~ N(0, CAL_PRIOR^2) wl, 1 + g ~ N(1, CAL_PRIOR^2); the controller reads the calibrated readout
 # where its standard deviation is below CAL_TRUST wl, the fitted offsets elsewhere.
 CAL_NOISE, CAL_CLIP, CAL_PRIOR, CAL_TRUST = 0.01, 3.0, 0.05, 0.002
+# Where it is trusted, the calibrated readout (per-step noise CAL_READ_SD wl on top of its calibration's
+# standard deviation) and the fit are averaged by inverse variance (``fuse``); the fit's variance starts at
+# FIT_VAR0 wl^2 and is at least FIT_VAR_MIN.
+CAL_READ_SD, FIT_VAR0, FIT_VAR_MIN = 1e-3, 1e-4, 1e-8
+
+
+def fuse(z_fit, z_cal, sd, fit_var, forget: float):
+    """One line's length (wl, modulo the period) from the frames' fit ``z_fit`` and the calibrated readout
+    ``z_cal`` (standard deviation ``sd`` wl): the fit or its mirror image, whichever is nearer the readout
+    (near the optimum the frames cannot tell +x from -x), averaged with the readout by inverse variance. The
+    fit's variance ``fit_var`` (wl^2) is the discounted mean square of its distance to the readout less the
+    readout's own variance. Returns (length, fit_var); the fit alone while ``sd`` >= CAL_TRUST."""
+    var_cal = sd**2 + CAL_READ_SD**2
+    near = jnp.where(jnp.abs(wrap(-z_fit - z_cal)) < jnp.abs(wrap(z_fit - z_cal)), -z_fit, z_fit)
+    d = wrap(near - z_cal)
+    trusted = sd < CAL_TRUST
+    fit_var = jnp.where(trusted, forget * fit_var + (1 - forget) * d**2, fit_var)
+    w_fit = var_cal / (var_cal + jnp.maximum(fit_var - var_cal, FIT_VAR_MIN))
+    return jnp.where(trusted, wrap(z_cal + w_fit * d), z_fit), fit_var
 
 
 def _theta_layout(n: int, fit: int) -> dict:
@@ -232,7 +253,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
             carry.update(theta=jnp.broadcast_to(theta0, (b, n_theta)),
                          info=jnp.broadcast_to(prior, (b, n_theta, n_theta)))
         if readout:
-            carry.update(cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32), cal_vec=jnp.zeros((b, fit, 2), jnp.float32))
+            carry.update(cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32), cal_vec=jnp.zeros((b, fit, 2), jnp.float32),
+                         fit_var=jnp.full((b, fit), FIT_VAR0, jnp.float32))
         return carry
 
     def act(params, carry, obs, key, probe):
@@ -260,8 +282,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
             if readout:
                 cal_info, cal_vec, z_cal, sd = jax.vmap(jax.vmap(calibrate_one))(
                     carry["cal_info"], carry["cal_vec"], z, x_len[:, :fit])
-                z = jnp.where(sd < CAL_TRUST, z_cal, z)
-                new.update(cal_info=cal_info, cal_vec=cal_vec)
+                z, fit_var = fuse(z, z_cal, sd, carry["fit_var"], h["forget"])
+                new.update(cal_info=cal_info, cal_vec=cal_vec, fit_var=fit_var)
         # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
         v = carry["v"] + h["drift_gain"] * valid * wrap(z - z_pred)
         per_unit = scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale  # wl moved per action unit

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -142,6 +143,22 @@ class Recorder:
                                 wall_split(total, sim, steps + eval_steps), int(seed))
 
 
+def fit_budget(algo: str, total: int, fixed: int, unit: int, num_evals: int) -> tuple[int, int]:
+    """``(num_timesteps, num_evals)`` for a brax trainer that runs ``fixed`` env steps first (SAC's
+    replay prefill) and then ``num_evals - 1`` epochs of a whole number of ``unit``-step training steps:
+    the most env steps <= ``total`` it can run, with at most the requested evaluations. brax rounds
+    ``num_timesteps`` up to whole epochs; given these numbers it runs exactly ``num_timesteps``. When
+    ``total`` cannot hold one training step, one step is run and a warning says so."""
+    units = (total - fixed) // unit
+    if units < 1:
+        warnings.warn(f"{algo}: total_steps = {total:,} holds no whole training step of {unit:,} env steps"
+                      f"{f' after the {fixed:,} of the replay prefill' if fixed else ''}; training "
+                      f"{fixed + unit:,} env steps", stacklevel=3)
+        units = 1
+    epochs = min(max(num_evals - 1, 1), units)
+    return fixed + epochs * (units // epochs) * unit, (epochs + 1 if num_evals > 1 else 1)
+
+
 def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
     sim = min(sim_per_step * env_steps, total)
     return {"simulation": sim, "optimisation": total - sim, "total": total}
@@ -207,10 +224,12 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
         c = dataclasses.replace(c, total_steps=total_steps)
     env = make_brax_env(env_config)
     eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
+    num_timesteps, num_evals = fit_budget("ppo", c.total_steps, 0, c.batch_size * c.unroll_length * c.num_minibatches,
+                                          c.num_evals)
     rec = Recorder(progress_fn)
     t0 = time.perf_counter()
     _, params, _ = ppo_train.train(
-        environment=env, eval_env=eval_env, num_timesteps=c.total_steps, episode_length=env.max_steps,
+        environment=env, eval_env=eval_env, num_timesteps=num_timesteps, episode_length=env.max_steps,
         num_envs=c.num_envs, unroll_length=c.unroll_length, batch_size=c.batch_size,
         num_minibatches=c.num_minibatches, num_updates_per_batch=c.num_updates_per_batch,
         learning_rate=c.learning_rate, entropy_cost=c.entropy_cost, discounting=c.discounting,
@@ -218,7 +237,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
         vf_loss_coefficient=c.vf_loss_coefficient, max_grad_norm=c.max_grad_norm,
         reward_scaling=c.reward_scaling, normalize_observations=c.normalize_observations,
         bootstrap_on_timeout=c.bootstrap_on_timeout, network_factory=_network_factory(c), seed=int(seed),
-        num_evals=c.num_evals, num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
+        num_evals=num_evals, num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
         use_pmap_on_reset=False,
     )
     return rec.result("ppo", env, env_config, c, params, time.perf_counter() - t0, seed)

@@ -32,6 +32,7 @@ from agents.ppo import (
     EVAL_FIRST_EPISODE,
     Recorder,
     activation,
+    fit_budget,
     make_brax_env,
     obs_spec,
     train_env_config,
@@ -96,15 +97,17 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
         raise ValueError(f"total_steps must exceed min_replay_size = {c.min_replay_size}, got {c.total_steps}")
     env = make_brax_env(env_config)
     eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
+    prefill = -(-c.min_replay_size // c.num_envs) * c.num_envs
+    num_timesteps, num_evals = fit_budget("sac", c.total_steps, prefill, c.num_envs, c.num_evals)
     rec = Recorder(progress_fn)
     t0 = time.perf_counter()
     _, params, _ = sac_train.train(
-        environment=env, eval_env=eval_env, num_timesteps=c.total_steps, episode_length=env.max_steps,
+        environment=env, eval_env=eval_env, num_timesteps=num_timesteps, episode_length=env.max_steps,
         num_envs=c.num_envs, batch_size=c.batch_size, grad_updates_per_step=c.grad_updates_per_step,
         learning_rate=c.learning_rate, discounting=c.discounting, tau=c.tau,
         max_replay_size=c.max_replay_size, min_replay_size=c.min_replay_size,
         reward_scaling=c.reward_scaling, normalize_observations=c.normalize_observations,
-        network_factory=_network_factory(c), seed=int(seed), num_evals=c.num_evals,
+        network_factory=_network_factory(c), seed=int(seed), num_evals=num_evals,
         num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
     )
     return rec.result("sac", env, env_config, c, params, time.perf_counter() - t0, seed)

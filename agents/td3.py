@@ -156,8 +156,9 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
     """Train TD3 on ``ops_jax.make(**env_config)`` (phasor model unless set) for ``total_steps`` env
     steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
     "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every
-    evaluation with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Env steps are rounded
-    up to whole training chunks; the curve's 'step' holds the true counts."""
+    evaluation with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most
+    ``total_steps`` env steps (whole iterations, ``agents.offpolicy.schedule``); the curve's 'step' holds the true
+    counts."""
     return train_seeds(env_config, seeds=[offpolicy.check_seed(seed)], total_steps=total_steps,
                        progress_fn=progress_fn, config=config, **hyper)[0]
 

@@ -46,12 +46,12 @@ PRESETS = {
                   episodes=4, eval_seed=4242,
                   learners={"droq": {"config": "budget", "learning_starts": 200, "eval_every": 200, "utd_ratio": 2.0,
                                      "hidden": [32, 32], "critic_hidden": [32, 32], "batch_size": 64}},
-                  references={"spgd": {}, "physics": {"starts": 4, "iters": 4}}),
+                  references={"spgd": {}, "physics": {"config": "frames", "starts": 4, "iters": 4}}),
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
                     learners={"droq": {"config": "budget"}, "td3": {"config": "budget"},
                               "sac": {"config": "budget"},  # PPO: 1,000 env steps per iteration (25 x 8 x 5)
                               "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}},
-                    references={"spgd": {}, "physics": {}}),
+                    references={"spgd": {}, "physics": {"config": "frames"}}),
 }
 
 

@@ -111,7 +111,8 @@ def measure_modes(models, stages: int = 5, num_envs: int = 8, big: int = 1024, r
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.gym_modes", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", nargs="+", default=["phasor"], choices=["field", "phasor"])
     ap.add_argument("--stages", type=int, default=5)
     ap.add_argument("--num-envs", type=int, default=8, help="instances of every vector mode")

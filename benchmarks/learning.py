@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import write_json_atomic
+from ops_jax.cli import ArgumentParser
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:
@@ -100,9 +101,10 @@ def format_table(agg: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    from agents.base import ALGOS
+    from agents.base import ALGOS, algo_module
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.learning", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algos", nargs="+", default=[a for a in ALGOS], choices=sorted(ALGOS))
     ap.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"])
     ap.add_argument("--seeds", type=int, default=5)
@@ -117,8 +119,10 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    for algo in args.algos:  # a missing extra stops here, at once, naming its install command
+        algo_module(algo)
 
-    from tqdm import tqdm
+    from ops_jax.progress import progress
 
     path = args.out / "learning.json"
     done = {}
@@ -128,7 +132,7 @@ def main(argv=None) -> dict:
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
     jobs = [(a, m, s) for a in args.algos for m in args.modes for s in range(args.seed0, args.seed0 + args.seeds)]
     runs = dict(done)
-    bar = tqdm(jobs, unit="run", dynamic_ncols=True)
+    bar = progress(jobs, unit="run")
     for algo, mode, seed in bar:
         key = run_key(algo, mode, seed)
         bar.set_description(key)
@@ -136,19 +140,19 @@ def main(argv=None) -> dict:
         same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
             expected_hyper(algo, args.steps, args.config), args.episodes)
         if same:
-            tqdm.write(f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it")
+            bar.write(f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it")
             continue
         if stored is not None:
-            tqdm.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
+            bar.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
         try:
             rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
             wall = rec["wall_time"].get("total", float("nan"))
-            tqdm.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
+            bar.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
                        f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s")
         except Exception as exc:  # recorded and printed, never silently skipped
             rec = dict(algo=algo, mode=mode, seed=seed, stages=args.stages, status="error",
                        error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=5))
-            tqdm.write(f"{key}: FAILED {rec['error']}")
+            bar.write(f"{key}: FAILED {rec['error']}")
         runs[key] = rec
         write_json_atomic(path, dict(stages=args.stages, steps=args.steps, config=args.config, episodes=args.episodes,
                                      runs=list(runs.values()), summary=aggregate(list(runs.values()))))

@@ -124,7 +124,8 @@ def check(processes: int, instances: int, steps: int, seed: int) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.multiprocess", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--processes", type=int, default=2, help="JAX processes to start (>= 1)")
     ap.add_argument("--instances", type=int, default=64, help="rollouts, a multiple of the processes' devices")
     ap.add_argument("--steps", type=int, default=100, help="control steps per rollout (>= 1)")

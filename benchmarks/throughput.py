@@ -24,7 +24,8 @@ import jax.numpy as jnp
 import ops_jax
 from agents.base import split_over_devices
 from benchmarks.common import load_reference_timing, write_json_atomic
-from ops_jax.progress import progress
+from ops_jax.cli import ArgumentParser
+from ops_jax.progress import exit_interrupted, progress
 
 SCAN_STEPS = 200
 PATHS = ("step_batch", "vmap")  # env.step_batch(keys, ...) | jax.vmap(env.step)(keys, ...)
@@ -117,7 +118,8 @@ def measure_only(stages: int, model: str, batch: int, repeats: int) -> float:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 1024, 8192])
     ap.add_argument("--models", nargs="+", default=["field", "phasor"], choices=["field", "phasor"])
@@ -133,8 +135,33 @@ def main(argv=None):
         os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} "
                                    f"--xla_force_host_platform_device_count={args.host_devices}").strip()
 
+    results = dict(meta=dict(
+        jax=jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
+        cpu_count=os.cpu_count(),
+        platform=platform.platform(),
+        scan_steps=SCAN_STEPS,
+        repeats=args.repeats,
+    ), rows=[], physics_measure=[], gymnasium=[], gymnasium_modes=None)
+    try:
+        measure_all(args, results)
+    except KeyboardInterrupt:
+        results["meta"]["interrupted"] = True
+        write_json_atomic(args.out, results)
+        combos = len(args.models) * len(args.stages) * len(args.batch)
+        exit_interrupted(f"{len(results['rows']) // len(PATHS)} of {combos} configurations measured, kept in "
+                         f"{args.out} (meta.interrupted: true); run the command again to measure them all")
+    write_json_atomic(args.out, results)
+    print(f"wrote {args.out}")
+    return results["rows"]
+
+
+def measure_all(args, results: dict) -> None:
+    """Every table of the benchmark, appended to ``results`` as each row is measured."""
     ref = load_reference_timing()
-    rows = []
+    rows = results["rows"]
     combos = [(m, n, b) for m in args.models for n in args.stages for b in args.batch]
     header = (f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} "
               f"{'same HLO':>8} {'us/step':>9} {'compile s':>9} {'x reference':>12}")
@@ -151,43 +178,27 @@ def main(argv=None):
                       f"{row['vs_step_batch']:>12.2f} {str(row['same_program_as_step_batch']):>8} "
                       f"{row['us_per_step_per_instance']:>9.3f} "
                       f"{row['compile_s']:>9.2f} {sp:>12}")
-    physics_rows = []
     print(f"\nphysics.measure alone, batch 1024 (us per instance)\n{'N':>2} " + " ".join(f"{m:>8}" for m in args.models))
     for n in args.stages:
         t = {m: measure_only(n, m, 1024, args.repeats) for m in args.models}
-        physics_rows.append(dict(stages=n, **{f"{m}_us": 1e6 * v for m, v in t.items()}))
+        results["physics_measure"].append(dict(stages=n, **{f"{m}_us": 1e6 * v for m, v in t.items()}))
         print(f"{n:>2} " + " ".join(f"{1e6 * t[m]:>8.2f}" for m in args.models))
     from ops_jax.gym_env import step_cost
 
-    gym_rows = []
     ref5 = ref.get("5", {}).get("step_median_s")
     print("\nGymnasium adapters, N = 5, hard (single: ms per step; vector: env-steps/s)")
     for model in args.models:
         single = step_cost(5, model)
         vector = step_cost(5, model, num_envs=1024, number=20)
-        gym_rows.append(dict(model=model, single_ms=1e3 * single["seconds_per_call"],
-                             vector_1024_steps_per_s=vector["env_steps_per_second"]))
+        results["gymnasium"].append(dict(model=model, single_ms=1e3 * single["seconds_per_call"],
+                                         vector_1024_steps_per_s=vector["env_steps_per_second"]))
         ratio = f", {ref5 / single['seconds_per_call']:.0f}x faster than the reference's {1e3 * ref5:.1f} ms" if ref5 else ""
         print(f"{model:7} single {1e3 * single['seconds_per_call']:.3f} ms{ratio}; "
               f"vector(1024) {vector['env_steps_per_second']:,.0f} env-steps/s")
     from benchmarks.gym_modes import measure_modes
 
     print()
-    gym_modes = measure_modes(args.models, repeats=args.repeats)
-    meta = dict(
-        jax=jax.__version__,
-        backend=jax.default_backend(),
-        devices=[str(d) for d in jax.devices()],
-        xla_flags=os.environ.get("XLA_FLAGS", ""),
-        cpu_count=os.cpu_count(),
-        platform=platform.platform(),
-        scan_steps=SCAN_STEPS,
-        repeats=args.repeats,
-    )
-    write_json_atomic(args.out, dict(meta=meta, rows=rows, physics_measure=physics_rows, gymnasium=gym_rows,
-                                   gymnasium_modes=gym_modes))
-    print(f"wrote {args.out}")
-    return rows
+    results["gymnasium_modes"] = measure_modes(args.models, repeats=args.repeats)
 
 
 if __name__ == "__main__":

@@ -6,8 +6,12 @@ The structure of CleanRL's on-policy scripts (``ppo_continuous_action.py``): a v
 agent is a linear Gaussian policy with a linear value baseline, trained by a plain policy
 gradient, so that the loop runs without torch; swap in a torch agent to get CleanRL's PPO.
 
-    python examples/cleanrl_vector.py [--mode vector_entry_point|sync|async] [--num-envs 64]
+    python examples/cleanrl_vector.py [--mode vector_entry_point|sync|async] [--num-envs N]
                                       [--iterations 30] [--num-steps 100] [--seed 0]
+
+``--num-envs`` defaults to 64 instances in one process for "vector_entry_point" and "sync", and to
+the number of CPU cores for "async": async runs one Python process per instance, each importing JAX
+and compiling its own step, so more processes than cores only compete for the same cores.
 
 Both autoreset conventions are handled: "vector_entry_point" resets in the same step (the returned
 observation already starts the next episode); "sync" / "async" reset on the next step, whose
@@ -17,6 +21,7 @@ transition (reward 0, action ignored) is left out of the update.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import gymnasium
@@ -131,12 +136,18 @@ def train(mode: str = "vector_entry_point", num_envs: int = 64, iterations: int 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", default="vector_entry_point", choices=["vector_entry_point", "sync", "async"])
-    ap.add_argument("--num-envs", type=int, default=64)
+    ap.add_argument("--num-envs", type=int, default=None,
+                    help="instances (default 64; async: one process each, default the CPU core count)")
     ap.add_argument("--iterations", type=int, default=30)
     ap.add_argument("--num-steps", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    return train(args.mode, args.num_envs, args.iterations, args.num_steps, args.seed)
+    return train(args.mode, args.num_envs or default_num_envs(args.mode), args.iterations, args.num_steps, args.seed)
+
+
+def default_num_envs(mode: str) -> int:
+    """64 instances in one process; for async (a process per instance) one per CPU core."""
+    return (os.cpu_count() or 1) if mode == "async" else 64
 
 
 if __name__ == "__main__":

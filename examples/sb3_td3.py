@@ -3,8 +3,8 @@
 Trains TD3 on ``gymnasium.make("ops_jax/OPS-v0", stages=3, mode="easy")`` for a short budget and
 prints the final P/Pmax of test episodes (deterministic policy) next to doing nothing.
 
-    pip install torch==2.13.0 stable-baselines3   # CPU torch; not part of ops-jax's dependencies
-    python examples/sb3_td3.py [--steps 6000] [--seed 0]
+    pip install torch stable-baselines3   # not part of ops-jax's extras
+    python examples/sb3_td3.py [--steps 6000] [--seed 0] [--torch-threads 1]
 
 The budget is tiny next to the paper's (TD3 on 5 stages: about 1e6 steps); it shows the plumbing,
 not a tuned result.
@@ -12,13 +12,19 @@ not a tuned result.
 
 from __future__ import annotations
 
-import argparse
-import time
+import os
 
-import gymnasium
-import numpy as np
+# torch's thread pool, sized to every core, competes with JAX's for the same cores: one thread keeps the
+# small networks fast on a laptop. Read when torch loads, so set before anything imports it.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import ops_jax  # noqa: F401  (registers "ops_jax/OPS-v0")
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import gymnasium  # noqa: E402
+import numpy as np  # noqa: E402
+
+import ops_jax  # noqa: F401, E402  (registers "ops_jax/OPS-v0")
 
 ENV_KWARGS = dict(stages=3, mode="easy", model="phasor", max_steps=100)
 
@@ -41,13 +47,17 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=6000, help="TD3 training steps")
     ap.add_argument("--episodes", type=int, default=10, help="test episodes")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--torch-threads", type=int, default=1, help="torch's CPU threads (default 1: JAX uses the cores)")
     args = ap.parse_args(argv)
 
     try:
+        import torch
         from stable_baselines3 import TD3
         from stable_baselines3.common.noise import NormalActionNoise
     except ImportError as exc:
-        raise SystemExit(f"{exc}: install the extra with `pip install torch==2.13.0 stable-baselines3`")
+        raise SystemExit(f"examples/sb3_td3.py needs torch and stable-baselines3 ({exc}): "
+                         "pip install torch stable-baselines3")
+    torch.set_num_threads(args.torch_threads)
 
     env = gymnasium.make("ops_jax/OPS-v0", **ENV_KWARGS)
     n = env.action_space.shape[0]

@@ -4,7 +4,7 @@
 import their own dependencies when used.
 """
 
-from ops_jax import noise, physics
+from ops_jax import extras, noise, physics
 from ops_jax.env import (
     MODES,
     REWARDS,
@@ -42,3 +42,4 @@ def _register_gymnasium() -> None:
 
 
 _register_gymnasium()
+extras.install_excepthook()

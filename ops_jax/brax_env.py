@@ -42,6 +42,8 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
+from ops_jax import extras
+
 try:
     # brax.envs imports mujoco's optional warp backend, which prints "Failed to import warp" to
     # stdout when it is absent; that message concerns a backend this adapter never uses.
@@ -50,7 +52,7 @@ try:
         from brax.envs.base import Env, State
 except ModuleNotFoundError as e:
     if e.name is not None and e.name.split(".")[0] == "brax":
-        raise ImportError('ops_jax.brax_env needs brax: pip install "ops-jax[agents]"') from e
+        raise ImportError(f"ops_jax.brax_env needs brax: {extras.install_command('agents')}") from e
     raise
 
 import ops_jax

@@ -400,6 +400,14 @@ def _auto_reset(env: OPSEnv, levels: tuple):
     return auto_reset
 
 
+def option_names() -> tuple:
+    """The keyword options ``make`` accepts besides ``stages`` and ``mode``: every ``EnvConfig`` and
+    ``EnvParams`` field (``lab`` excepted) and the imperfection options."""
+    fields = [f.name for f in dataclasses.fields(EnvConfig) if f.name != "stages"]
+    fields += [f.name for f in dataclasses.fields(EnvParams) if f.name != "lab"]
+    return tuple(fields) + tuple(imperfections.OPTIONS)
+
+
 def make(stages: int = 5, mode: str = "hard", **overrides):
     """Build ``(env, params)``. ``mode`` in easy / medium / hard (reference values) or custom
     (medium values unless overridden). ``overrides`` may set any ``EnvConfig`` or ``EnvParams``
@@ -410,10 +418,9 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
     par_fields = {f.name for f in dataclasses.fields(EnvParams)} - {"lab"}  # lab: built from the options below
-    unknown = set(overrides) - cfg_fields - par_fields - set(imperfections.OPTIONS)
+    unknown = set(overrides) - set(option_names())
     if unknown:
-        accepted = sorted(cfg_fields | par_fields | set(imperfections.OPTIONS))
-        raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {accepted}")
+        raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {sorted(option_names())}")
     overrides = dict(overrides)
     lab, any_lab = imperfections.from_options(stages, overrides)
     overrides.setdefault("imperfect", any_lab)
@@ -426,9 +433,8 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
                           for k, v in vars(params).items() if k != "lab"}, lab=lab)
     env = OPSEnv(config)
-    if config.imperfect:
-        lab = dataclasses.replace(lab, p_best=imperfections.best_power(config, lab).astype(np.float32))
-        params = dataclasses.replace(params, lab=lab)
+    p_best = imperfections.best_power(config, lab) if config.imperfect else env.p_max
+    params = dataclasses.replace(params, lab=dataclasses.replace(lab, p_best=np.asarray(p_best, np.float32)))
     return env, params
 
 

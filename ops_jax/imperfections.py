@@ -42,7 +42,7 @@ class Imperfections:
     detector_gain_error, detector_saturation (full scale), adc_bits (0: exact) over [0, full scale].
     Vibration: vib_rms (wl RMS) of a 1/f^vib_alpha background; resonance_freq (R,) cycles per
     step, resonance_q (R,), resonance_rms (R,) wl RMS.
-    p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``; 0: P_max).
+    p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``: P_max without them).
     randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``)
     is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
     """

@@ -128,3 +128,12 @@ def progress(iterable=None, *, total=None, desc: str = "", unit: str = "it", fil
     tqdm_kwargs.pop("position", None)
     tqdm_kwargs.pop("dynamic_ncols", None)
     return PlainProgress(iterable, total=total, desc=desc, unit=unit, file=stream, **tqdm_kwargs)
+
+
+def exit_interrupted(line: str) -> None:
+    """Ctrl-C: print ``line`` (what was kept) and exit at once with status 130 (128 + SIGINT, as a shell
+    reports it). ``os._exit``: XLA may be mid-computation in its own threads, and the normal interpreter
+    teardown then can crash."""
+    sys.stdout.flush()
+    print(f"interrupted: {line}", file=sys.stderr, flush=True)
+    os._exit(130)

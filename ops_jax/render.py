@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 from ops_jax import physics
+from ops_jax.cli import ArgumentParser
 from ops_jax.env import make
 
 DEFAULT_FIGSIZE = (6.4, 3.4)  # inches
@@ -107,8 +108,7 @@ class Oscilloscope:
         """Draw a precomputed normalised intensity (M,) and P / P_max; returns the RGB frame."""
         self.line.set_ydata(intensity)
         self.dots.set_ydata(np.asarray(intensity)[self.sample_idx])
-        head = f"N = {self.stages}" + ("" if step is None else f",  step {step}")
-        self.title.set_text(f"{head},  P/Pmax = {normalized_power:.3f}")
+        self.title.set_text(frame_title(self.stages, normalized_power, step))
         return _rgb(self.fig)
 
     def frame(self, deltas_wl, step=None) -> np.ndarray:
@@ -124,6 +124,12 @@ class Oscilloscope:
 
     def close(self):
         self.fig.clear()
+
+
+def frame_title(stages: int, normalized_power: float, step=None) -> str:
+    """The title of an oscilloscope frame: N, the step and P / P_max."""
+    head = f"N = {stages}" + ("" if step is None else f",  step {step}")
+    return f"{head},  P/Pmax = {normalized_power:.3f}"
 
 
 def oscilloscope_frame(deltas_wl, stages: int, *, step=None, detector: str = "total") -> np.ndarray:
@@ -175,21 +181,27 @@ class Episode(NamedTuple):
 
 def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: int = 80) -> list:
     """Oscilloscope frames of every ``every``-th step of an episode (the last step always included)."""
-    from tqdm import tqdm
+    from ops_jax.progress import progress
 
     env, _ = make(**ep.env_config)
-    idx = list(range(0, len(ep.deltas_wl), every))
-    if idx[-1] != len(ep.deltas_wl) - 1:
-        idx.append(len(ep.deltas_wl) - 1)
     scope = Oscilloscope(env.config.stages, env.config.detector, figsize=figsize, dpi=dpi)
-    p, intensity = measure_frames(ep.deltas_wl[idx], env.config.stages, env.config.detector)
-    frames = [scope.draw(intensity[j], float(p[j]), i) for j, i in enumerate(tqdm(idx, desc="frames", leave=False))]
+    idx = frame_steps(len(ep.deltas_wl), every)
+    _, intensity = measure_frames(ep.deltas_wl[idx], env.config.stages, env.config.detector)
+    frames = [scope.draw(intensity[j], float(ep.normalized_power[i]), i)
+              for j, i in enumerate(progress(idx, desc="frames", unit="frame", leave=False))]
     scope.close()
     return frames
 
 
-def write_gif(frames, path, fps: float = 10.0) -> Path:
-    """Write RGB frames as an animated GIF (Pillow, one shared adaptive palette, looping)."""
+def frame_steps(length: int, every: int = 1) -> list:
+    """The steps that ``episode_frames`` draws from an episode of ``length`` offsets: every ``every``-th, and the last."""
+    idx = list(range(0, length, every))
+    return idx if idx[-1] == length - 1 else [*idx, length - 1]
+
+
+def write_gif(frames, path, fps: float = 10.0, comment: str = "") -> Path:
+    """Write RGB frames as an animated GIF (Pillow, one shared adaptive palette, looping; ``comment``: the
+    file's comment, e.g. the frames' titles)."""
     from PIL import Image
 
     if len(frames) < 1:
@@ -202,7 +214,7 @@ def write_gif(frames, path, fps: float = 10.0) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
-                   optimize=True)
+                   optimize=True, comment=comment.encode())
     return path
 
 
@@ -274,7 +286,8 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
         ax.set_ylim(0, 1.05)
         ax.set_xlim(-span, span)
         ax.grid(alpha=0.3)
-        ax.set_title(f"P/Pmax along stage {ids[0]}'s delay (N = {stages}, other stages optimal)", fontsize=10)
+        ax.set_title(f"P/Pmax along stage {ids[0]}'s delay (N = {stages}, other stages optimal), "
+                     f"max {p.max():.3f}", fontsize=10)
     else:
         im = ax.imshow(p, origin="lower", extent=(-span, span, -span, span), cmap="viridis", vmin=0, vmax=1,
                        aspect="equal", interpolation="bilinear")
@@ -285,7 +298,8 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
         ax.set_yticks(ticks)
         fig.colorbar(im, ax=ax, label="P / Pmax", shrink=0.9)
         rest = "" if stages == 2 else ", other stages optimal"
-        ax.set_title(f"P/Pmax over stages {ids[0]} and {ids[1]} (N = {stages}{rest})", fontsize=10)
+        ax.set_title(f"P/Pmax over stages {ids[0]} and {ids[1]} (N = {stages}{rest}), max {p.max():.3f}",
+                     fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -293,8 +307,8 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
 # -- command line ------------------------------------------------------------------------------
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", choices=("landscape",))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
@@ -312,7 +326,7 @@ def main(argv=None) -> Path:
     points = args.points or (401 if len(args.stage) == 1 else 201)
     fig = plot_landscape(args.stages, args.stage, span=args.span, points=points, detector=args.detector, dpi=args.dpi)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
+    fig.savefig(out, metadata={"Title": fig.axes[0].get_title()})
     print(f"wrote {out}")
     return out
 

@@ -18,3 +18,26 @@ def descendants(pids) -> set:
             found.add(child)
             stack.append(child)
     return found
+
+
+def stop_groups(procs, grace_s: float = 5.0) -> None:
+    """Stop processes started with their own process group (``start_new_session``): SIGTERM to each
+    group, SIGKILL after ``grace_s``, then any descendant that left the groups."""
+    import os
+    import signal
+    import subprocess
+
+    spawned = descendants([p.pid for p in procs])
+    for p in reversed(procs):
+        os.killpg(p.pid, signal.SIGTERM)
+    for p in reversed(procs):
+        try:
+            p.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait(timeout=20)
+    for pid in spawned:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass

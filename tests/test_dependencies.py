@@ -42,7 +42,7 @@ except ImportError as e:
 """
     out = _python(code)
     assert out.returncode == 0, out.stderr
-    assert "ImportError:" in out.stdout and 'pip install "ops-jax[agents]"' in out.stdout
+    assert "ImportError:" in out.stdout and 'pip install -e ".[agents]"' in out.stdout
 
 
 def test_agents_modules_print_nothing_on_import():

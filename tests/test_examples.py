@@ -2,6 +2,9 @@
 iterations in both autoreset conventions, and the stable-baselines3 example's evaluation helper."""
 
 import importlib.util
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import gymnasium
@@ -47,3 +50,18 @@ def test_sb3_example_evaluation_helper_without_torch():
     env = gymnasium.make("ops_jax/OPS-v0", **{**sb3.ENV_KWARGS, "max_steps": 5})
     finals = sb3.final_power(env, lambda obs: np.zeros(env.action_space.shape, np.float32), episodes=2, seed=0)
     assert finals.shape == (2,) and np.all((finals > 0) & (finals <= 1.0 + 1e-5))
+
+
+def test_cleanrl_async_default_is_one_process_per_core():
+    cleanrl = _load("cleanrl_vector")
+    assert cleanrl.default_num_envs("async") == os.cpu_count()
+    assert cleanrl.default_num_envs("vector_entry_point") == cleanrl.default_num_envs("sync") == 64
+
+
+def test_sb3_example_without_torch_names_the_install_command(tmp_path):
+    """Run as a program with torch unimportable: one line naming the packages, exit status 1."""
+    (tmp_path / "sitecustomize.py").write_text("import sys\nsys.modules['torch'] = None\n")
+    out = subprocess.run([sys.executable, str(EXAMPLES / "sb3_td3.py"), "--steps", "10"], capture_output=True,
+                         text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert out.returncode == 1 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert out.stderr.strip().endswith("pip install torch stable-baselines3")

@@ -100,6 +100,7 @@ def test_imperfect_path_with_zero_imperfections_is_the_ideal_system(model):
     env0, p0 = ops_jax.make(3, "hard", model=model, max_steps=20)
     env1, p1 = ops_jax.make(3, "hard", model=model, max_steps=20, imperfect=True)
     assert float(p1.lab.p_best) == pytest.approx(env1.p_max, rel=1e-6)
+    assert float(p0.lab.p_best) == pytest.approx(env0.p_max, rel=1e-6)  # P_best is P_max without imperfections
     pol = lambda key, obs: jnp.tanh(-3.0 * obs[:, -3:])
     a = ops_jax.rollout(env0, p0, pol, jax.random.key(4), 8, 45)
     b = ops_jax.rollout(env1, p1, pol, jax.random.key(4), 8, 45)

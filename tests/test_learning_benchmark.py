@@ -4,6 +4,8 @@ never passed off as the new one)."""
 
 import json
 
+import pytest
+
 from agents import SPGDConfig
 from benchmarks import learning
 
@@ -31,3 +33,11 @@ def test_runs_are_reused_only_for_the_same_request(tmp_path):
     learning.main(argv[:-5] + ["--episodes", "6", "--out", str(tmp_path), "--no-checkpoints"])
     (run,) = stored()
     assert run["episodes"] == 6 and run["train_call_s"] != rerun["train_call_s"]
+
+
+def test_help_shows_the_whole_description(capsys):
+    with pytest.raises(SystemExit) as stop:
+        learning.main(["--help"])
+    out = capsys.readouterr().out
+    assert stop.value.code == 0 and out.startswith("usage: python -m benchmarks.learning")
+    assert learning.__doc__.strip().splitlines()[-1].strip() in out  # the description's last line too

@@ -21,11 +21,11 @@ def test_reaches_high_power_quickly_without_probes():
     assert res.summary["steps_to_0p9_median"] <= 30
 
 
-def test_length_channel_is_ignored_by_default():
+def test_length_channel_is_ignored_from_frames():
     env, params = ops_jax.make(**ENV)
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 4), params)
     garbled = obs.at[:, 2**3:].set(0.7)  # lengths replaced by nonsense
-    for hyper, same in (({}, True), ({"use_lengths": True, "lengths_only": True}, False)):
+    for hyper, same in (({"config": "frames"}, True), ({"use_lengths": True, "lengths_only": True}, False)):
         pol = pi.make_policy(ENV, hyper)
         key = jax.random.key(1)
         act = jax.jit(lambda o: pol.act(None, pol.init(key, o), o, key, None)[0])
@@ -44,7 +44,8 @@ def test_same_seed_same_result():
 @pytest.mark.parametrize("hyper, word", [
     ({"starts": -1}, "starts"), ({"iters": 0}, "iters"), ({"gain": -0.5}, "gain"),
     ({"use_lengths": "yes"}, "use_lengths"), ({"damping": float("nan")}, "damping"),
-    ({"starts": 0}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"), ({"forget": 1.5}, "forget"),
+    ({"starts": 0, "use_lengths": False}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"),
+    ({"forget": 1.5}, "forget"),
 ])
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
@@ -75,7 +76,7 @@ def _identified(env_config, hyper, episodes=8, steps=80, seed=3):
 def test_identification_finds_detector_and_actuator_errors_and_closes_the_gap():
     env_config = dict(ENV, detector_offset=0.03, detector_gain_error=0.04, actuator_gain_error=0.15,
                       waveplate_error_deg=0.5, obs_noise=1e-3)
-    fit = {"starts": 8, "iters": 6}
+    fit = {"config": "frames", "starts": 8, "iters": 6}
     plain, _ = _identified(env_config, fit)
     found, carry = _identified(env_config, {**fit, "identify": True})
     theta = np.asarray(carry["theta"])
@@ -92,8 +93,8 @@ def test_calibrated_length_readout_lifts_the_lab_preset():
     (offset and gain errors of 1-2 %) against its fit and reads it, which removes the fit's sign ambiguity
     near the optimum under vibration."""
     env_config = {"stages": 5, "mode": "hard", "model": "phasor", "imperfections": "lab"}
-    fit = {"starts": 8, "iters": 6, "identify": True}
+    fit = {"config": "frames", "starts": 8, "iters": 6, "identify": True}
     fitted, _ = _identified(env_config, fit)
     read, carry = _identified(env_config, {**fit, "use_lengths": True})
-    assert set(carry) >= {"cal_info", "cal_vec"}
+    assert set(carry) >= {"cal_info", "cal_vec", "fit_var"}
     assert read.mean() > 0.985 and read.mean() > fitted.mean() + 0.005

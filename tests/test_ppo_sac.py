@@ -9,6 +9,7 @@ import pytest
 
 import agents
 from agents import PPOConfig, SACConfig
+from agents.ppo import fit_budget
 from agents.base import Policy
 
 ENV = {"stages": 2, "mode": "easy", "max_steps": 50}
@@ -24,7 +25,7 @@ def baseline():
 def _check(result, baseline, margin, tmp_path, reported):
     assert [step for step, _ in reported] == result.curve["step"].tolist()  # progress_fn(step, metrics)
     np.testing.assert_array_equal([m["normalized_power"] for _, m in reported], result.curve["normalized_power"])
-    assert result.curve["step"][-1] >= result.hyper["total_steps"]
+    assert 0.9 * result.hyper["total_steps"] < result.env_steps <= result.hyper["total_steps"]  # the budget is kept
     assert np.isfinite(result.curve["normalized_power"]).all()
     assert set(result.wall_time) == {"simulation", "optimisation", "total"}
     assert 0 < result.wall_time["simulation"] < result.wall_time["total"]
@@ -77,3 +78,20 @@ def test_configs_and_bad_hyper():
         SACConfig.preset("fast", hidden=())
     with pytest.raises(ValueError, match="min_replay_size"):
         agents.train("sac", ENV, total_steps=100, min_replay_size=1000)
+
+
+@pytest.mark.parametrize("total,fixed,unit,evals", [
+    (20_000, 0, 16_384, 10), (2_000_000, 0, 16_384, 10), (100_000, 2_048, 64, 10), (147_456, 0, 16_384, 10),
+    (30_000, 2_048, 64, 1), (5_000, 0, 2_048, 40)])
+def test_fit_budget_never_exceeds_total(total, fixed, unit, evals):
+    num_timesteps, num_evals = fit_budget("ppo", total, fixed, unit, evals)
+    assert num_timesteps <= total and 1 <= num_evals <= evals
+    epochs = max(num_evals - 1, 1)  # what brax's trainers then run: whole epochs of whole training steps
+    per_epoch = -(-(num_timesteps - fixed) // (epochs * unit))
+    assert fixed + epochs * per_epoch * unit == num_timesteps
+    assert total - num_timesteps < epochs * unit  # rounded down by less than one training step per epoch
+
+
+def test_fit_budget_too_small_warns_once_and_runs_one_step():
+    with pytest.warns(UserWarning, match="total_steps = 1,000 holds no whole training step of 16,384"):
+        assert fit_budget("ppo", 1_000, 0, 16_384, 10) == (16_384, 2)

@@ -115,3 +115,13 @@ def test_landscape_bad_input_and_png(tmp_path):
     out = tmp_path / "l2.png"
     render.main(["landscape", "--stages", "3", "--stage", "1", "2", "--points", "41", "--out", str(out)])
     _not_blank(np.asarray(Image.open(out).convert("RGB")))
+
+
+def test_episode_frames_progress_is_plain_lines_off_a_terminal(capsys):
+    """Under pytest stderr is no terminal: the frame progress is plain lines, no carriage returns."""
+    policy, params, cfg = episode.get_policy("zero", dict(stages=3, mode="easy"))
+    ep = episode.run_episode(cfg, policy, params, steps=3)
+    frames = render.episode_frames(ep)
+    err = capsys.readouterr().err
+    assert len(frames) == 4 and "\r" not in err
+    assert err.strip().splitlines()[-1].startswith("frames: 4/4 frame (100%)")

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import sweep
-from processes import descendants
+from processes import descendants, stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 180
@@ -54,7 +54,7 @@ def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
 def two_node_cluster():
     """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn down
     by process group (SIGTERM, then SIGKILL), never by name."""
-    assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[dev]" (or ".[ray]")'
+    assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[agents]"'
     tmp = Path(tempfile.mkdtemp(prefix="ojr-", dir="/tmp"))  # short: Ray's socket paths have a length limit
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(REPO), **CLUSTER_ENV}
@@ -65,20 +65,7 @@ def two_node_cluster():
         procs.append(_ray_start(["--address", f"127.0.0.1:{port}"], tmp / "node.log", env))
         yield f"127.0.0.1:{port}", env, procs
     finally:
-        spawned = descendants([p.pid for p in procs])
-        for p in reversed(procs):
-            os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(timeout=20)
-        for pid in spawned:  # a worker outside the process groups
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        stop_groups(procs)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

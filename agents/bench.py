@@ -1,0 +1,457 @@
+"""Drive a controller through a lab's control stack: ophyd devices over EPICS Channel Access, the
+control loop a Bluesky plan run by a ``RunEngine``.
+
+    python -m agents.bench --prefix OPS: --controller physics --seconds 60 --rate 100 --out DIR
+
+``--controller``: ``spgd``, ``physics`` or a folder written by ``agents.save``; ``--set key=value``
+overrides the controller's hyperparameters, ``--env key=value`` the ``ops_jax.make`` options the
+controller is built for (stages come from the bench). The bench is the simulated one of
+``python -m ops_jax.ioc`` under ``--prefix`` or any bench described by ``--mapping FILE``
+(``agents.bench_devices``).
+
+One control step: wait for a new detector frame (the newest one not yet used), read it, build the
+observation exactly as the simulator does (power, oscilloscope samples, length readouts), decide,
+write the setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move:
+write the probed setpoints, wait for the next frame, read the power; so each probe costs one frame
+and the step's action goes out after it. ``--rate`` caps the control steps per second.
+
+The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
+arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
+ends the run after the current step. Written to ``DIR``: ``documents.jsonl`` (the Bluesky documents,
+one per line, as they are emitted), ``power.png`` (P / P_max and P / P_best against time) and
+``summary.json``. Exit status 0 when the run ended by time or by the user, 3 when the watchdog
+stopped it, 2 for bad arguments or a bench that cannot be reached.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import ops_jax
+from agents import base
+from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
+                                  make_bench, signals, sim_mapping)
+from agents.cli import parse_set
+from agents.io import write_json_atomic
+
+MAX_PROBES = 16  # probes per control step a controller may ask for
+EXIT_WATCHDOG = 3
+log = logging.getLogger("agents.bench")
+
+
+class Agent:
+    """A controller on one instance (B = 1): ``start(obs)``, then per step the probe ``offsets`` in
+    turn and the ``act``ion, with probe results filled in as they are measured. One jitted program;
+    a step with K probes calls it K + 1 times (the policy is pure, so each call repeats the same
+    draws)."""
+
+    def __init__(self, policy: base.Policy, params, env, seed: int):
+        self.policy, self.params, self.env = policy, params, env
+        _, self._k_init, self._k_run = jax.random.split(jax.random.key(seed), 3)
+        obs = jnp.zeros((1, env.observation_size), jnp.float32)
+        calls = []
+        jax.eval_shape(lambda: self._act(params, policy.init(self._k_init, obs), obs, self._k_run,
+                                         jnp.zeros((MAX_PROBES, 1)), calls))
+        self.probes = len(calls)
+        self._init = jax.jit(policy.init)
+        self._run = jax.jit(self._step)
+        # compile before the run (results discarded: the policy is pure); twice, the second time with the
+        # carry as act returns it (its dtypes may differ from init's)
+        carry = self._init(self._k_init, obs)
+        for _ in range(2):
+            _, carry, _ = self._run(params, carry, np.zeros(obs.shape[1], np.float32), 0, np.zeros(self.probes, np.float32))
+        jax.block_until_ready(carry)
+        self.carry, self.t = None, 0
+
+    def _act(self, params, carry, obs, key, results, calls):
+        def probe(offsets):
+            calls.append(offsets)
+            if len(calls) > results.shape[0]:
+                raise ValueError(f"the controller asks for more than {MAX_PROBES} probes per step")
+            return results[len(calls) - 1].astype(jnp.float32)
+
+        action, carry = self.policy.act(params, carry, obs, key, probe)
+        offsets = jnp.stack(calls) if calls else jnp.zeros((0, *action.shape), jnp.float32)
+        return action, carry, offsets
+
+    def _step(self, params, carry, obs, t, results):
+        """Step ``t``'s (action (N,), carry, probe offsets (K, N)) from obs (D,) and probe results (K,)."""
+        key = jax.random.split(jax.random.fold_in(self._k_run, t))[0]
+        action, carry, offsets = self._act(params, carry, obs[None], key, results[:, None], [])
+        return action[0], carry, offsets[:, 0]
+
+    def start(self, obs):
+        """The controller's state from the first observation."""
+        self.carry = self._init(self._k_init, jnp.asarray(obs, jnp.float32)[None])
+
+    def _call(self, obs, results):
+        return self._run(self.params, self.carry, np.asarray(obs, np.float32), self.t, np.asarray(results, np.float32))
+
+    def offsets(self, obs, results, i: int) -> np.ndarray:
+        """Probe i's offsets (N,) wl, given the results of probes 0..i-1."""
+        return np.asarray(self._call(obs, results)[2][i], np.float64)
+
+    def act(self, obs, results) -> np.ndarray:
+        """The step's action (N,) in [-1, 1]; advances the controller's state."""
+        action, self.carry, _ = self._call(obs, results)
+        self.t += 1
+        return np.asarray(action, np.float64)
+
+
+def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed: int):
+    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder."""
+    if spec in ("spgd", "physics"):
+        env_config = {"stages": stages, **env_options}
+        module = base.algo_module(spec)
+        policy, params = module.make_policy(env_config, hyper or None), None
+    else:
+        if hyper:
+            raise ValueError("--set applies to spgd and physics only; a saved policy keeps its own settings")
+        result = base.load(spec)
+        env_config = {**result.env_config, **env_options}
+        policy, params = result.policy(), result.params
+    env, env_params = ops_jax.make(**base.check_env_config(env_config))
+    if env.num_actions != stages:
+        raise ValueError(f"the controller drives {env.num_actions} lines, the bench has {stages}")
+    if env.config.include_noise:
+        raise ValueError("controllers built with include_noise=True read the simulator's noise state, "
+                         "which no bench can measure")
+    return Agent(policy, params, env, seed), env_config, float(env_params.action_scale), float(env_params.window)
+
+
+class Loop:
+    """The state of one run shared by the plan, the watchdog and the summary."""
+
+    def __init__(self, bench, lines, mapping, agent, scale, window, seconds, rate, steps=0):
+        self.bench, self.lines, self.mapping, self.agent = bench, lines, mapping, agent
+        self.scale, self.window, self.seconds, self.period = scale, window, seconds, 1.0 / rate
+        self.max_steps = steps
+        self.det = bench.detector
+        self.n = len(mapping["lines"])
+        self.frames = None
+        self.stop_reason: str | None = None
+        self.stopped_at = None  # time.time() of the watchdog's stop
+        self.user_stop = False
+        self.rec = {k: [] for k in ("time_s", "tick", "p_pmax", "p_pbest", "latency_ms", "decide_ms")}
+        self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
+
+    # -- watchdog --------------------------------------------------------------------------------
+    def trip(self, reason: str):
+        """Stop at once: no further move; the frame being waited for fails with ``reason``."""
+        if self.stop_reason is None:
+            self.stop_reason, self.stopped_at = reason, time.time()
+            log.error("watchdog: %s", reason)
+        self.lines.lock(self.stop_reason)
+        self.det.fail(SafetyStop(self.stop_reason))
+
+    def watch(self):
+        """Trip on any PV disconnecting."""
+        for name, sig in signals(self.bench).items():
+            def on_meta(*args, connected=True, _name=name, **kwargs):
+                if not connected and self.t0 is not None:
+                    self.trip(f"lost connection to PV {_name}")
+            sig.subscribe(on_meta, event_type=sig.SUB_META, run=False)
+
+    def check(self, sig, value, now: float):
+        """Trip on a non-finite or stale reading of ``sig`` (in lockstep a frame waits for the
+        controller: its age is not checked)."""
+        if not np.all(np.isfinite(value)):
+            self.trip(f"non-finite reading on PV {sig.pvname}")
+        elif not self.mapping["advance"] and now - sig.timestamp > self.mapping["safety"]["stale_s"]:
+            self.trip(f"stale reading on PV {sig.pvname} ({now - sig.timestamp:.3f} s old)")
+        if self.stop_reason:
+            raise SafetyStop(self.stop_reason)
+
+    def no_frame(self) -> str:
+        lost = sorted(name for name, sig in signals(self.bench).items() if not sig.connected)
+        tick = self.mapping["detector"]["tick"]
+        return f"lost connection to PV(s) {lost}" if lost else \
+            f"no new frame on PV {tick} within {self.mapping['safety']['stale_s']:g} s"
+
+    # -- observation -----------------------------------------------------------------------------
+    def observe(self) -> np.ndarray:
+        """The controller's observation (the simulator's encoding) from the current readings."""
+        d, now = self.mapping["detector"], time.time()
+        power, trace = self.det.power.get(), np.asarray(self.det.trace.get(), np.float64)
+        self.check(self.det.power, power, now)
+        self.check(self.det.trace, trace, now)
+        lengths = np.zeros(self.n)
+        for i in range(self.n):
+            sensor = getattr(self.bench, f"length{i + 1}", None)
+            if sensor is not None:
+                lengths[i] = sensor.value.get()
+                self.check(sensor.value, lengths[i], now)
+        lengths /= self.mapping["units_per_wl"]
+        frame = np.concatenate([[2 * power / d["power_full_scale"] - 1], 2 * trace / d["trace_peak"] - 1,
+                                lengths / self.window])
+        env = self.agent.env
+        if frame.size != env.frame_size:
+            self.trip(f"the bench's frame has {frame.size} entries, the controller expects {env.frame_size} "
+                      f"(scope trace of {trace.size} samples for {self.n} lines?)")
+            raise SafetyStop(self.stop_reason)
+        stack = env.config.frame_stack
+        self.frames = [frame] * stack if self.frames is None else (self.frames + [frame])[-stack:]
+        return np.concatenate(self.frames)
+
+    def probe_power(self) -> float:
+        value = self.det.power.get()
+        self.check(self.det.power, value, time.time())
+        return float(value) / self.mapping["detector"]["power_full_scale"]
+
+    def record(self, latency_ms: list, decide_ms: float):
+        ev = getattr(self.bench, "evaluation", None)
+        self.rec["time_s"].append(time.perf_counter() - self.t0)
+        self.rec["tick"].append(int(self.det.tick.get()))
+        self.rec["p_pmax"].append(float(ev.p_pmax.get()) if ev is not None else np.nan)
+        self.rec["p_pbest"].append(float(ev.p_pbest.get()) if ev is not None else np.nan)
+        self.rec["latency_ms"].extend(latency_ms)
+        self.rec["decide_ms"].append(decide_ms)
+
+    def done(self) -> bool:
+        steps = len(self.rec["time_s"])
+        return (self.user_stop or self.stop_reason is not None or time.perf_counter() - self.t0 >= self.seconds
+                or 0 < self.max_steps <= steps)
+
+
+def control_plan(loop: Loop, control, md: dict):
+    """The Bluesky plan: one event per control step (the bench's readings, the action, the setpoints
+    sent, the probe readings and the step's latency); ends by time, by the user or by the watchdog."""
+    import bluesky.plan_stubs as bps
+    import bluesky.preprocessors as bpp
+    from bluesky.utils import FailedStatus, Msg
+
+    advance = getattr(loop.bench, "advance", None)
+
+    def tick():
+        """In lockstep, advance the simulator one frame (a free-running bench needs nothing)."""
+        if advance is not None:
+            yield from bps.abs_set(advance, 1, wait=True)
+
+    def frame():
+        """Wait for a frame not used before."""
+        try:
+            yield from bps.trigger(loop.det, wait=True)
+        except FailedStatus:
+            loop.trip(loop.stop_reason or loop.no_frame())
+            raise SafetyStop(loop.stop_reason) from None
+
+    def step():
+        next_read = time.perf_counter() + loop.period
+        yield Msg("create", name="primary")
+        yield from frame()
+        t_frame = loop.det.tick_time
+        yield from bps.read(loop.bench)
+        obs, base_wl = loop.observe(), loop.lines.position
+        results, latency, decide = np.zeros(loop.agent.probes), [], 0.0
+        for i in range(loop.agent.probes):  # a probe: move, wait for the next frame, read (moved back below)
+            t = time.perf_counter()
+            offsets = loop.agent.offsets(obs, results, i)
+            decide += time.perf_counter() - t
+            yield from bps.abs_set(loop.lines, base_wl + offsets)
+            latency.append(1e3 * (time.perf_counter() - t_frame))
+            loop.det.use()
+            yield from tick()
+            yield from frame()
+            t_frame, results[i] = loop.det.tick_time, loop.probe_power()
+        t = time.perf_counter()
+        action = loop.agent.act(obs, results)
+        decide_ms = 1e3 * (decide + time.perf_counter() - t)
+        yield from bps.abs_set(loop.lines, base_wl + action * loop.scale)
+        latency.append(1e3 * (time.perf_counter() - t_frame))
+        control.put(action, loop.lines.position, results, latency[-1])
+        yield from bps.read(control)
+        yield Msg("save")
+        loop.record(latency, decide_ms)
+        yield from tick()
+        if (wait := next_read - time.perf_counter()) > 0:
+            yield from bps.sleep(wait)
+
+    @bpp.run_decorator(md=md)
+    def run():
+        loop.agent.start(loop.observe())  # the controller's state from the current frame, compiled
+        loop.frames = None
+        loop.t0, loop.cpu0 = time.perf_counter(), time.process_time()
+        while not loop.done():
+            yield from step()
+
+    return run()
+
+
+def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
+    """``summary.json``: the score (last 80 % of the run), achieved rates, latencies, how it ended."""
+    rec = {k: np.asarray(v, float) for k, v in loop.rec.items()}
+    steps, t = len(rec["time_s"]), rec["time_s"]
+    tail = t >= 0.2 * elapsed
+    pct = lambda v, q: float(np.percentile(v, q)) if v.size else float("nan")
+    mean = lambda v: float(np.mean(v)) if v.size else float("nan")
+    frames = float(rec["tick"][-1] - rec["tick"][0]) if steps > 1 else 0.0
+    stopped_by = loop.stop_reason or ("user" if loop.user_stop else "steps" if 0 < loop.max_steps <= steps else "time")
+    return {
+        "controller": controller,
+        "stopped_by": stopped_by,
+        "watchdog_time": loop.stopped_at,
+        "steps": steps,
+        "seconds": elapsed,
+        "rate_hz": steps / elapsed if elapsed > 0 else 0.0,
+        "frames_per_step": frames / (steps - 1) if steps > 1 else float("nan"),
+        "probes_per_step": loop.agent.probes,
+        "latency_ms_p50": pct(rec["latency_ms"], 50),
+        "latency_ms_p99": pct(rec["latency_ms"], 99),
+        "latency_ms_max": float(rec["latency_ms"].max()) if rec["latency_ms"].size else float("nan"),
+        "decide_ms_p50": pct(rec["decide_ms"], 50),
+        "decide_ms_p99": pct(rec["decide_ms"], 99),
+        "cpu_ms_per_step": 1e3 * (time.process_time() - loop.cpu0) / steps if steps else float("nan"),
+        "p_over_pbest_mean": mean(rec["p_pbest"][tail]),
+        "p_over_pmax_mean": mean(rec["p_pmax"][tail]),
+        "clipped_moves": int(loop.lines.clipped.get()),
+    }
+
+
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (imported before a run: the end of a run is kept short)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot(path: Path, loop: Loop, title: str) -> None:
+    """P / P_max and P / P_best against time."""
+    plt = _pyplot()
+    t = np.asarray(loop.rec["time_s"])
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(t, loop.rec["p_pbest"], lw=1, label="P / P_best")
+    ax.plot(t, loop.rec["p_pmax"], lw=1, alpha=0.7, label="P / P_max")
+    ax.set(xlabel="time (s)", ylabel="stacked power", ylim=(0, 1.05), title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m agents.bench", description=__doc__.split("\n")[0])
+    ap.add_argument("--prefix", default="OPS:", help="PV prefix of the simulated bench (without --mapping)")
+    ap.add_argument("--stages", type=int, default=None, help="delay lines of the simulated bench "
+                    "(default: the saved controller's, else 5)")
+    ap.add_argument("--mapping", help="a mapping file (JSON) naming the bench's PVs, units and safety limits")
+    ap.add_argument("--controller", required=True, help="spgd, physics or a folder written by agents.save")
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
+    ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="the simulated bench runs --lockstep: advance it one frame per step and probe")
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--steps", type=int, default=0, help="stop after this many control steps too (0: no limit)")
+    ap.add_argument("--rate", type=float, default=100.0, help="most control steps per second (Hz)")
+    ap.add_argument("--seed", type=int, default=0, help="the controller's random draws")
+    ap.add_argument("--stale-s", type=float, default=None, help="the watchdog's limit on a reading's age and "
+                    "on the wait for a frame (s; default: the mapping's, 0.5)")
+    ap.add_argument("--out", required=True, help="folder for documents.jsonl, power.png, summary.json")
+    return ap
+
+
+def _setup(args):
+    """(mapping, Agent, env_config, action scale, window) from the arguments; raises what is wrong."""
+    if not (np.isfinite(args.seconds) and args.seconds > 0):
+        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    if not (np.isfinite(args.rate) and args.rate > 0):
+        raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
+    saved = args.controller not in ("spgd", "physics")
+    if saved and not Path(args.controller).is_dir():
+        raise ValueError(f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}")
+    stages = args.stages or (base.load(args.controller).env_config.get("stages", 5) if saved else 5)
+    mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep)
+    if args.stale_s is not None:
+        mapping["safety"] = {**(mapping.get("safety") or {}), "stale_s": args.stale_s}
+    mapping = check_mapping(mapping)
+    agent, env_config, scale, window = load_controller(args.controller, len(mapping["lines"]), parse_set(args.env),
+                                                       parse_set(args.set), args.seed)
+    return mapping, agent, env_config, scale, window
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    out = Path(args.out)
+    try:
+        mapping, agent, env_config, scale, window = _setup(args)
+    except (MappingError, ValueError, TypeError, FileNotFoundError) as exc:
+        print(f"agents.bench: {exc}", file=sys.stderr)
+        return 2
+    _pyplot()
+    bench, lines = make_bench(mapping)
+    try:
+        connect(bench, mapping["safety"]["connect_s"])
+    except MappingError as exc:
+        print(f"agents.bench: {exc}", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "documents.jsonl").unlink(missing_ok=True)
+    bench.detector.arm()
+    loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, args.steps)
+    loop.watch()
+    md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
+          "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
+    try:
+        elapsed = _run(loop, md, out)
+    finally:
+        disconnect(bench)
+    summary = summarize(loop, args.controller, elapsed)
+    write_json_atomic(out / "summary.json", summary)
+    stopped = summary["stopped_by"] not in ("time", "steps", "user")
+    if stopped:
+        print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr, flush=True)
+    plot(out / "power.png", loop, f"{args.controller} on the bench, {summary['rate_hz']:.0f} steps/s")
+    print(json.dumps(summary, indent=1))
+    return EXIT_WATCHDOG if stopped else 0
+
+
+def _run(loop: Loop, md: dict, out: Path) -> float:
+    """Run the plan, documents streamed to ``out/documents.jsonl``; returns the seconds it ran."""
+    from bluesky import RunEngine
+    from bluesky.callbacks.json_writer import JSONLinesWriter
+    from event_model import sanitize_doc
+
+    writer = JSONLinesWriter(str(out), "documents.jsonl")
+    RE = RunEngine({}, context_managers=[])  # Ctrl-C and SIGTERM end the run after the step (below)
+    RE.subscribe(lambda name, doc: writer(name, sanitize_doc(doc)))
+
+    def stop(signum, frame):
+        if loop.user_stop:  # a second Ctrl-C: stop now, move nothing more
+            loop.trip("interrupted by the user")
+        loop.user_stop = True
+
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        RE(control_plan(loop, Control(name="control"), md))
+    except Exception as exc:  # the watchdog (SafetyStop) or a failure: no further move, keep what was recorded
+        if loop.stop_reason is None:
+            loop.trip(f"error: {exc}")
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    return time.perf_counter() - loop.t0 if loop.t0 is not None else 0.0
+
+
+if __name__ == "__main__":
+    status = main()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # Everything is on disk: skip the interpreter's teardown of JAX and the Channel Access threads, which
+    # takes seconds on a loaded host, so a stopped run ends at once.
+    os._exit(status)

@@ -1,0 +1,367 @@
+"""ophyd devices of an OPS bench and the mapping file that names its PVs (``agents.bench`` drives them).
+
+The mapping (JSON) says which PV holds what and in which units; every key but ``lines`` and
+``detector`` has a default. Positions in the PVs' own units (``units_per_wl`` of them per
+wavelength); the safety limits in wavelengths::
+
+    {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV", "length": "OPS:LINE1:LEN"}, ...],
+     "detector": {"power": "OPS:DET:POWER", "trace": "OPS:SCOPE:TRACE", "tick": "OPS:TICK",
+                  "power_full_scale": 1.0, "trace_peak": 1.0},
+     "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
+     "advance": null, "units_per_wl": 1.0,
+     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}}
+
+``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
+controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the
+scope reading of the ideal pulse peak. ``evaluation`` PVs (optional) are recorded, never shown to a
+controller. ``advance`` (optional): a PV whose write advances a lockstep simulator by one tick.
+``soft_range_wl`` is one [low, high] for every line or a list of one per line.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from ophyd import Component as Cpt
+from ophyd import Device, EpicsSignal, EpicsSignalRO, Signal
+from ophyd import FormattedComponent as FCpt
+from ophyd.status import Status
+
+log = logging.getLogger("agents.bench")
+
+SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}
+_KEYS = {
+    "": {"lines", "detector", "evaluation", "advance", "units_per_wl", "safety"},
+    "lines[]": {"setpoint", "readback", "length"},
+    "detector": {"power", "trace", "tick", "power_full_scale", "trace_peak"},
+    "evaluation": {"p_pmax", "p_pbest"},
+    "safety": set(SAFETY_DEFAULTS),
+}
+
+
+class MappingError(ValueError):
+    """A mapping file that cannot describe a bench; the message names the key."""
+
+
+def sim_mapping(prefix: str, stages: int, lockstep: bool = False) -> dict:
+    """The mapping of the simulated bench ``python -m ops_jax.ioc --prefix PREFIX --stages N``
+    (``lockstep``: started with ``--lockstep``)."""
+    return {
+        "advance": f"{prefix}ADVANCE" if lockstep else None,
+        "lines": [{"setpoint": f"{prefix}LINE{i}:SP", "readback": f"{prefix}LINE{i}:RBV",
+                   "length": f"{prefix}LINE{i}:LEN"} for i in range(1, stages + 1)],
+        "detector": {"power": f"{prefix}DET:POWER", "trace": f"{prefix}SCOPE:TRACE", "tick": f"{prefix}TICK"},
+        "evaluation": {"p_pmax": f"{prefix}EVAL:P_PMAX", "p_pbest": f"{prefix}EVAL:P_PBEST"},
+    }
+
+
+def _check_keys(where: str, table, allowed: set, required=()) -> None:
+    if not isinstance(table, dict):
+        raise MappingError(f"mapping: {where or 'the top level'} must be an object, got {type(table).__name__}")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise MappingError(f"mapping: unknown key(s) {unknown} in {where or 'the top level'}; accepted: {sorted(allowed)}")
+    missing = [k for k in required if k not in table]
+    if missing:
+        raise MappingError(f"mapping: {where or 'the top level'} lacks {missing}")
+
+
+def _pv(where: str, value) -> str:
+    if not isinstance(value, str) or not value or any(c.isspace() for c in value):
+        raise MappingError(f"mapping: {where} must be a PV name (a non-empty string without spaces), got {value!r}")
+    return value
+
+
+def _number(where: str, value, low: float, high: float = np.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low < value <= high):
+        raise MappingError(f"mapping: {where} must be a number in ({low:g}, {high:g}], got {value!r}")
+    return float(value)
+
+
+def check_mapping(m: dict) -> dict:
+    """The validated mapping with defaults filled in; ``MappingError`` names the first bad key."""
+    _check_keys("", m, _KEYS[""], required=("lines", "detector"))
+    if not isinstance(m["lines"], list) or not m["lines"]:
+        raise MappingError("mapping: lines must be a non-empty list of delay lines")
+    lines = []
+    for i, line in enumerate(m["lines"]):
+        _check_keys(f"lines[{i}]", line, _KEYS["lines[]"], required=("setpoint", "readback"))
+        lines.append({k: _pv(f"lines[{i}].{k}", v) for k, v in line.items() if v is not None})
+    det = m["detector"]
+    _check_keys("detector", det, _KEYS["detector"], required=("power", "trace", "tick"))
+    detector = {k: _pv(f"detector.{k}", det[k]) for k in ("power", "trace", "tick")}
+    for k in ("power_full_scale", "trace_peak"):
+        detector[k] = _number(f"detector.{k}", det.get(k, 1.0), 0.0)
+    ev = m.get("evaluation") or {}
+    _check_keys("evaluation", ev, _KEYS["evaluation"])
+    safety = {**SAFETY_DEFAULTS, **(m.get("safety") or {})}
+    _check_keys("safety", safety, _KEYS["safety"])
+    for k in ("max_step_wl", "stale_s", "connect_s"):
+        safety[k] = _number(f"safety.{k}", safety[k], 0.0, 1e6)
+    rng = np.asarray(safety["soft_range_wl"], dtype=object)
+    try:
+        rng = np.broadcast_to(np.asarray(safety["soft_range_wl"], float), (len(lines), 2))
+    except (TypeError, ValueError):
+        raise MappingError(f"mapping: safety.soft_range_wl must be [low, high] or one per line "
+                           f"({len(lines)} lines), got {safety['soft_range_wl']!r}") from None
+    if not np.all(np.isfinite(rng)) or np.any(rng[:, 0] >= rng[:, 1]):
+        raise MappingError(f"mapping: safety.soft_range_wl needs finite low < high, got {rng.tolist()}")
+    safety["soft_range_wl"] = rng.tolist()
+    advance = m.get("advance")
+    return {"lines": lines, "detector": detector,
+            "evaluation": {k: _pv(f"evaluation.{k}", v) for k, v in ev.items()},
+            "advance": None if advance is None else _pv("advance", advance),
+            "units_per_wl": _number("units_per_wl", m.get("units_per_wl", 1.0), 0.0), "safety": safety}
+
+
+def load_mapping(path) -> dict:
+    """Read and validate a mapping file (JSON)."""
+    path = Path(path)
+    try:
+        return check_mapping(json.loads(path.read_text()))
+    except FileNotFoundError:
+        raise MappingError(f"mapping: no file at {path}") from None
+    except json.JSONDecodeError as exc:
+        raise MappingError(f"mapping: {path} is not valid JSON ({exc})") from None
+
+
+class DelayLine(Device):
+    """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
+    step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a
+    Python client pays for most."""
+
+    setpoint = FCpt(EpicsSignal, "{sp_pv}", kind="config")
+    readback = FCpt(EpicsSignalRO, "{rbv_pv}", kind="config")
+
+    def __init__(self, prefix="", *, sp_pv, rbv_pv, **kwargs):
+        self.sp_pv, self.rbv_pv = sp_pv, rbv_pv
+        super().__init__(prefix, **kwargs)
+
+
+class LengthReadout(Device):
+    """A delay line's length sensor (offset from the optimum, the PV's units)."""
+
+    value = FCpt(EpicsSignalRO, "{len_pv}", kind="hinted", auto_monitor=True)
+
+    def __init__(self, prefix="", *, len_pv, **kwargs):
+        self.len_pv = len_pv
+        super().__init__(prefix, **kwargs)
+
+
+class Detector(Device):
+    """The detector's power, the oscilloscope trace and the frame counter (a new value: a complete
+    new frame). ``trigger()`` completes with a frame not used before, or fails after ``timeout`` s."""
+
+    power = FCpt(EpicsSignalRO, "{power_pv}", kind="hinted", auto_monitor=True)
+    trace = FCpt(EpicsSignalRO, "{trace_pv}", kind="normal", auto_monitor=True)
+    tick = FCpt(EpicsSignalRO, "{tick_pv}", kind="normal", auto_monitor=True)
+
+    def __init__(self, prefix="", *, power_pv, trace_pv, tick_pv, timeout=0.5, **kwargs):
+        self.power_pv, self.trace_pv, self.tick_pv = power_pv, trace_pv, tick_pv
+        self.timeout = timeout
+        self._pending: Status | None = None
+        self._lock = threading.Lock()
+        self._latest = self._used = None  # the newest counter value seen, the last one used
+        self.tick_time = 0.0  # time.perf_counter() when the newest frame arrived
+        super().__init__(prefix, **kwargs)
+
+    def arm(self):
+        """Start following the counter (after connection); the frame there now counts as new."""
+        self._latest, self._used = self.tick.get(), None
+        self.tick_time = time.perf_counter()
+        self.tick.subscribe(self._on_tick, run=False)
+
+    def _on_tick(self, value=None, **kwargs):
+        with self._lock:
+            self._latest, self.tick_time = value, time.perf_counter()
+            pending, self._pending = self._pending, None
+            if pending is not None:
+                self._used = value
+        if pending is not None and not pending.done:
+            pending.set_finished()
+
+    def use(self):
+        """Count the newest frame as used: the next ``trigger`` waits for a newer one."""
+        with self._lock:
+            self._used = self._latest
+
+    def trigger(self):
+        """Completes with the newest frame not yet used (at once if it has arrived)."""
+        status = Status(obj=self, timeout=self.timeout)
+        with self._lock:
+            fresh = self._latest != self._used
+            if fresh:
+                self._used = self._latest
+            else:
+                self._pending = status
+        if fresh:
+            status.set_finished()
+        return status
+
+    def fail(self, exc: Exception):
+        """Fail the acquisition being waited for (the watchdog's stop)."""
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is not None and not pending.done:
+            pending.set_exception(exc)
+
+
+class Evaluation(Device):
+    """The simulator's true P / P_max and P / P_best (recorded, never shown to a controller)."""
+
+    p_pmax = FCpt(EpicsSignalRO, "{pmax_pv}", kind="hinted", auto_monitor=True)
+    p_pbest = FCpt(EpicsSignalRO, "{pbest_pv}", kind="hinted", auto_monitor=True)
+
+    def __init__(self, prefix="", *, pmax_pv, pbest_pv, **kwargs):
+        self.pmax_pv, self.pbest_pv = pmax_pv, pbest_pv
+        super().__init__(prefix, **kwargs)
+
+
+class SafetyStop(RuntimeError):
+    """The watchdog stopped the run; the message is its reason."""
+
+
+class Lines(Device):
+    """The delay lines moved together: ``set(targets)`` (wl, one per line) clips each move to
+    ``max_step_wl`` and the result to the soft range, then writes every setpoint without waiting;
+    clipped moves are counted and logged. After ``lock()`` (the watchdog) nothing is written."""
+
+    clipped = Cpt(Signal, value=0, kind="normal")
+
+    def __init__(self, prefix="", *, lines: list, units_per_wl: float, max_step_wl: float, soft_range_wl, **kwargs):
+        self._lines, self.units_per_wl = lines, units_per_wl
+        self.max_step_wl, self.soft_range = max_step_wl, np.asarray(soft_range_wl, float)
+        self.locked: str | None = None
+        self._sent = None
+        super().__init__(prefix, **kwargs)
+
+    @property
+    def position(self) -> np.ndarray:
+        """The setpoints (wl): the last ones written, else as read from the PVs."""
+        if self._sent is None:
+            return np.array([line.setpoint.get() for line in self._lines], float) / self.units_per_wl
+        return self._sent.copy()
+
+    def safe(self, targets) -> tuple[np.ndarray, np.ndarray]:
+        """(targets within the limits (wl), which lines were clipped)."""
+        targets = np.asarray(targets, float)
+        here = self.position
+        step = np.clip(targets - here, -self.max_step_wl, self.max_step_wl)
+        out = np.clip(here + step, self.soft_range[:, 0], self.soft_range[:, 1])
+        return out, ~np.isclose(out, targets, rtol=0, atol=1e-12)
+
+    def lock(self, reason: str):
+        self.locked = reason
+
+    def set(self, targets):
+        if self.locked:
+            raise SafetyStop(f"no move after the watchdog's stop ({self.locked})")
+        out, clipped = self.safe(targets)
+        if clipped.any():
+            self.clipped.put(self.clipped.get() + int(clipped.sum()))
+            log.warning("move clipped to the safety limits: lines %s, asked %s wl, sent %s wl",
+                        (np.flatnonzero(clipped) + 1).tolist(), np.round(targets, 6).tolist(), np.round(out, 6).tolist())
+        for line, value in zip(self._lines, out):
+            line.setpoint.put(float(value) * self.units_per_wl)
+        self._sent = out
+        status = Status(obj=self)
+        status.set_finished()
+        return status
+
+
+def _device_class(mapping: dict):
+    """The bench's ``Device`` subclass: lines ``line1..lineN`` (+ ``length1..``), ``detector``, ``evaluation``."""
+    comps = {}
+    for i, line in enumerate(mapping["lines"], 1):
+        comps[f"line{i}"] = Cpt(DelayLine, "", sp_pv=line["setpoint"], rbv_pv=line["readback"])
+        if "length" in line:
+            comps[f"length{i}"] = Cpt(LengthReadout, "", len_pv=line["length"])
+    d = mapping["detector"]
+    comps["detector"] = Cpt(Detector, "", power_pv=d["power"], trace_pv=d["trace"], tick_pv=d["tick"],
+                            timeout=mapping["safety"]["stale_s"])
+    ev = mapping["evaluation"]
+    if ev:
+        comps["evaluation"] = Cpt(Evaluation, "", pmax_pv=ev["p_pmax"], pbest_pv=ev["p_pbest"])
+    if mapping["advance"]:
+        comps["advance"] = Cpt(EpicsSignal, mapping["advance"], kind="omitted")
+    return type("OPSBenchDevice", (Device,), comps)
+
+
+def make_bench(mapping: dict, device_class=None, name: str = "bench"):
+    """``(bench device, Lines)`` for a validated mapping. ``device_class(mapping) -> class`` may wrap
+    the device class (``ophyd.sim.make_fake_device`` in tests). The first bench of a process sets
+    ophyd's Channel Access timeouts to the mapping's ``connect_s``."""
+    from ophyd.signal import EpicsSignalBase
+
+    try:
+        s = mapping["safety"]["connect_s"]
+        EpicsSignalBase.set_defaults(timeout=s, connection_timeout=s)
+    except RuntimeError:  # signals exist already in this process: their timeouts stay
+        pass
+    cls = _device_class(mapping)
+    if device_class is not None:
+        cls = device_class(cls)
+    bench = cls("", name=name)
+    lines = [getattr(bench, f"line{i}") for i in range(1, len(mapping["lines"]) + 1)]
+    s = mapping["safety"]
+    mover = Lines("", name="lines", lines=lines, units_per_wl=mapping["units_per_wl"],
+                  max_step_wl=s["max_step_wl"], soft_range_wl=s["soft_range_wl"])
+    return bench, mover
+
+
+def signals(bench) -> dict:
+    """Every Channel Access signal of ``bench`` by its PV name."""
+    out = {}
+    for walk in bench.walk_signals():
+        sig = walk.item
+        if hasattr(sig, "pvname"):
+            out[sig.pvname] = sig
+            if getattr(sig, "setpoint_pvname", sig.pvname) != sig.pvname:
+                out[sig.setpoint_pvname] = sig
+    return out
+
+
+def connect(bench, timeout: float) -> None:
+    """Wait for every PV; a ``MappingError`` names the ones that did not answer within ``timeout`` s."""
+    sigs = signals(bench)
+    deadline = time.monotonic() + timeout
+    for sig in sigs.values():
+        try:
+            sig.wait_for_connection(timeout=max(deadline - time.monotonic(), 0.05))
+        except TimeoutError:
+            pass
+    missing = sorted(name for name, sig in sigs.items() if not sig.connected)
+    if missing:
+        raise MappingError(f"no answer from PV(s) {missing} within {timeout:g} s (is the IOC running, "
+                           f"and EPICS_CA_ADDR_LIST / EPICS_CA_SERVER_PORT set to reach it?)")
+
+
+class Control(Device):
+    """What the controller did in a step (software signals, recorded in the step's event)."""
+
+    action = Cpt(Signal, value=np.zeros(1), kind="normal")
+    setpoint_wl = Cpt(Signal, value=np.zeros(1), kind="normal")
+    probe_power = Cpt(Signal, value=np.zeros(0), kind="normal")
+    latency_ms = Cpt(Signal, value=0.0, kind="hinted")
+
+    def put(self, action, setpoint_wl, probe_power, latency_ms):
+        self.action.put(np.asarray(action, float))
+        self.setpoint_wl.put(np.asarray(setpoint_wl, float))
+        self.probe_power.put(np.asarray(probe_power, float))
+        self.latency_ms.put(float(latency_ms))
+
+
+def disconnect(bench) -> None:
+    """Stop following ``bench``'s PVs and close the Channel Access circuits (a clean exit)."""
+    import ophyd
+
+    bench.destroy()
+    if ophyd.cl.name == "caproto":
+        from caproto.threading.pyepics_compat import PV
+
+        PV.default_context().disconnect()

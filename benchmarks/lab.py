@@ -1,0 +1,184 @@
+"""Controllers on the simulated bench over real Channel Access: each run against a fresh IOC
+(``python -m ops_jax.ioc``, same seed) on a free localhost port, then the IOC SIGKILLed mid-run.
+Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
+
+    python -m benchmarks.lab --seconds 60 --rates 100 50 25 --out results/lab [--policy DIR ...]
+
+Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
+step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, mean P / P_best
+over the last 80 % of the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+IOC_ARGS = ["--stages", "5", "--mode", "hard", "--imperfections", "lab"]
+# name: (controller, settings). The physics-informed controller's best settings at the lab level
+# (docs/imperfections.md); SPGD as tuned for the simulator, and with a dither above the bench's noise
+# between two frames (docs/lab.md).
+CONTROLLERS = {"spgd": ("spgd", []), "spgd-bench": ("spgd", ["delta=0.01", "kp_min=0.05"]),
+               "physics": ("physics", ["identify=True", "use_lengths=True", "starts=8", "iters=6"])}
+START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
+
+
+def free_port() -> int:
+    """A localhost port free for both TCP and UDP (Channel Access serves both on one port)."""
+    for _ in range(50):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp:
+            tcp.bind(("127.0.0.1", 0))
+            port = tcp.getsockname()[1]
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+                try:
+                    udp.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+                return port
+    raise RuntimeError("no free localhost port for Channel Access")
+
+
+def ca_env() -> dict:
+    """This process's environment with Channel Access confined to a fresh localhost port."""
+    return {**os.environ, "EPICS_CA_SERVER_PORT": str(free_port()), "EPICS_CA_REPEATER_PORT": str(free_port()),
+            "EPICS_CA_ADDR_LIST": "127.0.0.1", "EPICS_CA_AUTO_ADDR_LIST": "NO"}
+
+
+class Process:
+    """A ``python -m MODULE ARGS`` subprocess in its own process group, output to ``log``."""
+
+    def __init__(self, module: str, args, env: dict, log: Path):
+        self.env, self.log = env, Path(log)
+        with open(self.log, "w") as f:
+            self.proc = subprocess.Popen([sys.executable, "-m", module, *map(str, args)], stdout=f,
+                                         stderr=subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True)
+
+    def text(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, needle: str, timeout: float = START_S) -> "Process":
+        """Wait until ``needle`` is in the output; raise (with the output) if it exits or times out."""
+        deadline = time.monotonic() + timeout
+        while needle not in self.text():
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"{self.log.name}: exited with {self.proc.returncode}:\n{self.text()}")
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.log.name}: no {needle!r} within {timeout} s:\n{self.text()}")
+            time.sleep(0.1)
+        return self
+
+    def wait(self, timeout: float = START_S) -> int:
+        """The exit status; killed (and TimeoutError) past ``timeout`` s."""
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            raise TimeoutError(f"{self.log.name}: still running after {timeout} s:\n{self.text()}") from None
+
+    def kill(self) -> None:
+        """SIGKILL the whole process group."""
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(30)
+
+
+def start_ioc(out: Path, *args) -> Process:
+    """A simulated bench serving on a fresh port, once it serves."""
+    return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log").wait_for("serving")
+
+
+def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
+                   lockstep: int = 0) -> dict:
+    """One run against a fresh IOC (``IOC_ARGS``, 100 Hz, or ``lockstep`` > 0 steps in lockstep);
+    returns its summary.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    clock = ["--lockstep"] if lockstep else ["--rate", 100]
+    ioc = start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS)
+    try:
+        args = ["--prefix", "OPS:", "--controller", controller, "--seconds", seconds, "--rate", rate, "--out", out,
+                "--stale-s", stale_s]
+        args += ["--lockstep", "--steps", lockstep] if lockstep else []
+        args += [x for s in sets for x in ("--set", s)]
+        runner = Process("agents.bench", args, ioc.env, out / "runner.log")
+        rc = runner.wait(START_S + 2 * seconds + lockstep)
+        if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
+            raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
+        return json.loads((out / "summary.json").read_text())
+    finally:
+        ioc.kill()
+
+
+def kill_check(out: Path, stale_s: float, controller: str = "physics", after_events: int = 100) -> dict:
+    """SIGKILL the IOC after ``after_events`` steps; how the runner ends."""
+    out.mkdir(parents=True, exist_ok=True)
+    ioc = start_ioc(out, "--prefix", "OPS:", "--rate", 100, *IOC_ARGS)
+    runner = Process("agents.bench", ["--prefix", "OPS:", "--controller", controller, "--seconds", 600,
+                                      "--stale-s", stale_s, "--out", out], ioc.env, out / "runner.log")
+    docs = out / "documents.jsonl"
+    deadline = time.monotonic() + START_S
+    while not (docs.exists() and docs.read_text().count('"name": "event"') >= after_events):
+        if runner.proc.poll() is not None or time.monotonic() > deadline:
+            ioc.kill()
+            raise RuntimeError(f"the run ended or stalled before the kill:\n{runner.text()}")
+        time.sleep(0.05)
+    killed = time.time()
+    ioc.kill()
+    rc = runner.wait(120)
+    exited = time.time()
+    summary = json.loads((out / "summary.json").read_text())
+    lines = docs.read_text().splitlines()
+    last = json.loads(lines[-1])
+    return {"exit_status": rc, "exit_s": exited - killed, "watchdog_s": summary["watchdog_time"] - killed,
+            "stopped_by": summary["stopped_by"], "events_kept": sum('"name": "event"' in x for x in lines),
+            "stop_document": last["name"] == "stop" and last["doc"]["exit_status"] == "fail"}
+
+
+def table(rows: list) -> str:
+    head = ("| controller | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) | P / P_best | stopped by |\n"
+            "|---|---|---|---|---|---|---|")
+    body = [f"| {r['controller']} | {r['rate']:g} | {r['rate_hz']:.1f} | {r['frames_per_step']:.2f} | "
+            f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['stopped_by']} |"
+            for r in rows]
+    return "\n".join([head, *body])
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.lab", description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--rates", type=float, nargs="+", default=[100.0], help="the runner's control rate caps (Hz)")
+    ap.add_argument("--controllers", nargs="*", default=["spgd", "physics"], choices=list(CONTROLLERS))
+    ap.add_argument("--policy", nargs="*", default=[], help="folders written by agents.save, run too")
+    ap.add_argument("--stale-s", type=float, default=0.5, help="the watchdog's limit on a frame's age (s)")
+    ap.add_argument("--lockstep", type=int, default=0, metavar="STEPS",
+                    help="run each controller STEPS steps in lockstep instead (scores without timing)")
+    ap.add_argument("--no-kill", action="store_true", help="skip the IOC-SIGKILL check")
+    ap.add_argument("--out", type=Path, default=Path("results/lab"))
+    args = ap.parse_args(argv)
+    rows = []
+    runs = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
+    for name, controller, sets in runs:
+        for rate in args.rates:
+            s = run_controller(args.out / f"{name}-{rate:g}hz", controller, sets, args.seconds, rate, args.stale_s,
+                               args.lockstep)
+            rows.append({**s, "controller": name, "settings": sets, "rate": rate})
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    result = {"ioc": IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]), "seconds": args.seconds,
+              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
+              "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
+    print(table(rows))
+    if result["kill"]:
+        print("IOC SIGKILL:", json.dumps(result["kill"]))
+    (args.out / "lab.json").write_text(json.dumps(result, indent=1, default=float))
+    return result
+
+
+if __name__ == "__main__":
+    main()

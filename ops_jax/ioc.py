@@ -1,0 +1,242 @@
+"""The simulator served as an EPICS Channel Access IOC (caproto): one OPS instance in wall-clock time.
+
+    python -m ops_jax.ioc --prefix OPS: --stages 5 --mode hard --imperfections lab --rate 100
+
+Every ``ops_jax.make`` option is accepted as ``--option value`` (underscores or dashes; tuples as
+Python literals, e.g. ``--waveplate-error-deg "(0.3, -0.2, 0.4, -0.3, 0.2)"``). At every tick of
+``--rate`` Hz the simulation advances one control step whether or not a setpoint changed: vibration,
+drift and pulse noise go on, so a slow controller pays for its latency as on a bench. A tick applies
+the setpoints present at its start; a line moves at most ``--action-scale`` wl per tick towards its
+setpoint (default here 1 wl: a piezo settles within a tick; the option is the lines' slew limit). A
+tick that starts late is counted in ``OVERRUNS``; ticks missed by a stall are run back to back, so
+the simulated time stays the wall-clock time. ``--lockstep`` instead
+advances one tick per write to ``ADVANCE`` (reproducible runs, tests).
+
+PVs (prefix first; lengths in wavelengths, wl):
+
+- ``LINE{i}:SP`` (i = 1..N, writable): the commanded position of delay line i since start-up, within
+  the actuator's span (writes outside it or non-finite are refused).
+- ``LINE{i}:RBV``: where the line is, through the actuator model (gain, backlash, lag, DAC).
+- ``LINE{i}:LEN``: the length readout: the line's offset from the optimum as its calibrated sensor
+  reports it (the environment's observed length).
+- ``DET:POWER``: the detector reading in units of P_max; ``SCOPE:TRACE``: the 2^N - 1 oscilloscope
+  samples in units of the ideal pulse peak (both as the detector reads them, with observation noise).
+- ``EVAL:P_PMAX``, ``EVAL:P_PBEST``: the true P / P_max and P / P_best, for evaluation only.
+- ``TICK`` (published last in a tick: a new value means a complete new frame), ``STATUS``,
+  ``OVERRUNS``, ``RATE`` (Hz; 0 in lockstep), ``ADVANCE`` (lockstep only).
+
+Random draws follow ``agents.evaluate``'s episode 0 for ``--seed``: ``reset`` as the
+``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded by t.
+The IOC listens on 127.0.0.1 unless ``--interface`` is given; port and search settings follow the
+standard ``EPICS_CA_*`` environment variables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import asyncio
+import functools
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import ops_jax
+from ops_jax.env import option_names
+
+STATUS_OK, STATUS_OUTSIDE = "running", "outside window"
+
+
+def _literal(text: str):
+    """A command-line value as a Python literal (numbers, booleans, tuples), else the string."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def parser() -> argparse.ArgumentParser:
+    """The IOC's options: its own, then ``stages``, ``mode`` and every ``ops_jax.make`` option."""
+    ap = argparse.ArgumentParser(prog="python -m ops_jax.ioc", description=__doc__.split("\n")[0])
+    ap.add_argument("--prefix", default="OPS:", help="PV name prefix (default OPS:)")
+    ap.add_argument("--rate", type=float, default=100.0, help="ticks per second (Hz, default 100)")
+    ap.add_argument("--lockstep", action="store_true", help="advance one tick per write to ADVANCE instead")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the simulated run")
+    ap.add_argument("--drift-episode", type=int, default=10, help="the reset's episode count (hard-mode drift)")
+    ap.add_argument("--interface", default="127.0.0.1", help="address to serve on (default localhost only)")
+    env = ap.add_argument_group("simulator (ops_jax.make options)")
+    env.add_argument("--stages", type=int, default=5)
+    env.add_argument("--mode", default="hard")
+    for name in option_names():
+        env.add_argument(f"--{name.replace('_', '-')}", dest=name, type=_literal, default=None, metavar="VALUE")
+    return ap
+
+
+def make_options(args: argparse.Namespace) -> dict:
+    """The ``ops_jax.make`` keyword options given on the command line (``action_scale``, the largest
+    move per tick, 1 wl unless given)."""
+    return {"action_scale": 1.0, **{k: getattr(args, k) for k in option_names() if getattr(args, k) is not None}}
+
+
+class Bench:
+    """One simulated instance: the jitted single-instance step and its wall-clock state (host side)."""
+
+    def __init__(self, stages: int, mode: str, options: dict, seed: int = 0, drift_episode: int = 10):
+        self.env, self.params = ops_jax.make(stages, mode, **options)
+        self.n = self.env.num_actions
+        self.scale = float(self.params.action_scale)
+        self.span = float(np.max(self.params.lab.actuator_span_wl)) if self.env.config.imperfect else math.inf
+        k_reset, _, self._k_run = jax.random.split(jax.random.key(seed), 3)
+        obs, self.state = jax.jit(self.env.reset, static_argnums=2)(
+            jax.random.fold_in(k_reset, 0), self.params, drift_episode)
+        self._step = jax.jit(self._advance)
+        self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
+        self.t = 0
+        self.frame = self._decode(np.asarray(obs)[-self.env.frame_size:], np.zeros(self.n),
+                                  *self._true_power(self.state), False)
+        # compile once, before serving (the result is discarded: the step is pure)
+        jax.block_until_ready(self._step(self.state, np.zeros(self.n, np.float32), 1))
+
+    def _true_power(self, state):
+        """(P / P_max, P / P_best) of ``state`` as it truly is (the reset's evaluation values)."""
+        power = self.env._sense(state.deltas, state.lab)[0].power
+        best = float(np.max(self.params.lab.p_best)) if self.env.config.imperfect else 0.0
+        return float(power / self.env.p_max), float(power / (best if best > 0 else self.env.p_max))
+
+    def _advance(self, state, action, t):
+        k_env = jax.random.split(jax.random.fold_in(self._k_run, t - 1))[1]
+        obs, state, _, terminated, _, info = self.env.step_env(jax.random.fold_in(k_env, 0), state, action, self.params)
+        position = state.lab.position if self.env.config.imperfect else jnp.zeros(self.n)
+        return state, obs[-self.env.frame_size:], position, info["normalized_power"], \
+            info["normalized_power_best"], terminated
+
+    def _decode(self, frame, position, npow, npow_best, outside) -> dict:
+        """PV values of one observation frame (float64: the client re-encodes it exactly)."""
+        f = np.asarray(frame, np.float64)
+        m = 2**self.n
+        return {"power": (f[0] + 1) / 2, "trace": (f[1:m] + 1) / 2, "length": f[m:m + self.n] * float(self.params.window),
+                "position": np.asarray(position, np.float64), "p_pmax": float(npow), "p_pbest": float(npow_best),
+                "outside": bool(outside)}
+
+    def tick(self, setpoints) -> dict:
+        """Advance one control step towards ``setpoints`` (N,) wl; returns the new PV values."""
+        action = np.clip((np.asarray(setpoints, np.float64) - self.command) / self.scale, -1.0, 1.0)
+        action = np.where(np.isfinite(action), action, 0.0)
+        self.command = self.command + action * self.scale
+        self.t += 1
+        self.state, *out = self._step(self.state, action.astype(np.float32), self.t)
+        frame, position, npow, best, outside = jax.device_get(out)
+        if not self.env.config.imperfect:
+            position = self.command
+        self.frame = self._decode(frame, position, npow, best, outside)
+        return self.frame
+
+
+def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
+    """The caproto ``PVGroup`` instance serving ``bench``."""
+    from caproto import ChannelType
+    from caproto.server import pvproperty
+
+    n, m = bench.n, 2**bench.n - 1
+    lim = bench.span / 2 if math.isfinite(bench.span) else 1e6
+    ns = {}
+    for i in range(1, n + 1):
+        ns[f"sp{i}"] = pvproperty(value=0.0, name=f"LINE{i}:SP", lower_ctrl_limit=-lim, upper_ctrl_limit=lim,
+                                  units="wl", precision=6, doc=f"line {i} setpoint (wl)")
+        ns[f"rbv{i}"] = pvproperty(value=0.0, name=f"LINE{i}:RBV", read_only=True, units="wl", precision=6)
+        ns[f"len{i}"] = pvproperty(value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6)
+    ns["power"] = pvproperty(value=0.0, name="DET:POWER", read_only=True, precision=6)
+    ns["trace"] = pvproperty(value=[0.0] * m, name="SCOPE:TRACE", read_only=True, max_length=m)
+    ns["p_pmax"] = pvproperty(value=0.0, name="EVAL:P_PMAX", read_only=True, precision=6)
+    ns["p_pbest"] = pvproperty(value=0.0, name="EVAL:P_PBEST", read_only=True, precision=6)
+    ns["tick"] = pvproperty(value=0, name="TICK", read_only=True, dtype=ChannelType.LONG)
+    ns["overruns"] = pvproperty(value=0, name="OVERRUNS", read_only=True, dtype=ChannelType.LONG)
+    ns["rate"] = pvproperty(value=0.0 if lockstep else float(rate), name="RATE", read_only=True, units="Hz")
+    ns["status"] = pvproperty(value="starting", name="STATUS", read_only=True, dtype=ChannelType.STRING)
+    ns["advance"] = pvproperty(value=0, name="ADVANCE", dtype=ChannelType.LONG,
+                               doc="lockstep: a write advances one tick").putter(_advance)
+    group_type = type("OPSBench", (_group_class(),), ns)
+    return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep)
+
+
+class _BenchGroupBase:
+    """Tick logic shared by the generated PV group (mixed into a caproto ``PVGroup``)."""
+
+    async def publish(self, values: dict):
+        """Write one tick's values (caproto stamps each write with the time)."""
+        for i in range(1, self.bench.n + 1):
+            await getattr(self, f"rbv{i}").write(values["position"][i - 1])
+            await getattr(self, f"len{i}").write(values["length"][i - 1])
+        await self.power.write(values["power"])
+        await self.trace.write(values["trace"])
+        await self.p_pmax.write(values["p_pmax"])
+        await self.p_pbest.write(values["p_pbest"])
+        status = STATUS_OUTSIDE if values["outside"] else STATUS_OK
+        if status != self.status.value:
+            await self.status.write(status)
+        await self.tick.write(self.bench.t)  # last: a new tick means a complete frame
+
+    async def step(self):
+        setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
+        await self.publish(self.bench.tick(setpoints))
+
+    async def clock(self):
+        """Tick at ``rate`` Hz on the wall clock; late ticks are counted and caught up."""
+        period, t0, k, late = 1.0 / self.tick_rate, time.monotonic(), 0, 0
+        while True:
+            k += 1
+            delay = t0 + k * period - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            elif delay < -period / 2:
+                late += 1
+                await self.overruns.write(late)
+            await self.step()
+
+    async def start(self, async_lib):
+        await self.publish(self.bench.frame)
+        print(f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} lines, "
+              f"{'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}", flush=True)
+        if not self.lockstep:
+            asyncio.get_running_loop().create_task(self.clock())
+
+
+async def _advance(group, instance, value):
+    if group.lockstep:
+        await group.step()
+    return value
+
+
+@functools.lru_cache(maxsize=None)
+def _group_class():
+    """``_BenchGroupBase`` mixed into caproto's ``PVGroup`` (built on first use: ``import ops_jax``
+    needs no caproto)."""
+    from caproto.server import PVGroup
+
+    class BenchGroup(_BenchGroupBase, PVGroup):
+        def __init__(self, *args, bench, rate, lockstep, **kwargs):
+            self.bench, self.tick_rate, self.lockstep = bench, rate, lockstep
+            super().__init__(*args, **kwargs)
+
+    return BenchGroup
+
+
+def main(argv=None) -> None:
+    args = parser().parse_args(argv)
+    if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
+        raise SystemExit(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
+    try:
+        bench = Bench(args.stages, args.mode, make_options(args), seed=args.seed, drift_episode=args.drift_episode)
+    except (TypeError, ValueError) as exc:
+        raise SystemExit(f"ops_jax.ioc: {exc}")
+    from caproto.server import run
+
+    group = pv_group(bench, args.prefix, args.rate, args.lockstep)
+    run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,255 @@
+"""The bench: the simulator served as a caproto IOC, ophyd devices over it, the Bluesky runner.
+
+Device tests use ophyd's fake signals; the end-to-end tests start real IOC and runner
+subprocesses on free localhost ports (EPICS_CA_* set for both sides), each in its own process
+group, killed on teardown, every wait bounded."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("caproto")
+pytest.importorskip("ophyd")
+pytest.importorskip("bluesky")
+
+import jax  # noqa: E402
+from ophyd.sim import make_fake_device  # noqa: E402
+
+import agents  # noqa: E402
+from agents import bench as runner  # noqa: E402
+from agents.bench_devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
+from benchmarks.lab import Process, ca_env  # noqa: E402
+from ops_jax import ioc  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+START_S = 240  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
+
+
+# -- mapping, devices, controller protocol (no Channel Access) --------------------------------------
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda m: m.update(detectr={}), "detectr"),
+    (lambda m: m["lines"][1].update(setpont="X"), "setpont"),
+    (lambda m: m["detector"].pop("tick"), "tick"),
+    (lambda m: m.update(safety={"soft_range_wl": [1.0, -1.0]}), "soft_range_wl"),
+    (lambda m: m.update(safety={"max_step_wl": -0.1}), "max_step_wl"),
+    (lambda m: m["lines"][0].update(readback="OPS: LINE1"), "lines[0].readback"),
+])
+def test_bad_mapping_fails_naming_the_key(edit, needle):
+    m = sim_mapping("OPS:", 3)
+    edit(m)
+    with pytest.raises(MappingError, match=needle.replace("[", r"\[").replace("]", r"\]")):
+        check_mapping(m)
+
+
+def test_docs_mapping_example_is_the_simulated_benchs():
+    """docs/lab.md's mapping file, every key written out, is what the runner builds for --prefix OPS:."""
+    text = (ROOT / "docs" / "lab.md").read_text()
+    example = json.loads(text.split("```json\n", 1)[1].split("```", 1)[0])
+    assert check_mapping(example) == check_mapping(sim_mapping("OPS:", 2))
+
+
+def fake_bench(stages=3, **safety):
+    mapping = check_mapping({**sim_mapping("T:", stages), "safety": safety})
+    bench, lines = make_bench(mapping, device_class=make_fake_device)
+    for i in range(1, stages + 1):
+        getattr(bench, f"line{i}").setpoint.sim_put(0.0)
+    return bench, lines
+
+
+def test_lines_clip_moves_to_the_limits_and_stop_after_the_watchdog(caplog):
+    bench, lines = fake_bench(max_step_wl=0.1, soft_range_wl=[-0.15, 0.15])
+    lines.set([0.05, 0.5, -0.5])  # line 2 and 3: beyond the step
+    assert np.allclose([bench.line1.setpoint.get(), bench.line2.setpoint.get(), bench.line3.setpoint.get()],
+                       [0.05, 0.1, -0.1])
+    lines.set([0.05, 0.3, -0.1])  # line 2: within the step, beyond the soft range
+    assert bench.line2.setpoint.get() == pytest.approx(0.15)
+    assert lines.clipped.get() == 3
+    assert "clipped" in caplog.text
+    lines.lock("lost connection to PV T:TICK")
+    with pytest.raises(SafetyStop, match="T:TICK"):
+        lines.set([0.0, 0.0, 0.0])
+    assert bench.line1.setpoint.get() == pytest.approx(0.05)  # nothing written after the stop
+
+
+def test_detector_trigger_waits_for_a_frame_not_used_before():
+    bench, _ = fake_bench()
+    det = bench.detector
+    det.tick.sim_put(7)
+    det.arm()
+    first = det.trigger()  # the frame there at arm() counts as new
+    first.wait(1)
+    status = det.trigger()
+    time.sleep(0.05)
+    assert first.success and not status.done
+    det.tick.sim_put(8)
+    status.wait(1)
+    assert status.success
+    det.use()
+    det.timeout = 0.05
+    status = det.trigger()
+    with pytest.raises(Exception):
+        status.wait(1)  # no new frame: fails after the timeout
+
+
+def test_agent_replays_a_controller_step_probe_by_probe():
+    """Agent's probe protocol gives the policy's own offsets and, with the measured results, its action."""
+    env_config = {"stages": 3, "model": "phasor"}
+    policy = agents.base.algo_module("spgd").make_policy(env_config, None)
+    env, _ = __import__("ops_jax").make(**env_config)
+    agent = runner.Agent(policy, None, env, seed=3)
+    assert agent.probes == 1
+    obs = np.linspace(-0.5, 0.5, env.observation_size)
+    agent.start(obs)
+    carry = agent.carry
+    seen = []
+
+    def probe(offsets):
+        seen.append(offsets)
+        return jax.numpy.full((1,), 0.42)
+
+    key = jax.random.split(jax.random.fold_in(jax.random.split(jax.random.key(3), 3)[2], 0))[0]
+    want, _ = policy.act(None, carry, jax.numpy.asarray(obs, "float32")[None], key, probe)
+    offsets = agent.offsets(obs, np.zeros(1), 0)
+    assert np.allclose(offsets, seen[0][0], atol=1e-7)
+    assert np.allclose(agent.act(obs, np.array([0.42])), want[0], atol=1e-6)
+
+
+def test_ioc_options_come_from_make():
+    args = ioc.parser().parse_args(["--stages", "3", "--imperfections", "lab", "--vib-rms", "0.01",
+                                    "--waveplate-error-deg", "(0.1, 0.2, 0.3)", "--model", "phasor"])
+    options = ioc.make_options(args)
+    assert options == {"action_scale": 1.0, "imperfections": "lab", "vib_rms": 0.01,
+                       "waveplate_error_deg": (0.1, 0.2, 0.3), "model": "phasor"}
+    with pytest.raises(SystemExit):
+        ioc.parser().parse_args(["--not-an-option", "1"])
+
+
+def test_light_imports_stay_light():
+    code = ("import sys, ops_jax, agents; heavy = [m for m in ('caproto', 'ophyd', 'bluesky') if m in sys.modules];"
+            "assert not heavy, heavy")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=START_S, cwd=ROOT)
+
+
+# -- real IOCs and runners -----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def iocs(tmp_path_factory):
+    """Three simulated benches started together: lockstep (lab), free-running, one to kill."""
+    tmp = tmp_path_factory.mktemp("iocs")
+    common = ["--stages", "3", "--mode", "hard", "--model", "phasor"]
+    args = {"lockstep": ["--prefix", "LS:", "--imperfections", "lab", "--lockstep"],
+            "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"]}
+    started = {k: Process("ops_jax.ioc", common + a, ca_env(), tmp / f"{k}.log") for k, a in args.items()}
+    try:
+        yield {k: p.wait_for("serving", START_S) for k, p in started.items()}
+    finally:
+        for p in started.values():
+            p.kill()
+
+
+def bench_run(ioc_, tmp: Path, *args) -> Process:
+    """``python -m agents.bench`` against ``ioc_`` in its own process group."""
+    return Process("agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log")
+
+
+def finish(proc: Process, timeout=START_S):
+    """(exit status, output); the runner is killed past ``timeout`` s."""
+    return proc.wait(timeout), proc.text()
+
+
+def wait_for_events(proc: Process, tmp: Path, count: int) -> None:
+    """Wait until the run has written ``count`` events (it must not end first)."""
+    out, deadline = tmp / "out" / "documents.jsonl", time.monotonic() + START_S
+    while not (out.exists() and out.read_text().count('"name": "event"') >= count):
+        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
+        time.sleep(0.1)
+
+
+def documents(tmp: Path) -> list:
+    return [json.loads(line) for line in (tmp / "out" / "documents.jsonl").read_text().splitlines()]
+
+
+def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
+    """Same seed, same timing (lockstep): replaying the setpoints the runner sent, tick by tick, on
+    the simulator in this process gives the bench's P / P_max exactly."""
+    steps = 20
+    rc, log = finish(bench_run(iocs["lockstep"], tmp_path, "--prefix", "LS:", "--stages", "3", "--lockstep",
+                               "--controller", "physics", "--set", "starts=2", "--steps", str(steps),
+                               "--stale-s", "30"))
+    assert rc == 0, log
+    events = [d["doc"]["data"] for d in documents(tmp_path) if d["name"] == "event"]
+    assert len(events) == steps
+    bench_p = np.array([e["bench_evaluation_p_pmax"] for e in events])
+    sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor", "imperfections": "lab"}, seed=0)
+    replay = [sim.frame["p_pmax"]] + [sim.tick(e["control_setpoint_wl"])["p_pmax"] for e in events[:-1]]
+    np.testing.assert_array_equal(bench_p, np.float32(replay))  # event t: the frame of tick t
+    assert np.ptp(bench_p) > 0.01  # the controller moved the lines
+
+
+def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
+    """SPGD over Channel Access for a few seconds, with a soft range tight enough to clip its probes."""
+    mapping = {**sim_mapping("FR:", 3), "safety": {"soft_range_wl": [-0.2, 0.2], "max_step_wl": 0.03, "stale_s": 5.0}}
+    (tmp_path / "map.json").write_text(json.dumps(mapping))
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"), "--controller", "spgd",
+                               "--seconds", "3"))
+    assert rc == 0, log
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
+    assert summary["probes_per_step"] == 1 and summary["frames_per_step"] >= 2
+    assert 0 < summary["p_over_pbest_mean"] <= 1.5 and summary["latency_ms_p50"] > 0
+    assert summary["clipped_moves"] > 0 and "clipped" in log
+    docs = documents(tmp_path)
+    assert [d["name"] for d in docs[:2]] == ["start", "descriptor"] and docs[-1]["name"] == "stop"
+    events = [d["doc"]["data"] for d in docs if d["name"] == "event"]
+    sent = np.array([e["control_setpoint_wl"] for e in events])
+    assert np.all(np.abs(sent) <= 0.2 + 1e-9) and np.all(np.abs(np.diff(sent, axis=0)) <= 2 * 0.03 + 1e-9)
+    assert (tmp_path / "out" / "power.png").stat().st_size > 0
+
+
+def test_unknown_pv_fails_at_once_naming_it(iocs, tmp_path):
+    mapping = {**sim_mapping("FR:", 3), "safety": {"connect_s": 2.0}}
+    mapping["lines"][1]["readback"] = "FR:LINE2:NOPE"
+    (tmp_path / "map.json").write_text(json.dumps(mapping))
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", tmp_path / "map.json", "--controller", "spgd"))
+    message = next((line for line in log.splitlines() if "no answer from PV" in line), "")
+    assert rc == 2 and "FR:LINE2:NOPE" in message and "FR:LINE1:SP" not in message, log
+
+
+def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
+    """SIGKILL the IOC: the watchdog names a lost PV at once, nothing is written after, data kept."""
+    victim = iocs["victim"]
+    proc = bench_run(victim, tmp_path, "--prefix", "KV:", "--stages", "3", "--controller", "physics",
+                     "--seconds", "120", "--stale-s", "5")
+    wait_for_events(proc, tmp_path, 20)
+    killed_at = time.time()
+    victim.kill()
+    rc, log = finish(proc, timeout=60)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert rc == runner.EXIT_WATCHDOG, log
+    assert summary["stopped_by"].startswith("lost connection to PV KV:"), summary
+    assert summary["watchdog_time"] - killed_at < 2.0, summary
+    docs = documents(tmp_path)
+    assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "fail"
+    events = [d["doc"] for d in docs if d["name"] == "event"]
+    assert len(events) >= 20 and all(e["time"] <= summary["watchdog_time"] for e in events)
+
+
+def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
+    """SIGINT: the run ends after the current step, exit status 0, everything written."""
+    proc = bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
+                     "--seconds", "120", "--stale-s", "5")
+    wait_for_events(proc, tmp_path, 10)
+    proc.proc.send_signal(signal.SIGINT)
+    rc, log = finish(proc, timeout=60)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert rc == 0 and summary["stopped_by"] == "user", log
+    docs = documents(tmp_path)
+    assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success"
+    assert (tmp_path / "out" / "power.png").exists()
