@@ -43,6 +43,13 @@ def _choice(*options):
     return check
 
 
+def _optional(check):
+    """``check``, or None left as it is."""
+    def f(name: str, v):
+        return None if v is None else check(name, v)
+    return f
+
+
 def field(check):
     """A dataclass field validated by ``check(name, value) -> normalised value``."""
     return dataclasses.field(metadata={"check": check})
@@ -222,7 +229,8 @@ class PPOConfig(AlgoConfig):
 
 @dataclasses.dataclass(frozen=True)
 class SACConfig(AlgoConfig):
-    """SAC (``agents.sac``, brax's trainer): presets "paper" (the paper's Table 6) and "fast"."""
+    """SAC (``agents.sac``, brax's trainer): presets "paper" (the paper's Table 6), "fast" and "budget"
+    (<= 20k env steps). Its update-to-data ratio is ``grad_updates_per_step / num_envs`` (brax's)."""
 
     NAME: ClassVar[str] = "SAC"
     PRESETS: ClassVar[dict] = {
@@ -236,12 +244,17 @@ class SACConfig(AlgoConfig):
             max_replay_size=200_000, min_replay_size=8192, reward_scaling=1.0, normalize_observations=True,
             hidden=(128, 128), activation="relu", total_steps=400_000, num_evals=10, num_eval_envs=64,
         ),
+        "budget": dict(
+            num_envs=1, batch_size=128, grad_updates_per_step=10, learning_rate=1e-3, discounting=0.9, tau=0.005,
+            max_replay_size=20_000, min_replay_size=500, reward_scaling=1.0, normalize_observations=True,
+            hidden=(64, 64), activation="relu", total_steps=20_000, num_evals=10, num_eval_envs=16,
+        ),
     }
 
-    config: str = field(_choice("paper", "fast"))
+    config: str = field(_choice("paper", "fast", "budget"))
     num_envs: int = field(COUNT)
     batch_size: int = field(COUNT)
-    grad_updates_per_step: int = field(COUNT)
+    grad_updates_per_step: int = field(COUNT)  # per batched env step: the update-to-data ratio x num_envs
     learning_rate: float = field(POSITIVE)
     discounting: float = field(UNIT)
     tau: float = field(UNIT)
@@ -263,7 +276,8 @@ class SACConfig(AlgoConfig):
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(AlgoConfig):
-    """TD3 (``agents.td3``): presets "paper" (the paper's Table 4) and "fast"."""
+    """TD3 (``agents.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
+    steps). Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio`` per env step (one of the two)."""
 
     NAME: ClassVar[str] = "TD3"
     PRESETS: ClassVar[dict] = {
@@ -271,20 +285,26 @@ class TD3Config(AlgoConfig):
             num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
             actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
             expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
-            total_steps=300_000, eval_every=10_000, eval_episodes=16,
+            total_steps=300_000, eval_every=10_000, eval_episodes=16, utd_ratio=None,
         ),
         "fast": dict(
             num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
             actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
             expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-            total_steps=300_000, eval_every=20_000, eval_episodes=16,
+            total_steps=300_000, eval_every=20_000, eval_episodes=16, utd_ratio=None,
+        ),
+        "budget": dict(
+            num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
+            actor_lr=1e-3, critic_lr=1e-3, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
+            expl_std=0.2, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
+            total_steps=20_000, eval_every=1_000, eval_episodes=16,
         ),
     }
 
-    config: str = field(_choice("paper", "fast"))
+    config: str = field(_choice("paper", "fast", "budget"))
     num_envs: int = field(COUNT)
     unroll: int = field(COUNT)
-    updates_per_iter: int = field(COUNT)
+    updates_per_iter: int | None = field(_optional(COUNT))
     batch_size: int = field(COUNT)
     hidden: tuple = field(_widths)
     actor_lr: float = field(POSITIVE)
@@ -301,13 +321,68 @@ class TD3Config(AlgoConfig):
     total_steps: int = field(COUNT0)
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
+    utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
 
     def check(self):
-        if self.buffer_size < self.num_envs * self.unroll:
-            raise ValueError(f"buffer_size must be >= num_envs * unroll = {self.num_envs * self.unroll}, "
-                             f"got {self.buffer_size}")
-        if self.learning_starts < self.batch_size:
-            raise ValueError(f"learning_starts must be >= batch_size = {self.batch_size}, got {self.learning_starts}")
-        if self.batch_size > self.buffer_size:
-            raise ValueError(f"batch_size must be <= buffer_size = {self.buffer_size}, got {self.batch_size}")
+        check_replay(self)
 
+
+def check_replay(c) -> None:
+    """The constraints of an off-policy config ``c``: one of updates_per_iter and utd_ratio, a whole
+    number of gradient steps per iteration, the buffer and batch sizes."""
+    if (c.updates_per_iter is None) == (c.utd_ratio is None):
+        raise ValueError(f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
+                         f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}")
+    if c.utd_ratio is not None:
+        per_iter = c.utd_ratio * c.num_envs * c.unroll
+        if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
+            raise ValueError(f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
+                             f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}")
+    if c.buffer_size < c.num_envs * c.unroll:
+        raise ValueError(f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}")
+    if c.learning_starts < c.batch_size:
+        raise ValueError(f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}")
+    if c.batch_size > c.buffer_size:
+        raise ValueError(f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}")
+
+
+@dataclasses.dataclass(frozen=True)
+class DroQConfig(AlgoConfig):
+    """DroQ (``agents.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
+    ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
+
+    NAME: ClassVar[str] = "DroQ"
+    DEFAULT_PRESET: ClassVar[str] = "budget"
+    PRESETS: ClassVar[dict] = {"budget": dict(
+        num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
+        critic_hidden=(64, 64), dropout=0.0, layer_norm=True, actor_lr=1e-3, critic_lr=1e-3, alpha_lr=1e-3,
+        init_alpha=0.1, target_entropy=-1.0, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
+        policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16)}
+
+    config: str = field(_choice("budget"))
+    num_envs: int = field(COUNT)
+    unroll: int = field(COUNT)
+    updates_per_iter: int | None = field(_optional(COUNT))
+    utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
+    batch_size: int = field(COUNT)
+    hidden: tuple = field(_widths)
+    critic_hidden: tuple = field(_widths)
+    dropout: float = field(Range(0, 0.9))
+    layer_norm: bool = field(_flag)
+    actor_lr: float = field(POSITIVE)
+    critic_lr: float = field(POSITIVE)
+    alpha_lr: float = field(NONNEG)
+    init_alpha: float = field(POSITIVE)
+    target_entropy: float = field(Range(-100, 100))
+    gamma: float = field(UNIT)
+    tau: float = field(UNIT)
+    buffer_size: int = field(COUNT)
+    learning_starts: int = field(COUNT0)
+    policy_delay: int = field(COUNT)
+    normalize_obs: bool = field(_flag)
+    total_steps: int = field(COUNT0)
+    eval_every: int = field(COUNT)
+    eval_episodes: int = field(COUNT)
+
+    def check(self):
+        check_replay(self)

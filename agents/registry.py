@@ -14,7 +14,7 @@ import importlib
 from collections.abc import Mapping
 from typing import Callable, Protocol
 
-from agents.config import PhysicsConfig, PPOConfig, SACConfig, SPGDConfig, TD3Config
+from agents.config import DroQConfig, PhysicsConfig, PPOConfig, SACConfig, SPGDConfig, TD3Config
 
 
 class AlgoModule(Protocol):
@@ -139,3 +139,4 @@ register(Algo("td3", "agents.td3", TD3Config, "TD3", vmaps_seeds=True,
                                  hyper={"quick": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
                                         "default": {"eval_every": 5000}},
                                  fixed_s=3.0, s_per_step=1.6e-4)))
+register(Algo("droq", "agents.droq", DroQConfig, "DroQ", vmaps_seeds=True))  # in the sweep's budget section only

@@ -10,6 +10,9 @@ Presets of ``agents.config.SACConfig`` (``config="paper" | "fast"``; any field m
 - "fast": tuned for wall clock on a 2-core CPU: 64 parallel envs, 16 gradient steps per batched
   env step (1 update per 4 env steps), 2 x 128 ReLU networks, batch 256, replay 2e5, observation
   normalisation, gamma 0.95, lr 1e-3, tau 0.005, 400k env steps (measured: docs/results.md).
+- "budget": <= 20k env steps of the target: one env, 10 gradient steps per env step (brax's
+  ``grad_updates_per_step`` is the update-to-data ratio times ``num_envs``), 2 x 64 networks,
+  batch 128, gamma 0.9, learning from 500 steps (docs/learners.md).
 
 brax's SAC masks the critic loss on time-limit steps (``truncation``), so time-outs are not
 treated as terminations.

@@ -3,16 +3,17 @@
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
 testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
 ``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100) and,
-when named, ``reality`` (benchmarks/reality.py). ``register(section)`` adds a section.
+when named, ``reality`` (benchmarks/reality.py) and ``budget`` (benchmarks/budget.py). ``register(section)``
+adds a section.
 """
 
 from __future__ import annotations
 
 from agents.registry import Registry
-from benchmarks import reality
+from benchmarks import budget, reality
 from benchmarks import sweep_report as report
 from benchmarks.paper import MODES
-from benchmarks.sweep_section import TEST_SEED_OFFSET, Section
+from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section
 
 # Seeds, episodes and section settings per preset; each algorithm's budgets, hyperparameters and cost
 # come from its entry in agents.registry (``preset``).
@@ -189,5 +190,13 @@ def default_sections() -> tuple:
     return tuple(name for name, s in PLAN.items() if s.default)
 
 
-for _section in (Table1(), Table2(), Stages(), Transfer(), Feedback(), reality.Reality()):
+def _budget_section() -> CellSection:
+    """Score against env steps on a lab's budget (benchmarks/budget.py): the "quick" plan in a quick
+    run, the "default" one otherwise; run when asked for (``--only budget``)."""
+    return CellSection("budget", lambda p: budget.cells("quick" if p["name"] == "quick" else "default"),
+                       budget.compute,
+                       lambda records, out: budget.report([{"cell": c, "result": r} for c, r in records], out / "budget"))
+
+
+for _section in (Table1(), Table2(), Stages(), Transfer(), Feedback(), reality.Reality(), _budget_section()):
     register(_section)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import TD3Config, td3
+from agents import TD3Config, offpolicy, td3
 from agents.base import Policy
 
 REPO = Path(__file__).resolve().parents[1]
@@ -144,7 +144,8 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path):
 @pytest.mark.parametrize("total", [4_096, 20_000, 60_000, 60_160, 300_000])
 def test_schedule_keeps_the_budget(total):
     h = TD3Config.preset("fast", eval_every=5_000).to_hyper() | {"total_steps": total}
-    per_iter, warm, n_chunks, chunk = td3._schedule(h)
+    warm, n_chunks, chunk = offpolicy.schedule(h)
+    per_iter = h["num_envs"] * h["unroll"]
     trained = (warm + n_chunks * chunk) * per_iter
     assert trained <= total and total - trained < per_iter * max(n_chunks, 1)
     assert warm * per_iter >= h["learning_starts"]

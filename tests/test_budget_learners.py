@@ -1,0 +1,156 @@
+"""The budget learners (DroQ; the update-to-data ratio of TD3) and the budget benchmark's plan:
+learning on a small budget, determinism, vmapped seeds, checkpoints, bad hyperparameters, the
+snapshots standing for shorter runs, and the report of tiny records."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agents
+from agents import DroQConfig, TD3Config, droq, offpolicy
+from agents.base import Policy
+from benchmarks import budget
+
+ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
+HYPER = dict(hidden=(32, 32), critic_hidden=(32, 32), batch_size=64, learning_starts=256, utd_ratio=2.0,
+             eval_every=512, eval_episodes=4)
+STEPS = 256 + 5 * 512  # the warm-up and five chunks
+
+
+@pytest.fixture(scope="module")
+def trained():
+    return agents.train("droq", ENV, seed=3, total_steps=STEPS, **HYPER)
+
+
+def test_droq_learns_a_small_configuration(trained):
+    zero = Policy(lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], 3)), c))
+    baseline = agents.evaluate(zero, ENV, episodes=16, seed=1).summary["final_mean"]
+    learned = agents.evaluate(trained, ENV, episodes=16, seed=1).summary["final_mean"]
+    assert learned >= max(0.8, baseline + 0.25), (learned, baseline)
+    assert trained.curve["step"].tolist() == [256 + 512 * k for k in range(6)]
+    assert trained.hyper["config"] == "budget" and trained.hyper["utd_ratio"] == 2.0
+
+
+def test_same_seed_same_result_and_checkpoint_round_trip(trained, tmp_path):
+    again = agents.train("droq", ENV, seed=3, total_steps=STEPS, **HYPER)
+    jax.tree.map(np.testing.assert_array_equal, trained.params, again.params)
+    agents.save(tmp_path / "ckpt", trained)
+    loaded = agents.load(tmp_path / "ckpt")
+    a = agents.evaluate(trained, ENV, episodes=4, seed=7).normalized_power
+    b = agents.evaluate(loaded, ENV, episodes=4, seed=7).normalized_power
+    np.testing.assert_array_equal(a, b)
+
+
+FEW = dict(HYPER, eval_every=32, utd_ratio=1.0)
+FEW_STEPS = 256 + 2 * 32  # 64 gradient steps
+
+
+def test_vmapped_seeds_equal_single_seed_runs():
+    """The same draws as each seed alone: equal before any gradient step, to float rounding after 64."""
+    both = agents.train_seeds("droq", ENV, seeds=[3, 5], total_steps=FEW_STEPS, **FEW)
+    solo = agents.train("droq", ENV, seed=5, total_steps=FEW_STEPS, **FEW)
+    assert [r.seed for r in both] == [3, 5] and both[1].wall_time["seeds_in_call"] == 2
+    assert both[1].curve["normalized_power"][0] == solo.curve["normalized_power"][0]
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-4), both[1].params, solo.params)
+    kernel = lambda r: r.params["actor"]["params"]["MLP_0"]["Dense_0"]["kernel"]  # noqa: E731
+    assert not np.allclose(kernel(both[0]), kernel(both[1]))
+
+
+def test_a_snapshot_is_the_shorter_run():
+    """The state a run passes at a chunk end is the state of a run with that budget (benchmarks.budget)."""
+    snaps = {}
+    offpolicy.train_seeds(droq.LEARNER, ENV, seeds=[4], total_steps=FEW_STEPS,
+                          snapshot_fn=lambda step, ps: snaps.update({step: ps[0]}), **FEW)
+    assert sorted(snaps) == [256, 288, 320]
+    short = agents.train("droq", ENV, seed=4, total_steps=288, **FEW)
+    jax.tree.map(np.testing.assert_array_equal, snaps[288], short.params)
+
+
+def test_bad_hyperparameters_name_the_field():
+    with pytest.raises(ValueError, match=r"^dropout must be a finite number in \[0, 0.9\], got 1.5"):
+        DroQConfig.preset("budget", dropout=1.5)
+    with pytest.raises(ValueError, match="exactly one of updates_per_iter .* and utd_ratio"):
+        DroQConfig.preset("budget", updates_per_iter=4)
+    with pytest.raises(ValueError, match=r"utd_ratio \* num_envs \* unroll must be a whole number"):
+        agents.train("droq", ENV, utd_ratio=0.5)
+    with pytest.raises(ValueError, match="learning_starts must be >= batch_size"):
+        agents.train("droq", ENV, batch_size=512, learning_starts=256)
+    with pytest.raises(TypeError, match=r"unknown DroQ hyperparameter\(s\) \['expl_std'\]"):
+        agents.train("droq", ENV, expl_std=0.1)
+
+
+def test_td3_update_to_data_ratio():
+    """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep updates_per_iter."""
+    c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)
+    assert offpolicy.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
+    assert offpolicy.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
+    budget_cfg = TD3Config.preset("budget")
+    assert budget_cfg.num_envs == 1 and budget_cfg.utd_ratio >= 1 and budget_cfg.total_steps <= 20_000
+
+
+def test_budget_plan_cells_and_report(tmp_path):
+    default = budget.cells("default")
+    assert {c["algo"] for c in default} >= {"droq", "td3", "spgd", "physics"}
+    assert {c["env"] for c in default} == {"hard", "hard + lab"}
+    assert all(c["checkpoints"] == [1000, 2000, 5000, 10_000, 20_000] and c["seed"] not in range(5) for c in default)
+    assert len({c["seed"] for c in default if c["algo"] == "droq"}) == 5
+    assert len([c for c in default if c["algo"] == "spgd"]) == 2  # one per environment: nothing to seed
+    with pytest.raises(ValueError, match="preset must be one of"):
+        budget.cells("slow")
+    narrowed = budget.cells("default", only=["droq", "spgd"], seeds=[11, 12], envs=["hard"])
+    assert [(c["algo"], c["seed"], c["env"]) for c in narrowed] == [("droq", 11, "hard"), ("droq", 12, "hard"),
+                                                                    ("spgd", 11, "hard")]
+    with pytest.raises(ValueError, match=r"only must name some of \["):
+        budget.cells("default", only=["a2c"])
+
+    def record(algo, seed, scores, kind="learner"):
+        cell = dict(kind=kind, algo=algo, hyper={}, env="hard", env_config={}, seed=seed, checkpoints=[1000, 2000, 5000],
+                    episodes=32, eval_seed=4242)
+        return {"cell": cell, "result": {"scores": dict(zip(["1000", "2000", "5000"], scores)), "train_s": 1.0}}
+
+    records = [record("droq", 1, [0.2, 0.91, 0.95]), record("droq", 2, [0.3, 0.5, 0.92]), record("droq", 3, [0.1, 0.4, 0.5]),
+               record("td3", 1, [0.1, 0.2, 0.3]), record("spgd", 1, [0.85] * 3, "reference")]
+    text = budget.report(records, tmp_path)
+    rows = {line.split(" | ")[1].split(" (")[0]: line for line in text.splitlines() if line.startswith("| hard |")}
+    assert "| 5,000 (2/3) |" in rows["DroQ"] and "not reached" in rows["TD3"] and "no training" in rows["SPGD"]
+    last = [0.95, 0.92, 0.5]
+    assert f"{np.mean(last):.3f} ± {np.std(last):.3f} |" in rows["DroQ"]
+    assert (tmp_path / "budget.png").stat().st_size > 5000 and (tmp_path / "budget.json").exists()
+
+
+def test_budget_quick_cell_end_to_end():
+    """A reference cell of the quick preset: one evaluation, the same score at every checkpoint."""
+    cell = next(c for c in budget.cells("quick") if c["algo"] == "spgd")
+    rec = budget.compute(cell)
+    assert set(rec["scores"]) == {"600", "1200"} and len(set(rec["scores"].values())) == 1
+    assert 0.5 < rec["scores"]["600"] <= 1.0
+
+
+def test_budget_baselines_example_without_its_libraries():
+    """examples/budget_baselines.py imports without torch or sbx and refuses an unknown learner."""
+    import importlib.util
+    from pathlib import Path
+
+    import gymnasium
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "budget_baselines.py"
+    spec = importlib.util.spec_from_file_location("budget_baselines", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    env = gymnasium.make("ops_jax/OPS-v0", **{**example.ENV_KWARGS, "max_steps": 3})
+    with pytest.raises(ValueError, match="algo must be one of"):
+        example.make_model("sb3-ppo", env, 0)
+    finals = example._final_power()(env, lambda obs: np.zeros(env.action_space.shape, np.float32), 2, 0)
+    assert finals.shape == (2,) and np.all((finals > 0) & (finals <= 1.0 + 1e-5))
+
+
+def test_the_docs_snippet_runs(capsys):
+    """docs/learners.md's example, with its 20k-step budget cut to the warm-up (1,000 random steps)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "learners.md").read_text()
+    snippet = text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert "total_steps=20_000" in snippet
+    exec(snippet.replace("total_steps=20_000", "total_steps=1_000"), {})
+    assert 0 < float(capsys.readouterr().out.strip()) <= 1
