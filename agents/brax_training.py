@@ -5,6 +5,7 @@ curve and the wall-time split (simulation estimated by timing the wrapped env al
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 
@@ -129,6 +130,18 @@ def fit_budget(algo: str, total: int, fixed: int, unit: int, num_evals: int) -> 
 def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
     sim = min(sim_per_step * env_steps, total)
     return {"simulation": sim, "optimisation": total - sim, "total": total}
+
+
+def training_config(config_type, env_config: dict, config, total_steps: int | None, hyper: dict):
+    """``(env_config checked, config)`` of a brax training: ``config`` (a preset name or a ``config_type``)
+    with the ``hyper`` overrides and ``total_steps`` (None: the config's); brax made runnable on this JAX."""
+    from agents import brax_compat
+
+    brax_compat.prepare_brax()
+    c = config_type.make(config, **hyper)
+    if total_steps is not None:
+        c = dataclasses.replace(c, total_steps=total_steps)
+    return base.check_env_config(env_config), c
 
 
 def deterministic_policy(make_inference_fn, net) -> base.Policy:

@@ -29,13 +29,12 @@ gradient steps, compilation, host overhead).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import time
 
 import jax
 
-from agents import base, brax_compat
+from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 from agents.brax_training import (
     EVAL_FIRST_EPISODE,
     Recorder,
@@ -44,6 +43,7 @@ from agents.brax_training import (
     fit_budget,
     make_brax_env,
     obs_spec,
+    training_config,
 )
 from agents.config import PPOConfig
 from agents.envs import built, train_env_config
@@ -88,13 +88,9 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
     """Train PPO with ``brax.training.agents.ppo.train``; ``config``: a preset name or a
     ``PPOConfig``, ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` (optional)
     is called after each evaluation (metrics normalized_power, reward, elapsed_s)."""
-    brax_compat.prepare_brax()
+    env_config, c = training_config(PPOConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.ppo import train as ppo_train
 
-    env_config = base.check_env_config(env_config)
-    c = PPOConfig.make(config, **hyper)
-    if total_steps is not None:
-        c = dataclasses.replace(c, total_steps=total_steps)
     env = make_brax_env(env_config)
     eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
     num_timesteps, num_evals = fit_budget("ppo", c.total_steps, 0, c.batch_size * c.unroll_length * c.num_minibatches,

@@ -20,13 +20,12 @@ treated as terminations.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import time
 
 import jax
 
-from agents import base, brax_compat
+from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
 from agents.brax_training import (
     EVAL_FIRST_EPISODE,
     Recorder,
@@ -35,6 +34,7 @@ from agents.brax_training import (
     fit_budget,
     make_brax_env,
     obs_spec,
+    training_config,
 )
 from agents.config import SACConfig
 from agents.envs import built, train_env_config
@@ -79,13 +79,9 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
     """Train SAC with ``brax.training.agents.sac.train``; ``config``: a preset name or a
     ``SACConfig``, ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` (optional)
     is called after each evaluation (metrics normalized_power, reward, elapsed_s)."""
-    brax_compat.prepare_brax()
+    env_config, c = training_config(SACConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.sac import train as sac_train
 
-    env_config = base.check_env_config(env_config)
-    c = SACConfig.make(config, **hyper)
-    if total_steps is not None:
-        c = dataclasses.replace(c, total_steps=total_steps)
     if c.min_replay_size >= c.total_steps:
         raise ValueError(f"total_steps must exceed min_replay_size = {c.min_replay_size}, got {c.total_steps}")
     env = make_brax_env(env_config)

@@ -205,7 +205,7 @@ def _figure(groups: dict, path: Path) -> None:
 
 def report(records: list[dict], out_dir) -> str:
     """budget.md (returned), budget.png and budget.json in ``out_dir``; ``records``: [{"cell", "result"}]."""
-    from benchmarks.common import write_json_atomic
+    from agents.io import write_json_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

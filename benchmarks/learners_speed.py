@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.common import write_json_atomic
+from agents.io import write_json_atomic
 
 ENV = {"stages": 5, "mode": "hard"}
 # Budgets per algorithm (env steps): enough for the steady state to dominate a cold call.

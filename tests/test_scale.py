@@ -62,9 +62,14 @@ def test_the_recipe_starts_two_nodes_with_a_token_and_runs_the_sweep_on_them():
                 env = dict(kv.split("=", 1) for kv in out.stdout.split("\0") if "=" in kv)
             elif argv[:2] == ["ray", "start"]:
                 procs.append(_ray_start(argv, tmp / f"node{len(procs)}.log", env, deadline))
-            elif argv[:2] == ["ray", "status"]:
-                out = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=60)
-                assert out.returncode == 0 and len(re.findall(r"^\s*1 node_", out.stdout, re.M)) == 2, out.stdout
+            elif argv[:2] == ["ray", "status"]:  # the worker registers within seconds of its `ray start`
+                while True:
+                    out = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=60)
+                    nodes = len(re.findall(r"^\s*1 node_", out.stdout, re.M))
+                    if out.returncode != 0 or nodes == 2 or time.monotonic() > deadline:
+                        break
+                    time.sleep(1.0)
+                assert out.returncode == 0 and nodes == 2, out.stdout
             elif argv[0] == "python":
                 argv = [sys.executable, *argv[1:-1], str(tmp / "results"), *SMALL_SWEEP]
                 out = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=tmp,
