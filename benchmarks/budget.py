@@ -40,7 +40,6 @@ ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
 OFF_POLICY = ("droq", "td3")  # trained once, evaluated at every checkpoint it passes
 REFERENCES = ("spgd", "physics")
 TARGET = 0.9
-OVERRUN = 1.01  # a run of brax's trainers may exceed its budget by this factor (rounding to whole env batches)
 
 PRESETS = {
     "quick": dict(envs={"easy 3": dict(stages=3, mode="easy", model="phasor")}, seeds=(0,), checkpoints=(600, 1200),
@@ -117,9 +116,9 @@ def _off_policy(cell: dict) -> dict:
 
 
 def _per_budget(cell: dict) -> dict:
-    """A run per checkpoint (brax's trainers); a budget the config refuses, or one the trainer
-    overruns (its curve's last step past ``OVERRUN`` x the budget), is recorded as an error, without
-    a score; ``steps``: the env steps each scored run took."""
+    """A run per checkpoint (brax's trainers); a budget the config refuses, or one smaller than a single
+    training step (which the trainer runs anyway), is recorded as an error, without a score; ``steps``:
+    the env steps each scored run took."""
     import agents
 
     scores, steps, errors, wall = {}, {}, {}, 0.0
@@ -131,8 +130,8 @@ def _per_budget(cell: dict) -> dict:
             errors[str(k)] = str(exc)
             continue
         wall += time.perf_counter() - t0
-        trained = int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0
-        if trained > OVERRUN * k:  # a trainer that rounds the budget up to whole iterations may not fit it
+        trained = result.env_steps
+        if trained > k:
             errors[str(k)] = f"trained {trained} env steps for a budget of {k}"
             continue
         scores[str(k)], steps[str(k)] = _score(result, cell["env_config"], cell), trained
