@@ -52,7 +52,9 @@ class Policy(NamedTuple):
 class TrainResult:
     """What training returns. ``curve``: arrays keyed 'step' (env steps) and at least
     'normalized_power' (evaluation P/Pmax at that step); ``wall_time``: seconds split into
-    'simulation', 'optimisation' and 'total'."""
+    'simulation', 'optimisation' and 'total'; ``state``: the off-policy learners' training state
+    without replay buffer and environment (critics, targets, optimiser states), which a later run
+    continues with ``start_from``; kept in memory only (``save`` writes the policy)."""
 
     algo: str
     env_config: dict
@@ -61,6 +63,7 @@ class TrainResult:
     curve: dict
     wall_time: dict
     seed: int
+    state: Any = None
 
     @property
     def env_steps(self) -> int:

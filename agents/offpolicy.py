@@ -16,6 +16,11 @@ next observation is ``info["final_observation"]`` (the pre-reset one).
 Observations are standardised with a mean / std frozen after the random warm-up, computed over the
 warm-up's observations that the buffer holds (the last ``buffer_size``); they are part of the policy params.
 
+Continued training (``start_from``: TrainResults of the same learner and network sizes, one per seed):
+the run starts from their networks, targets, optimiser states and observation statistics (kept
+frozen) with an empty replay buffer, and its warm-up collects ``learning_starts`` steps with the
+policy's own exploration instead of uniform random actions.
+
 Wall time: ``total`` is everything; ``compile`` the jit compilations; ``evaluation`` the periodic
 evaluation rollouts; ``simulation`` is the warm-up (a jitted env-only scan: uniform random
 actions, ``step_batch`` and buffer insertion, no updates) plus, for the training chunks, the
@@ -106,7 +111,8 @@ def delayed(ts, h, actor_step):
 def replay_loop(env, h, buffer, explore, update) -> dict:
     """The jitted-scan pieces of training around ``explore(ts, key, obs, random) -> actions`` and
     ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
-    ``warmup(ts, n)`` (n iterations of uniform random actions, returns their observations (T, D)),
+    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's exploration
+    with ``random=False``; returns their observations (T, D)),
     ``fit_norm(ts, obs)`` and ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics)."""
     b, d = h["num_envs"], env.observation_size
 
@@ -135,9 +141,9 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
         ts, m = jax.lax.scan(iteration, ts, None, length=length)
         return ts, jax.tree.map(jnp.mean, m)
 
-    def warmup(ts, length):
+    def warmup(ts, length, random=True):
         def body(ts, _):
-            ts, (_, obs) = collect(ts, True)
+            ts, (_, obs) = collect(ts, random)
             return ts, obs
 
         ts, obs = jax.lax.scan(body, ts, None, length=length)
@@ -206,8 +212,9 @@ def _over_seeds(fns: dict, evaluate_fn, ts_shape, num_seeds: int, sharding) -> d
 
     return dict(
         init=jax.jit(lambda k, p: place(over(fns["init"], (0, None), axes)(k, p))),
-        warmup=jax.jit(lambda ts, n: _placed_first(place, over(lambda t: fns["warmup"](t, n), (axes,), (axes, 0))(ts)),
-                       static_argnums=1),
+        warmup=jax.jit(lambda ts, n, random: _placed_first(place, over(lambda t: fns["warmup"](t, n, random), (axes,),
+                                                                                  (axes, 0))(ts)),
+                       static_argnums=(1, 2)),
         fit_norm=jax.jit(lambda ts, obs: place(over(fns["fit_norm"], (axes, 0), axes)(ts, obs))),
         train_chunk=jax.jit(train_chunk, static_argnums=1, donate_argnums=0),
         evaluate=jax.jit(over(evaluate_fn, (0, None, 0, None), 0)),
@@ -236,8 +243,9 @@ def _cached_build(learner: Learner, env_config: dict, h: dict, num_seeds: int) -
         compiled = {}
 
         def get_compiled(name, *args):
-            """``name`` ("warmup" | "train_chunk": args (ts, length); "evaluate": its args) compiled."""
-            static = args[1] if name in ("warmup", "train_chunk") else None
+            """``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts, length); "evaluate":
+            its args) compiled."""
+            static = args[1:] if name in ("warmup", "train_chunk") else None
             arrays = args[:1] if static is not None else args
             sig = (name, static, str(jax.tree.map(lambda x: (x.shape, x.dtype, getattr(x, "sharding", None)),
                                                   arrays)))
@@ -272,28 +280,59 @@ def schedule(h: dict) -> tuple[int, int, int]:
     return warm_iters, n_chunks, (train_iters // n_chunks if n_chunks else 0)
 
 
-def _warm_up(fns: dict, ts, warm_iters: int, timing: dict):
-    """(state after the random warm-up and the frozen observation statistics, simulation seconds
-    per iteration); adds the compile and simulation time to ``timing``."""
+def _warm_up(fns: dict, ts, warm_iters: int, timing: dict, random: bool = True):
+    """(state after the warm-up (uniform random actions, then the observation statistics frozen; or,
+    with ``random=False``, the policy's exploration and the statistics kept), simulation seconds per
+    iteration); adds the compile and simulation time to ``timing``."""
     t0 = time.perf_counter()
-    warmup = fns["compiled"]("warmup", ts, warm_iters)
+    warmup = fns["compiled"]("warmup", ts, warm_iters, random)
     t1 = time.perf_counter()
     ts, warm_obs = jax.block_until_ready(warmup(ts))
     t2 = time.perf_counter()
     jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
     timing["compile"] += t1 - t0
     timing["simulation"] += t2 - t1
-    return fns["fit_norm"](ts, warm_obs), min(t2 - t1, time.perf_counter() - t2) / warm_iters
+    return (fns["fit_norm"](ts, warm_obs) if random else ts), min(t2 - t1, time.perf_counter() - t2) / warm_iters
+
+
+# The fields of a training state that a run does not carry over to a continued one.
+_FRESH = ("buffer", "env_state", "obs", "key", "updates", "env_params")
+
+
+def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
+    """``ts`` (fresh, seed-batched) with the learned arrays of ``start_from`` (one TrainResult per seed, or
+    one TrainResult for one seed) in its own structure (this run's optimisers and settings)."""
+    if isinstance(start_from, base.TrainResult):
+        start_from = [start_from]
+    start_from = list(start_from)
+    if len(start_from) != len(seeds):
+        raise ValueError(f"start_from must hold one TrainResult per seed ({len(seeds)}), got {len(start_from)}")
+    for r in start_from:
+        if not isinstance(r, base.TrainResult) or r.algo != learner.name or r.state is None:
+            raise ValueError(f"start_from must hold {learner.name} TrainResults of this session (with their training "
+                             f"state), got {getattr(r, 'algo', type(r).__name__)!r}")
+    stacked = jax.tree.map(lambda *xs: np.stack(xs), *[r.state for r in start_from])
+    fields = {}
+    for name, value in stacked.items():
+        fresh = getattr(ts, name)
+        leaves, shapes = jax.tree.leaves(value), [x.shape for x in jax.tree.leaves(fresh)]
+        if [x.shape for x in leaves] != shapes:
+            raise ValueError(f"start_from's {name} does not fit this run: network sizes must match, and the "
+                             "optimiser settings (alpha_lr 0 or not)")
+        fields[name] = jax.tree.unflatten(jax.tree.structure(fresh), leaves)
+    return ts._replace(**jax.device_put(fields, sharding))
 
 
 def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], total_steps: int | None = None,
                 progress_fn: Callable[[int, dict], None] | None = None, config=None,
-                snapshot_fn: Callable[[int, list], None] | None = None, **hyper) -> list[base.TrainResult]:
+                snapshot_fn: Callable[[int, list], None] | None = None, start_from=None,
+                **hyper) -> list[base.TrainResult]:
     """Train ``learner`` for several seeds at once: one jitted call vmapped over the seeds (sharded
     over the local devices when they divide the seed count). See ``agents.td3.train_seeds``.
     ``snapshot_fn(step, params)`` (optional) gets each seed's policy params (host copies) after the
     warm-up and after every training chunk: a run of ``total_steps`` T passes through the states of
-    the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up)."""
+    the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up).
+    ``start_from`` (optional): one TrainResult of this learner per seed, continued (module docstring)."""
     env_config = base.check_env_config(env_config)
     seeds = [check_seed(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
@@ -313,7 +352,10 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     k_init, k_eval = keys[:, 0], keys[:, 1]
     if fns["sharding"] is not None:
         k_init, k_eval = jax.device_put((k_init, k_eval), fns["sharding"])
-    ts, sim_per_iter = _warm_up(fns, fns["init"](k_init, env_params), warm_iters, timing)
+    ts = fns["init"](k_init, env_params)
+    if start_from is not None:
+        ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
+    ts, sim_per_iter = _warm_up(fns, ts, warm_iters, timing, random=start_from is None)
 
     def params_of(ts):
         return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
@@ -366,11 +408,12 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     timing = {k: v / len(seeds) for k, v in timing.items()}
     timing["seeds_in_call"] = len(seeds)
     params = jax.device_get(params_of(ts))
+    kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
     curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
                   critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
     return [base.TrainResult(learner.name, env_config, dict(h), jax.tree.map(lambda x: x[i], params),
                              dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
-                             dict(timing), seed)
+                             dict(timing), seed, jax.tree.map(lambda x: x[i], kept))
             for i, seed in enumerate(seeds)]
 
 

@@ -13,12 +13,19 @@ the checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exact
 run of 10k (``agents.offpolicy.train_seeds``'s ``snapshot_fn``). Learners trained by brax (PPO,
 SAC) are trained once per checkpoint; a run that overruns its budget is recorded as an error. SPGD
 and the physics-informed controller learn nothing: their one evaluation (one cell, under the first
-seed) is drawn at every checkpoint, as references. Only protocol (a) (from scratch on the target)
-is planned here; pretraining on the simulator and adapting on a bench is not.
+seed) is drawn at every checkpoint, as references. That is protocol (a), from scratch on the target.
+
+Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the randomised simulator
+(``randomize=1``: each episode's imperfections 0-2x the lab preset; any budget, the preset's
+``pretrain_steps``), then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench
+(``unseen_bench``: the lab preset at twice its magnitudes, its per-stage error patterns re-drawn
+from a seed that pretraining never used), continuing from the pretrained networks
+(``start_from``, agents.offpolicy); P / P_best on that bench before adapting and at each checkpoint.
 
     python -m benchmarks.budget --out results/budget            # preset "default"
     python -m benchmarks.budget --quick --out results/budget-quick
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
+    python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
 Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
 """
@@ -37,6 +44,7 @@ from agents.registry import NAMES
 CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
 HARD = dict(stages=5, mode="hard", model="phasor")
 ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
+BENCH = "unseen bench"  # protocol (b)'s environment name
 OFF_POLICY = ("droq", "td3")  # trained once, evaluated at every checkpoint it passes
 REFERENCES = ("spgd", "physics")
 TARGET = 0.9
@@ -51,8 +59,63 @@ PRESETS = {
                     learners={"droq": {"config": "budget"}, "td3": {"config": "budget"},
                               "sac": {"config": "budget"},  # PPO: 1,000 env steps per iteration (25 x 8 x 5)
                               "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}},
-                    references={"spgd": {}, "physics": {"config": "frames"}}),
+                    references={"spgd": {}, "physics": {"config": "frames"}},
+                    adapt=dict(algo="droq", pretrain_env=dict(HARD, imperfections="lab", randomize=1.0),
+                               pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
+                               pretrain_hyper={"config": "budget", "num_envs": 8, "utd_ratio": 1.25,
+                                               "buffer_size": 100_000, "learning_starts": 2000, "eval_every": 10_000},
+                               hyper={"config": "budget", "learning_starts": 250, "eval_every": 250},
+                               bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
+PRESETS["quick"]["adapt"] = dict(
+    algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0),
+    pretrain_steps=1200, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
+    hyper=dict(PRESETS["quick"]["learners"]["droq"], learning_starts=100, eval_every=100),
+    bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600))
+
+
+# Cost model of a cell on one worker of a 2-core CPU (seconds): per gradient step of the off-policy
+# learners, per env step of brax's (their budget presets), a fixed part per training run (compilation,
+# evaluations), a reference's one evaluation. Fitted to docs/learners.md's measured runs.
+S_PER_UPDATE = {"droq": 6e-4, "td3": 3e-4}
+S_PER_STEP = {"sac": 6e-3, "ppo": 4e-4}
+FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 20.0, "spgd": 5.0, "physics": 20.0}
+
+
+def _updates(algo: str, hyper: dict, steps: int) -> float:
+    """Gradient steps of an off-policy run of ``steps`` env steps (its config's update-to-data ratio)."""
+    from agents import base, offpolicy
+
+    h = base.algo_module(algo).LEARNER.config_type.make(**hyper).to_hyper()
+    return steps * offpolicy.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+
+
+def cost(cell: dict) -> float:
+    """Estimated seconds of ``cell`` (``S_PER_UPDATE``, ``S_PER_STEP``, ``FIXED_S``)."""
+    algo, last = cell["algo"], max(cell["checkpoints"])
+    if cell["kind"] == "reference":
+        return FIXED_S[algo]
+    if cell["kind"] == "adapt":
+        updates = _updates(algo, cell["pretrain_hyper"], cell["pretrain_steps"]) + _updates(algo, cell["hyper"], last)
+        return 2 * FIXED_S[algo] + S_PER_UPDATE[algo] * updates
+    if algo in OFF_POLICY:
+        return FIXED_S[algo] + S_PER_UPDATE[algo] * _updates(algo, cell["hyper"], last)
+    return len(cell["checkpoints"]) * FIXED_S[algo] + S_PER_STEP[algo] * sum(cell["checkpoints"])
+
+
+def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
+    """``env_config`` with the lab preset's imperfections at ``scale`` times their magnitudes, each
+    per-stage error's pattern permuted over the stages and its signs flipped at random by ``seed``:
+    a bench whose errors are as large as the largest that randomised training drew, in a layout it never saw."""
+    from ops_jax import imperfections
+
+    n = env_config["stages"]
+    rng = np.random.default_rng(seed)
+    lab = imperfections.preset("lab", n, scale)
+    drawn = {k: (rng.permutation(v) * rng.choice([-1.0, 1.0], n)).tolist()
+             for k, v in lab.items() if k in imperfections.PER_STAGE and k in imperfections.SCALED
+             and imperfections.RANGES[k].lo < 0}  # signed per-stage errors; leakage stays >= 0
+    return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
 
 
 def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
@@ -61,7 +124,9 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     p = PRESETS[preset]
-    for name, chosen, known in (("only", only, [*p["learners"], *p["references"]]), ("envs", envs, p["envs"])):
+    adapt = p.get("adapt")
+    known_envs = [*p["envs"], *([BENCH] if adapt else [])]
+    for name, chosen, known in (("only", only, [*p["learners"], *p["references"]]), ("envs", envs, known_envs)):
         if chosen is not None and not set(chosen) <= set(known):
             raise ValueError(f"{name} must name some of {sorted(known)}, got {sorted(chosen)}")
     out = []
@@ -77,6 +142,14 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
                     out.append(dict(kind=kind, algo=algo, hyper=dict(hyper), env=env_name, env_config=dict(env_config),
                                     seed=int(seed), checkpoints=list(p["checkpoints"]), episodes=p["episodes"],
                                     eval_seed=p["eval_seed"]))
+    if adapt and (envs is None or BENCH in envs) and (only is None or adapt["algo"] in only):
+        for seed in (p["seeds"] if seeds is None else seeds):
+            bench_seed = int(seed) + adapt["bench_seed_offset"]
+            out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), env=BENCH,
+                            env_config=unseen_bench(adapt["bench"], bench_seed, adapt["scale"]), bench_seed=bench_seed,
+                            pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
+                            pretrain_hyper=dict(adapt["pretrain_hyper"]), seed=int(seed),
+                            checkpoints=list(adapt["checkpoints"]), episodes=p["episodes"], eval_seed=p["eval_seed"]))
     return out
 
 
@@ -91,12 +164,12 @@ def _score(result_or_policy, env_config: dict, cell: dict) -> float:
     return float(ev.summary["final_mean"] * ratio)
 
 
-def _off_policy(cell: dict) -> dict:
-    """One run to the last checkpoint, its snapshots evaluated: {checkpoint: score}, wall s."""
+def _snapshot_run(cell: dict, start_from=None):
+    """One run of ``cell``'s off-policy learner to its last checkpoint: (result, {checkpoint: policy params})."""
     from agents import base, offpolicy
 
     module = base.algo_module(cell["algo"])
-    env_config, marks = cell["env_config"], set(cell["checkpoints"])
+    marks = set(cell["checkpoints"])
     h = module.LEARNER.config_type.make(**cell["hyper"]).to_hyper()
     warm, n_chunks, chunk = offpolicy.schedule({**h, "total_steps": max(marks)})
     per_iter = h["num_envs"] * h["unroll"]
@@ -105,14 +178,40 @@ def _off_policy(cell: dict) -> dict:
         raise ValueError(f"checkpoints {sorted(marks - ends)} are not chunk ends of this config (eval_every, "
                          "learning_starts)")
     snapshots = {}
-    t0 = time.perf_counter()
-    (result,) = offpolicy.train_seeds(module.LEARNER, env_config, seeds=[cell["seed"]], total_steps=max(marks),
+    (result,) = offpolicy.train_seeds(module.LEARNER, cell["env_config"], seeds=[cell["seed"]], total_steps=max(marks),
                                       snapshot_fn=lambda step, ps: snapshots.update({step: ps[0]}) if step in marks
-                                      else None, **cell["hyper"])
-    wall = time.perf_counter() - t0
+                                      else None, start_from=start_from, **cell["hyper"])
+    return result, snapshots
+
+
+def _scores(result, snapshots: dict, cell: dict) -> dict:
     policy = result.policy()
-    return {"scores": {str(k): _score((policy, snapshots[k]), env_config, cell) for k in sorted(marks)},
-            "train_s": wall}
+    return {str(k): _score((policy, snapshots[k]), cell["env_config"], cell) for k in sorted(snapshots)}
+
+
+def _off_policy(cell: dict) -> dict:
+    """One run to the last checkpoint, its snapshots evaluated: {checkpoint: score}, wall s."""
+    t0 = time.perf_counter()
+    result, snapshots = _snapshot_run(cell)
+    wall = time.perf_counter() - t0
+    return {"scores": _scores(result, snapshots, cell), "train_s": wall}
+
+
+def _adapt(cell: dict) -> dict:
+    """Protocol (b): pretrain on the randomised simulator, score on the unseen bench (``before``), train on
+    there from the pretrained state; ``scores`` at each checkpoint of bench env steps, ``pretrain_s``, ``train_s``."""
+    import agents
+
+    t0 = time.perf_counter()
+    pretrained = agents.train(cell["algo"], cell["pretrain_env"], seed=cell["seed"], total_steps=cell["pretrain_steps"],
+                              **cell["pretrain_hyper"])
+    pretrain_s = time.perf_counter() - t0
+    before = _score(pretrained, cell["env_config"], cell)
+    t0 = time.perf_counter()
+    result, snapshots = _snapshot_run(cell, start_from=pretrained)
+    wall = time.perf_counter() - t0
+    return {"before": before, "scores": _scores(result, snapshots, cell), "pretrain_s": pretrain_s, "train_s": wall,
+            "pretrain_steps": pretrained.env_steps}
 
 
 def _per_budget(cell: dict) -> dict:
@@ -147,6 +246,8 @@ def compute(cell: dict) -> dict:
         result = agents.train(cell["algo"], cell["env_config"], seed=cell["seed"], **cell["hyper"])
         score = _score(result, cell["env_config"], cell)
         return {"scores": {str(k): score for k in cell["checkpoints"]}, "train_s": time.perf_counter() - t0}
+    if cell["kind"] == "adapt":
+        return _adapt(cell)
     if cell["algo"] in OFF_POLICY:
         return _off_policy(cell)
     return _per_budget(cell)
@@ -173,12 +274,13 @@ def _median_steps(rs) -> str:
     return "not reached" if not np.isfinite(m) else f"{m:,.0f} ({sum(k is not None for k in reached)}/{len(rs)})"
 
 
-def _figure(groups: dict, path: Path) -> None:
+def _figure(groups: dict, adapted: list, path: Path) -> None:
     from benchmarks.sweep_report import _plt
 
     plt = _plt()
     envs = list(dict.fromkeys(env for env, _ in groups))
-    fig, axes = plt.subplots(1, len(envs), figsize=(5.5 * len(envs), 4), squeeze=False, sharey=True)
+    panels = len(envs) + bool(adapted)
+    fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), squeeze=False, sharey=True)
     algos = list(dict.fromkeys(a for _, a in groups))
     for ax, env in zip(axes[0], envs):
         for i, algo in enumerate(algos):
@@ -196,10 +298,43 @@ def _figure(groups: dict, path: Path) -> None:
         ax.set_title(env)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("final P / P_best (mean over seeds, band: min-max)")
-    axes[0][-1].legend(fontsize=8, loc="lower right")
+    (axes[0][len(envs) - 1] if envs else axes[0][0]).legend(fontsize=8, loc="lower right")
+    if adapted:
+        ax = axes[0][-1]
+        for i, r in enumerate(adapted):
+            ks = [0] + r["cell"]["checkpoints"]
+            ax.plot(ks, [r["result"]["before"]] + [r["result"]["scores"][str(k)] for k in ks[1:]], marker="o", ms=3,
+                    color=f"C{i}", label=f"pretraining seed {r['cell']['seed']}")
+        ax.axhline(0.95, color="grey", lw=0.8, ls=":")
+        ax.set_xlabel("env steps on the bench (0: pretrained only)")
+        ax.set_title(f"{BENCH}: simulator to bench")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _adapt_table(adapted: list) -> list:
+    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting."""
+    c = adapted[0]["cell"]
+    ks = c["checkpoints"]
+    lines = [f"## Simulator to bench ({NAMES.get(c['algo'], c['algo'])})", "",
+             f"Pretrained {c['pretrain_steps']:,} env steps on the randomised simulator ({c['pretrain_env']}, "
+             f"{c['pretrain_hyper']}), then trained on for up to {ks[-1]:,} env steps on an unseen bench (the lab "
+             f"preset at {adapted[0]['cell']['env_config'].get('imperfection_scale')}x, per-stage errors re-drawn "
+             "from the bench seed); final P / P_best on that bench.", "",
+             "| pretraining seed | bench seed | before | " + " | ".join(f"after {k:,}" for k in ks)
+             + " | pretraining s | adapting s |", "|---|---|---|" + "---|" * len(ks) + "---|---|"]
+    for r in adapted:
+        res = r["result"]
+        lines.append(f"| {r['cell']['seed']} | {r['cell']['bench_seed']} | {res['before']:.3f} | "
+                     + " | ".join(f"{res['scores'][str(k)]:.3f}" for k in ks)
+                     + f" | {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
+    for name, f in (("mean", np.mean), ("worst", np.min)):
+        lines.append(f"| {name} | | {f([r['result']['before'] for r in adapted]):.3f} | "
+                     + " | ".join(f"{f([r['result']['scores'][str(k)] for r in adapted]):.3f}" for k in ks) + " | | |")
+    return lines
 
 
 def report(records: list[dict], out_dir) -> str:
@@ -208,8 +343,9 @@ def report(records: list[dict], out_dir) -> str:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    groups = _groups(records)
-    checkpoints = sorted({k for r in records for k in r["cell"]["checkpoints"]})
+    adapted = [r for r in records if r["cell"]["kind"] == "adapt"]
+    groups = _groups([r for r in records if r["cell"]["kind"] != "adapt"])
+    checkpoints = sorted({k for (_, _), rs in groups.items() for r in rs for k in r["cell"]["checkpoints"]})
     first = records[0]["cell"]
     lines = ["# Learning on a lab's budget", "",
              f"Final P / P_best after each number of env steps of the target system (mean ± std over seeds; each "
@@ -231,11 +367,14 @@ def report(records: list[dict], out_dir) -> str:
         lines.append(f"| {env} | {who} | {steps} | " + " | ".join(row) + " |")
     walls = {algo: np.median([r["result"]["train_s"] for (_, a), rs in groups.items() if a == algo for r in rs])
              for algo in dict.fromkeys(a for _, a in groups)}
-    lines += ["", "Median wall time per cell (training to the last checkpoint, s): "
-              + ", ".join(f"{NAMES.get(a, a)} {w:.0f}" for a, w in walls.items()) + ".",
-              "", f"{time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
+    if walls:
+        lines += ["", "Median wall time per cell (training to the last checkpoint, s): "
+                  + ", ".join(f"{NAMES.get(a, a)} {w:.0f}" for a, w in walls.items()) + "."]
+    if adapted:
+        lines += ["", *_adapt_table(adapted)]
+    lines += ["", f"{time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
               f"({platform.processor() or platform.machine()}).", "", "![P / P_best against env steps](budget.png)"]
-    _figure(groups, out / "budget.png")
+    _figure(groups, adapted, out / "budget.png")
     write_json_atomic(out / "budget.json", records)
     text = "\n".join(lines) + "\n"
     (out / "budget.md").write_text(text)
@@ -260,7 +399,8 @@ def main(argv=None) -> str:
         t0 = time.perf_counter()
         result = store.get(label, cell, lambda: compute(cell))
         records.append({"cell": cell, "result": result})
-        print(f"[{i + 1}/{len(plan)}] {label}: " + ", ".join(f"{k} {v:.3f}" for k, v in result["scores"].items())
+        before = f"before {result['before']:.3f}, " if "before" in result else ""
+        print(f"[{i + 1}/{len(plan)}] {label}: " + before + ", ".join(f"{k} {v:.3f}" for k, v in result["scores"].items())
               + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
     text = report(records, args.out)
     print(text)

@@ -195,7 +195,8 @@ def _budget_section() -> CellSection:
     run, the "default" one otherwise; run when asked for (``--only budget``)."""
     return CellSection("budget", lambda p: budget.cells("quick" if p["name"] == "quick" else "default"),
                        budget.compute,
-                       lambda records, out: budget.report([{"cell": c, "result": r} for c, r in records], out / "budget"))
+                       lambda records, out: budget.report([{"cell": c, "result": r} for c, r in records], out / "budget"),
+                       cost=budget.cost)
 
 
 for _section in (Table1(), Table2(), Stages(), Transfer(), Feedback(), reality.Reality(), _budget_section()):

@@ -43,11 +43,14 @@ class Section:
 class CellSection(Section):
     """A section of independent cells: ``cells(preset) -> [config dict]`` (each JSON-able; optional keys
     ``label`` and ``cost``, estimated seconds), ``compute(config) -> result dict`` (run by a worker) and
-    ``report(records, out) -> str`` (records: [(config, result)]; returns the report's text)."""
+    ``report(records, out) -> str`` (records: [(config, result)]; returns the report's text); ``cost(config)``
+    (optional) estimates a cell's seconds without being part of its configuration."""
 
-    def __init__(self, name: str, cells: Callable, compute: Callable, report: Callable, default: bool = False):
+    def __init__(self, name: str, cells: Callable, compute: Callable, report: Callable, default: bool = False,
+                 cost: Callable | None = None):
         self.name, self.default = name, default
         self._cells, self._compute, self._report = cells, compute, report
+        self._cost = cost or (lambda config: float(config.get("cost", EVAL_S)))
 
     def labelled(self, preset: dict) -> list:
         """[(label, config)] of the preset's cells."""
@@ -56,7 +59,7 @@ class CellSection(Section):
 
     def units(self, sweep) -> list:
         return [dict(key=label, algo=self.name, kind="cell", section=self.name, cells=[(label, config)], deps=[],
-                     cost=float(config.get("cost", EVAL_S))) for label, config in self.labelled(sweep.p)]
+                     cost=float(self._cost(config))) for label, config in self.labelled(sweep.p)]
 
     def compute(self, config: dict) -> dict:
         return self._compute({k: v for k, v in config.items() if k != "section"})

@@ -67,6 +67,39 @@ def test_a_snapshot_is_the_shorter_run():
     jax.tree.map(np.testing.assert_array_equal, snaps[288], short.params)
 
 
+def test_continued_training_starts_from_the_pretrained_state(trained):
+    """A continued run that stops at its warm-up (the policy's own exploration, no gradient step) holds the
+    pretrained policy exactly; training on moves it; sizes or a learner that do not match are refused."""
+    warm_only = agents.train("droq", ENV, seed=3, total_steps=256, start_from=trained, **HYPER)
+    jax.tree.map(np.testing.assert_array_equal, warm_only.params, trained.params)
+    assert warm_only.curve["normalized_power"][0] == trained.curve["normalized_power"][-1]  # same evaluation keys
+    on = agents.train("droq", ENV, seed=8, total_steps=256 + 512, start_from=[trained], **HYPER)
+    assert not np.allclose(on.params["actor"]["params"]["MLP_0"]["Dense_0"]["kernel"],
+                           trained.params["actor"]["params"]["MLP_0"]["Dense_0"]["kernel"])
+    assert agents.evaluate(on, ENV, episodes=8, seed=1).summary["final_mean"] >= 0.8
+    with pytest.raises(ValueError, match="network sizes must match"):
+        agents.train("droq", ENV, seed=8, total_steps=256, start_from=trained, **dict(HYPER, hidden=(16, 16)))
+    with pytest.raises(ValueError, match="one TrainResult per seed"):
+        agents.train_seeds("droq", ENV, seeds=[1, 2], total_steps=256, start_from=[trained], **HYPER)
+    loaded = agents.TrainResult(**{**vars(trained), "state": None})
+    with pytest.raises(ValueError, match="start_from must hold droq TrainResults of this session"):
+        agents.train("droq", ENV, seed=8, total_steps=256, start_from=loaded, **HYPER)
+
+
+def test_unseen_bench_is_the_lab_preset_at_twice_its_size_redrawn():
+    import ops_jax
+    from ops_jax import imperfections
+
+    hard = dict(stages=5, mode="hard", model="phasor")
+    a, b = budget.unseen_bench(hard, 1011), budget.unseen_bench(hard, 1012)
+    assert a == budget.unseen_bench(hard, 1011) and a != b
+    lab2 = imperfections.preset("lab", 5, 2.0)
+    for key in ("waveplate_error_deg", "readout_offset", "actuator_gain_error"):
+        assert sorted(np.abs(a[key])) == pytest.approx(sorted(np.abs(lab2[key])))
+    env, params = ops_jax.make(**a)
+    assert env.config.imperfect and 0.5 < float(params.lab.p_best) / env.p_max < 1.0
+
+
 def test_bad_hyperparameters_name_the_field():
     with pytest.raises(ValueError, match=r"^dropout must be a finite number in \[0, 0.9\], got 1.5"):
         DroQConfig.preset("budget", dropout=1.5)
@@ -117,6 +150,36 @@ def test_budget_plan_cells_and_report(tmp_path):
     last = [0.95, 0.92, 0.5]
     assert f"{np.mean(last):.3f} ± {np.std(last):.3f} |" in rows["DroQ"]
     assert (tmp_path / "budget.png").stat().st_size > 5000 and (tmp_path / "budget.json").exists()
+
+
+def test_budget_plan_simulator_to_bench(tmp_path):
+    """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and worst seed."""
+    adapt = [c for c in budget.cells("default") if c["kind"] == "adapt"]
+    assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len({c["bench_seed"] for c in adapt}) == 5
+    assert all(c["pretrain_env"]["randomize"] == 1.0 and c["checkpoints"][-1] <= 5000 for c in adapt)
+    assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
+    assert not [c for c in budget.cells("default", only=["td3"]) if c["kind"] == "adapt"]
+    by_algo = {c["algo"]: c for c in budget.cells("default") if c["kind"] != "adapt"}
+    assert budget.cost(adapt[0]) > budget.cost(by_algo["droq"]) > budget.cost(by_algo["spgd"]) > 0
+    assert "cost" not in by_algo["droq"]  # an estimate, not part of the cell's configuration
+
+    def record(seed, before, after):
+        return {"cell": dict(adapt[0], seed=seed, bench_seed=seed + 1000),
+                "result": {"before": before, "scores": dict(zip(["1000", "2000", "5000"], after)), "pretrain_s": 9.0,
+                           "train_s": 3.0}}
+
+    text = budget.report([record(11, 0.6, [0.7, 0.8, 0.97]), record(12, 0.5, [0.9, 0.93, 0.91])], tmp_path)
+    assert "| 11 | 1011 | 0.600 | 0.700 | 0.800 | 0.970 | 9 | 3 |" in text
+    assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | | |" in text
+    assert (tmp_path / "budget.png").stat().st_size > 5000
+
+
+def test_budget_quick_adapt_cell_end_to_end():
+    """The quick preset's protocol (b) cell: pretrained on the randomised simulator, scored before and after."""
+    cell = next(c for c in budget.cells("quick", seeds=[0]) if c["kind"] == "adapt")
+    rec = budget.compute(cell)
+    assert set(rec["scores"]) == {"300", "600"} and 0.0 < rec["before"] <= 1.0
+    assert rec["pretrain_steps"] <= cell["pretrain_steps"] and all(0.0 < v <= 1.0 for v in rec["scores"].values())
 
 
 def test_budget_quick_cell_end_to_end():

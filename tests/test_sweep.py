@@ -318,3 +318,18 @@ def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+def test_local_workers_get_disjoint_cpu_shares_and_pinning_holds_for_later_threads():
+    from benchmarks.sweep_ray import cpu_shares
+
+    cpus = sorted(os.sched_getaffinity(0))
+    for n in range(2, len(cpus) + 1):
+        shares = cpu_shares(n)
+        assert len(shares) == n and all(shares) and sorted(c for s in shares for c in s) == cpus
+    assert cpu_shares(len(cpus) + 1) == [None] * (len(cpus) + 1) and cpu_shares(1) == [None]
+    code = ("import os, threading; from benchmarks.sweep_ray import pin; pin([%d]); seen = []; "
+            "t = threading.Thread(target=lambda: seen.append(os.sched_getaffinity(0))); t.start(); t.join(); "
+            "print(sorted(os.sched_getaffinity(0)), sorted(seen[0]))" % cpus[-1])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.stdout.split() == [f"[{cpus[-1]}]", f"[{cpus[-1]}]"], out.stderr
