@@ -33,7 +33,7 @@ class SweepPresets:
     """An algorithm's part of the sweep's presets ("quick", "default", "paper"): training budget (env
     steps) and hyperparameter overrides per preset, the reality section's own budgets, and the cost
     model on one worker of a 2-core CPU: a training cell (``fixed_s`` + ``s_per_step`` x budget) x
-    ``stage_growth`` ** (N - 5) on N stages; an evaluation cell of 32 episodes, ``eval_s``."""
+    ``stage_growth`` ** (N - 5) on N > 5 stages; an evaluation cell of 32 episodes, ``eval_s``."""
 
     budgets: dict
     hyper: dict = dataclasses.field(default_factory=dict)
@@ -45,7 +45,7 @@ class SweepPresets:
 
     def cell_seconds(self, steps: int, stages: int = 5) -> float:
         """Estimated seconds of one training cell with a budget of ``steps`` env steps on ``stages`` stages."""
-        return (self.fixed_s + self.s_per_step * steps) * self.stage_growth ** (stages - 5)
+        return (self.fixed_s + self.s_per_step * steps) * self.stage_growth ** max(0, stages - 5)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -59,27 +59,32 @@ PRESETS = {
                     learners={"droq": {"config": "budget"}, "td3": {"config": "budget"},
                               "sac": {"config": "budget"},  # PPO: 1,000 env steps per iteration (25 x 8 x 5)
                               "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}},
-                    references={"spgd": {}, "physics": {"config": "frames"}},
+                    references={"spgd": {}, "physics": {}},
                     adapt=dict(algo="droq", pretrain_env=dict(HARD, imperfections="lab", randomize=1.0),
                                pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
                                pretrain_hyper={"config": "budget", "num_envs": 8, "utd_ratio": 1.25,
                                                "buffer_size": 100_000, "learning_starts": 2000, "eval_every": 10_000},
-                               hyper={"config": "budget", "learning_starts": 250, "eval_every": 250},
+                               # adapting: 1,000 steps of the pretrained policy, then 2 gentler gradient steps per step
+                               hyper={"config": "budget", "learning_starts": 1000, "eval_every": 250, "utd_ratio": 2.0,
+                                      "actor_lr": 3e-4, "critic_lr": 3e-4},
                                bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0),
-    pretrain_steps=1200, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
+    pretrain_steps=600, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
     hyper=dict(PRESETS["quick"]["learners"]["droq"], learning_starts=100, eval_every=100),
     bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600))
 
 
-# Cost model of a cell on one worker of a 2-core CPU (seconds): per gradient step of the off-policy
-# learners, per env step of brax's (their budget presets), a fixed part per training run (compilation,
-# evaluations), a reference's one evaluation. Fitted to docs/learners.md's measured runs.
-S_PER_UPDATE = {"droq": 6e-4, "td3": 3e-4}
+# Cost model of a cell on a 2-core CPU (seconds): per gradient step of the off-policy learners, per env
+# step of brax's (their budget presets), a fixed part per training run (compilation, evaluations), a
+# reference's one evaluation; an adapt cell's pretraining, scoring and adapting besides its gradient steps.
+# Fitted to docs/learners.md's runs of 2026-11-25 (DroQ 124-166 s per 20k-step cell, adapt cells 176-183 s,
+# references 5-84 s); TD3, SAC and PPO at their budget presets are estimates, not measured.
+S_PER_UPDATE = {"droq": 5.5e-4, "td3": 3e-4}
 S_PER_STEP = {"sac": 6e-3, "ppo": 4e-4}
-FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 20.0, "spgd": 5.0, "physics": 20.0}
+FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 20.0, "spgd": 10.0, "physics": 80.0}
+ADAPT_FIXED_S = 100.0
 
 
 def _updates(algo: str, hyper: dict, steps: int) -> float:
@@ -91,13 +96,13 @@ def _updates(algo: str, hyper: dict, steps: int) -> float:
 
 
 def cost(cell: dict) -> float:
-    """Estimated seconds of ``cell`` (``S_PER_UPDATE``, ``S_PER_STEP``, ``FIXED_S``)."""
+    """Estimated seconds of ``cell`` (``S_PER_UPDATE``, ``S_PER_STEP``, ``FIXED_S``, ``ADAPT_FIXED_S``)."""
     algo, last = cell["algo"], max(cell["checkpoints"])
     if cell["kind"] == "reference":
         return FIXED_S[algo]
     if cell["kind"] == "adapt":
         updates = _updates(algo, cell["pretrain_hyper"], cell["pretrain_steps"]) + _updates(algo, cell["hyper"], last)
-        return 2 * FIXED_S[algo] + S_PER_UPDATE[algo] * updates
+        return ADAPT_FIXED_S + S_PER_UPDATE[algo] * updates
     if algo in OFF_POLICY:
         return FIXED_S[algo] + S_PER_UPDATE[algo] * _updates(algo, cell["hyper"], last)
     return len(cell["checkpoints"]) * FIXED_S[algo] + S_PER_STEP[algo] * sum(cell["checkpoints"])
@@ -298,7 +303,8 @@ def _figure(groups: dict, adapted: list, path: Path) -> None:
         ax.set_title(env)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("final P / P_best (mean over seeds, band: min-max)")
-    (axes[0][len(envs) - 1] if envs else axes[0][0]).legend(fontsize=8, loc="lower right")
+    if envs:
+        axes[0][len(envs) - 1].legend(fontsize=8, loc="lower right")
     if adapted:
         ax = axes[0][-1]
         for i, r in enumerate(adapted):
