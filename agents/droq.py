@@ -171,7 +171,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
     """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
     steps (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
     overrides of its fields; ``progress_fn`` and the curve as in ``agents.td3.train``; ``start_from=result``
-    continues from an earlier run of this session (``agents.offpolicy``)."""
+    continues from an earlier run in this process (``agents.offpolicy``)."""
     return train_seeds(env_config, seeds=[offpolicy.check_seed(seed)], total_steps=total_steps,
                        progress_fn=progress_fn, config=config, **hyper)[0]
 

@@ -309,16 +309,16 @@ def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
         raise ValueError(f"start_from must hold one TrainResult per seed ({len(seeds)}), got {len(start_from)}")
     for r in start_from:
         if not isinstance(r, base.TrainResult) or r.algo != learner.name or r.state is None:
-            raise ValueError(f"start_from must hold {learner.name} TrainResults of this session (with their training "
-                             f"state), got {getattr(r, 'algo', type(r).__name__)!r}")
+            raise ValueError(f"start_from must hold {learner.name} TrainResults trained in this process (with their "
+                             f"training state), got {getattr(r, 'algo', type(r).__name__)!r}")
     stacked = jax.tree.map(lambda *xs: np.stack(xs), *[r.state for r in start_from])
     fields = {}
     for name, value in stacked.items():
         fresh = getattr(ts, name)
         leaves, shapes = jax.tree.leaves(value), [x.shape for x in jax.tree.leaves(fresh)]
         if [x.shape for x in leaves] != shapes:
-            raise ValueError(f"start_from's {name} does not fit this run: network sizes must match, and the "
-                             "optimiser settings (alpha_lr 0 or not)")
+            raise ValueError(f"start_from's {name} does not fit this run: network sizes must match (and alpha_lr "
+                             "be 0 in both runs or in neither)")
         fields[name] = jax.tree.unflatten(jax.tree.structure(fresh), leaves)
     return ts._replace(**jax.device_put(fields, sharding))
 

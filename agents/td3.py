@@ -158,7 +158,7 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,
     "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every
     evaluation with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most
     ``total_steps`` env steps (whole iterations, ``agents.offpolicy.schedule``); the curve's 'step' holds the true
-    counts. ``start_from=result`` continues from an earlier run of this session (``agents.offpolicy``)."""
+    counts. ``start_from=result`` continues from an earlier run in this process (``agents.offpolicy``)."""
     return train_seeds(env_config, seeds=[offpolicy.check_seed(seed)], total_steps=total_steps,
                        progress_fn=progress_fn, config=config, **hyper)[0]
 

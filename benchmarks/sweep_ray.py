@@ -92,7 +92,8 @@ def pin(cpus) -> None:
 def cpu_shares(n: int) -> list:
     """``n`` disjoint, near-equal sets of this process's CPUs, one per local worker; ``[None] * n`` (no
     pinning) when there are fewer CPUs than workers or no affinity interface. Two workers on two cores
-    each with a two-thread pool share every core; one core each measured ~25% faster training (docs/sweep.md)."""
+    each with a two-thread pool share every core; one core each trained 20-25% faster, compilation excluded
+    (docs/sweep.md)."""
     if not hasattr(os, "sched_getaffinity"):
         return [None] * n
     cpus = sorted(os.sched_getaffinity(0))

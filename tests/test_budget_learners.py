@@ -82,7 +82,7 @@ def test_continued_training_starts_from_the_pretrained_state(trained):
     with pytest.raises(ValueError, match="one TrainResult per seed"):
         agents.train_seeds("droq", ENV, seeds=[1, 2], total_steps=256, start_from=[trained], **HYPER)
     loaded = agents.TrainResult(**{**vars(trained), "state": None})
-    with pytest.raises(ValueError, match="start_from must hold droq TrainResults of this session"):
+    with pytest.raises(ValueError, match="start_from must hold droq TrainResults trained in this process"):
         agents.train("droq", ENV, seed=8, total_steps=256, start_from=loaded, **HYPER)
 
 
