@@ -206,14 +206,3 @@ def test_budget_baselines_example_without_its_libraries():
         example.make_model("sb3-ppo", env, 0)
     finals = example._final_power()(env, lambda obs: np.zeros(env.action_space.shape, np.float32), 2, 0)
     assert finals.shape == (2,) and np.all((finals > 0) & (finals <= 1.0 + 1e-5))
-
-
-def test_the_docs_snippet_runs(capsys):
-    """docs/learners.md's example, with its 20k-step budget cut to the warm-up (1,000 random steps)."""
-    from pathlib import Path
-
-    text = (Path(__file__).resolve().parents[1] / "docs" / "learners.md").read_text()
-    snippet = text.split("```python\n", 1)[1].split("```", 1)[0]
-    assert "total_steps=20_000" in snippet
-    exec(snippet.replace("total_steps=20_000", "total_steps=1_000"), {})
-    assert 0 < float(capsys.readouterr().out.strip()) <= 1
