@@ -9,11 +9,12 @@ controller is built for (stages come from the bench). The bench is the simulated
 ``python -m ops_jax.ioc`` under ``--prefix`` or any bench described by ``--mapping FILE``
 (``agents.bench_devices``).
 
-One control step: wait for a new detector frame (the newest one not yet used), read it, build the
-observation exactly as the simulator does (power, oscilloscope samples, length readouts), decide,
-write the setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move:
-write the probed setpoints, wait for the next frame, read the power; so each probe costs one frame
-and the step's action goes out after it. ``--rate`` caps the control steps per second.
+One control step: wait for a detector frame that shows the last setpoints written (the newest one
+acquired ``settle_s`` or more after the write, by its time stamp), read it, build the observation
+exactly as the simulator does (power, oscilloscope samples, length readouts), decide, write the
+setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move: write the
+probed setpoints, wait for a frame that shows them, read the power; so each probe costs at least one
+frame and the step's action goes out after it. ``--rate`` caps the control steps per second.
 
 The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
@@ -204,6 +205,14 @@ class Loop:
         self.frames = [frame] * stack if self.frames is None else (self.frames + [frame])[-stack:]
         return np.concatenate(self.frames)
 
+    def moved(self):
+        """Setpoints were written: the next frame used must show them (in lockstep: the next tick; else
+        a frame acquired ``settle_s`` after now)."""
+        if self.mapping["advance"]:
+            self.det.use()
+        else:
+            self.det.after(time.time() + self.mapping["detector"]["settle_s"])
+
     def probe_power(self) -> float:
         value = self.det.power.get()
         self.check(self.det.power, value, time.time())
@@ -260,7 +269,7 @@ def control_plan(loop: Loop, control, md: dict):
             decide += time.perf_counter() - t
             yield from bps.abs_set(loop.lines, base_wl + offsets)
             latency.append(1e3 * (time.perf_counter() - t_frame))
-            loop.det.use()
+            loop.moved()
             yield from tick()
             yield from frame()
             t_frame, results[i] = loop.det.tick_time, loop.probe_power()
@@ -269,6 +278,7 @@ def control_plan(loop: Loop, control, md: dict):
         decide_ms = 1e3 * (decide + time.perf_counter() - t)
         yield from bps.abs_set(loop.lines, base_wl + action * loop.scale)
         latency.append(1e3 * (time.perf_counter() - t_frame))
+        loop.moved()
         control.put(action, loop.lines.position, results, latency[-1])
         yield from bps.read(control)
         yield Msg("save")

@@ -6,14 +6,16 @@ wavelength); the safety limits in wavelengths::
 
     {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV", "length": "OPS:LINE1:LEN"}, ...],
      "detector": {"power": "OPS:DET:POWER", "trace": "OPS:SCOPE:TRACE", "tick": "OPS:TICK",
-                  "power_full_scale": 1.0, "trace_peak": 1.0},
+                  "power_full_scale": 1.0, "trace_peak": 1.0, "settle_s": 0.002},
      "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
      "advance": null, "units_per_wl": 1.0,
      "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}}
 
 ``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
 controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the
-scope reading of the ideal pulse peak. ``evaluation`` PVs (optional) are recorded, never shown to a
+scope reading of the ideal pulse peak; ``settle_s``: from a setpoint write until a frame acquired
+later shows it (the write's transit and the actuator's settling; frames are told apart by their time
+stamps, the acquisition's start). ``evaluation`` PVs (optional) are recorded, never shown to a
 controller. ``advance`` (optional): a PV whose write advances a lockstep simulator by one tick.
 ``soft_range_wl`` is one [low, high] for every line or a list of one per line.
 """
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from pathlib import Path
@@ -34,11 +37,12 @@ from ophyd.status import Status
 
 log = logging.getLogger("agents.bench")
 
+SETTLE_S = 0.002  # default detector.settle_s (s): a write's transit to a local IOC, with margin
 SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}
 _KEYS = {
     "": {"lines", "detector", "evaluation", "advance", "units_per_wl", "safety"},
     "lines[]": {"setpoint", "readback", "length"},
-    "detector": {"power", "trace", "tick", "power_full_scale", "trace_peak"},
+    "detector": {"power", "trace", "tick", "power_full_scale", "trace_peak", "settle_s"},
     "evaluation": {"p_pmax", "p_pbest"},
     "safety": set(SAFETY_DEFAULTS),
 }
@@ -77,9 +81,11 @@ def _pv(where: str, value) -> str:
     return value
 
 
-def _number(where: str, value, low: float, high: float = np.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low < value <= high):
-        raise MappingError(f"mapping: {where} must be a number in ({low:g}, {high:g}], got {value!r}")
+def _number(where: str, value, low: float, high: float = np.inf, low_included: bool = False) -> float:
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not (number and (low <= value if low_included else low < value) and value <= high):
+        raise MappingError(f"mapping: {where} must be a number in {'[' if low_included else '('}{low:g}, {high:g}], "
+                           f"got {value!r}")
     return float(value)
 
 
@@ -97,6 +103,7 @@ def check_mapping(m: dict) -> dict:
     detector = {k: _pv(f"detector.{k}", det[k]) for k in ("power", "trace", "tick")}
     for k in ("power_full_scale", "trace_peak"):
         detector[k] = _number(f"detector.{k}", det.get(k, 1.0), 0.0)
+    detector["settle_s"] = _number("detector.settle_s", det.get("settle_s", SETTLE_S), 0.0, 10.0, low_included=True)
     ev = m.get("evaluation") or {}
     _check_keys("evaluation", ev, _KEYS["evaluation"])
     safety = {**SAFETY_DEFAULTS, **(m.get("safety") or {})}
@@ -155,7 +162,8 @@ class LengthReadout(Device):
 
 class Detector(Device):
     """The detector's power, the oscilloscope trace and the frame counter (a new value: a complete
-    new frame). ``trigger()`` completes with a frame not used before, or fails after ``timeout`` s."""
+    new frame). ``trigger()`` completes with a frame not used before and stamped no earlier than the
+    last ``after``, or fails after ``timeout`` s."""
 
     power = FCpt(EpicsSignalRO, "{power_pv}", kind="hinted", auto_monitor=True)
     trace = FCpt(EpicsSignalRO, "{trace_pv}", kind="normal", auto_monitor=True)
@@ -167,21 +175,26 @@ class Detector(Device):
         self._pending: Status | None = None
         self._lock = threading.Lock()
         self._latest = self._used = None  # the newest counter value seen, the last one used
+        self._stamp, self._not_before = 0.0, -math.inf  # the newest frame's time stamp, the earliest one usable
         self.tick_time = 0.0  # time.perf_counter() when the newest frame arrived
         super().__init__(prefix, **kwargs)
 
     def arm(self):
         """Start following the counter (after connection); the frame there now counts as new."""
-        self._latest, self._used = self.tick.get(), None
+        self._latest, self._used, self._stamp = self.tick.get(), None, self.tick.timestamp
         self.tick_time = time.perf_counter()
         self.tick.subscribe(self._on_tick, run=False)
 
-    def _on_tick(self, value=None, **kwargs):
+    def _usable(self) -> bool:
+        return self._latest != self._used and self._stamp >= self._not_before
+
+    def _on_tick(self, value=None, timestamp=None, **kwargs):
         with self._lock:
             self._latest, self.tick_time = value, time.perf_counter()
-            pending, self._pending = self._pending, None
-            if pending is not None:
-                self._used = value
+            self._stamp = time.time() if timestamp is None else timestamp
+            pending = None
+            if self._pending is not None and self._usable():
+                pending, self._pending, self._used = self._pending, None, value
         if pending is not None and not pending.done:
             pending.set_finished()
 
@@ -190,11 +203,17 @@ class Detector(Device):
         with self._lock:
             self._used = self._latest
 
+    def after(self, stamp: float):
+        """Frames stamped before ``stamp`` (time.time(), s) no longer count: the next ``trigger`` waits
+        for one acquired at or after it (a frame that shows a move written before ``stamp``)."""
+        with self._lock:
+            self._used, self._not_before = self._latest, stamp
+
     def trigger(self):
-        """Completes with the newest frame not yet used (at once if it has arrived)."""
+        """Completes with the newest usable frame (at once if it has arrived)."""
         status = Status(obj=self, timeout=self.timeout)
         with self._lock:
-            fresh = self._latest != self._used
+            fresh = self._usable()
             if fresh:
                 self._used = self._latest
             else:

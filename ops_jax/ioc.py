@@ -25,6 +25,9 @@ PVs (prefix first; lengths in wavelengths, wl):
 - ``TICK`` (published last in a tick: a new value means a complete new frame), ``STATUS``,
   ``OVERRUNS``, ``RATE`` (Hz; 0 in lockstep), ``ADVANCE`` (lockstep only).
 
+Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
+so a frame stamped after a setpoint write shows that write.
+
 Random draws follow ``agents.evaluate``'s episode 0 for ``--seed``: ``reset`` as the
 ``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded by t.
 The IOC listens on 127.0.0.1 unless ``--interface`` is given; port and search settings follow the
@@ -38,7 +41,10 @@ import ast
 import asyncio
 import functools
 import math
+import socket
 import time
+
+import os
 
 import jax
 import jax.numpy as jnp
@@ -165,23 +171,26 @@ def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
 class _BenchGroupBase:
     """Tick logic shared by the generated PV group (mixed into a caproto ``PVGroup``)."""
 
-    async def publish(self, values: dict):
-        """Write one tick's values (caproto stamps each write with the time)."""
+    async def publish(self, values: dict, stamp: float | None = None):
+        """Write one tick's values, each stamped ``stamp`` (the tick's start, time.time() s; now if None)."""
+        at = {} if stamp is None else {"timestamp": stamp}
         for i in range(1, self.bench.n + 1):
-            await getattr(self, f"rbv{i}").write(values["position"][i - 1])
-            await getattr(self, f"len{i}").write(values["length"][i - 1])
-        await self.power.write(values["power"])
-        await self.trace.write(values["trace"])
-        await self.p_pmax.write(values["p_pmax"])
-        await self.p_pbest.write(values["p_pbest"])
+            await getattr(self, f"rbv{i}").write(values["position"][i - 1], **at)
+            await getattr(self, f"len{i}").write(values["length"][i - 1], **at)
+        await self.power.write(values["power"], **at)
+        await self.trace.write(values["trace"], **at)
+        await self.p_pmax.write(values["p_pmax"], **at)
+        await self.p_pbest.write(values["p_pbest"], **at)
         status = STATUS_OUTSIDE if values["outside"] else STATUS_OK
         if status != self.status.value:
-            await self.status.write(status)
-        await self.tick.write(self.bench.t)  # last: a new tick means a complete frame
+            await self.status.write(status, **at)
+        await self.tick.write(self.bench.t, **at)  # last: a new tick means a complete frame
 
     async def step(self):
+        """One tick: the setpoints as they are now, one simulator step, its frame stamped with this moment."""
+        stamp = time.time()
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
-        await self.publish(self.bench.tick(setpoints))
+        await self.publish(self.bench.tick(setpoints), stamp)
 
     async def clock(self):
         """Tick at ``rate`` Hz on the wall clock; late ticks are counted and caught up."""
@@ -224,6 +233,42 @@ def _group_class():
     return BenchGroup
 
 
+BATCH_WINDOW_ENV = "CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC"
+
+
+def batch_window(rate: float) -> float:
+    """caproto's wait for more monitor updates before it sends a batch (s): a tenth of the tick period,
+    at most caproto's default 10 ms, unless ``CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC`` sets it. With a
+    wait as long as the period every update finds the next one coming, and caproto, taking the server
+    for overloaded, lets the batches grow to 1 s of latency."""
+    if os.environ.get(BATCH_WINDOW_ENV):
+        return float(os.environ[BATCH_WINDOW_ENV])
+    return min(0.01, 0.1 / rate)
+
+
+async def _tcp_socket(addr: str, port: int) -> socket.socket:
+    """The server's listening socket, made with the TCP protocol number so that asyncio sets TCP_NODELAY
+    on every accepted connection."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.setblocking(False)
+    sock.bind((addr, port))
+    return sock
+
+
+def tune_server(rate: float) -> None:
+    """caproto's server set for a tick-paced IOC: monitor batches flushed within ``batch_window(rate)``,
+    and replies sent without Nagle's delay. caproto binds with protocol 0, so asyncio leaves Nagle's
+    algorithm on; small replies then wait for the client's delayed acknowledgement (~40 ms a write
+    round trip while monitors flow, where 1.3 ms is the wire's)."""
+    import caproto.asyncio.server
+    import caproto.server.common
+
+    caproto.server.common.HIGH_LOAD_TIMEOUT = batch_window(rate)
+    if hasattr(caproto.asyncio.server, "_create_bound_tcp_socket"):
+        caproto.asyncio.server._create_bound_tcp_socket = _tcp_socket
+
+
 def main(argv=None) -> None:
     args = parser().parse_args(argv)
     if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
@@ -234,6 +279,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"ops_jax.ioc: {exc}")
     from caproto.server import run
 
+    tune_server(args.rate)
     group = pv_group(bench, args.prefix, args.rate, args.lockstep)
     run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
 

@@ -98,6 +98,53 @@ def test_detector_trigger_waits_for_a_frame_not_used_before():
         status.wait(1)  # no new frame: fails after the timeout
 
 
+def test_detector_after_a_move_waits_for_a_frame_acquired_later():
+    bench, _ = fake_bench()
+    det = bench.detector
+    det.tick.sim_put(1)
+    det.arm()
+    det.after(time.time() + 0.3)  # a move sent, showing from 0.3 s on
+    status = det.trigger()
+    det.tick.sim_put(2)  # acquired before: not usable
+    time.sleep(0.05)
+    assert not status.done
+    time.sleep(0.3)
+    det.tick.sim_put(3)
+    status.wait(1)
+    assert status.success and det._used == 3
+
+
+def test_ioc_socket_sends_without_nagle_delay():
+    """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle on)."""
+    import asyncio
+    import socket
+
+    async def accepted_nodelay():
+        seen = asyncio.get_running_loop().create_future()
+
+        def on_client(reader, writer):
+            sock = writer.get_extra_info("socket")
+            seen.set_result(sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+            writer.close()
+
+        server = await asyncio.start_server(on_client, sock=await ioc._tcp_socket("127.0.0.1", 0))
+        port = server.sockets[0].getsockname()[1]
+        _, writer = await asyncio.open_connection("127.0.0.1", port)
+        value = await asyncio.wait_for(seen, 10)
+        writer.close()
+        server.close()
+        return value
+
+    assert asyncio.run(accepted_nodelay()) != 0
+
+
+def test_ioc_batch_window_is_a_tenth_of_the_tick(monkeypatch):
+    monkeypatch.delenv(ioc.BATCH_WINDOW_ENV, raising=False)
+    assert ioc.batch_window(100) == pytest.approx(0.001) and ioc.batch_window(5) == pytest.approx(0.01)
+    monkeypatch.setenv(ioc.BATCH_WINDOW_ENV, "0.004")
+    assert ioc.batch_window(100) == 0.004
+
+
 def test_agent_replays_a_controller_step_probe_by_probe():
     """Agent's probe protocol gives the policy's own offsets and, with the measured results, its action."""
     env_config = {"stages": 3, "model": "phasor"}
@@ -206,6 +253,10 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert 0 < summary["p_over_pbest_mean"] <= 1.5 and summary["latency_ms_p50"] > 0
     assert summary["clipped_moves"] > 0 and "clipped" in log
     docs = documents(tmp_path)
+    stamps = [d["doc"]["timestamps"] for d in docs if d["name"] == "event"]
+    frame_at = np.array([t["bench_detector_tick"] for t in stamps[1:]])
+    sent_at = np.array([t["control_setpoint_wl"] for t in stamps[:-1]])
+    assert np.all(frame_at > sent_at), "a step used a frame acquired before the last setpoints were sent"
     assert [d["name"] for d in docs[:2]] == ["start", "descriptor"] and docs[-1]["name"] == "stop"
     events = [d["doc"]["data"] for d in docs if d["name"] == "event"]
     sent = np.array([e["control_setpoint_wl"] for e in events])
