@@ -22,8 +22,9 @@ Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the 
 from a seed that pretraining never used), continuing from the pretrained networks
 (``start_from``, agents.offpolicy); P / P_best on that bench before adapting and at each checkpoint.
 
-    python -m benchmarks.budget --out results/budget            # preset "default"
-    python -m benchmarks.budget --quick --out results/budget-quick
+    python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
+    python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
+    python -m benchmarks.budget --preset quick --out results/budget-quick
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -55,10 +56,9 @@ PRESETS = {
                   learners={"droq": {"config": "budget", "learning_starts": 200, "eval_every": 200, "utd_ratio": 2.0,
                                      "hidden": [32, 32], "critic_hidden": [32, 32], "batch_size": 64}},
                   references={"spgd": {}, "physics": {"config": "frames", "starts": 4, "iters": 4}}),
+    # the sweep's default run: the best budget learner, the references and protocol (b) (~20 min on 2 cores)
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
-                    learners={"droq": {"config": "budget"}, "td3": {"config": "budget"},
-                              "sac": {"config": "budget"},  # PPO: 1,000 env steps per iteration (25 x 8 x 5)
-                              "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}},
+                    learners={"droq": {"config": "budget"}},
                     references={"spgd": {}, "physics": {}},
                     adapt=dict(algo="droq", pretrain_env=dict(HARD, imperfections="lab", randomize=1.0),
                                pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
@@ -69,6 +69,10 @@ PRESETS = {
                                       "actor_lr": 3e-4, "critic_lr": 3e-4},
                                bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
+# every learner at its budget preset (the sweep's "paper" preset; ~64 min on 2 cores)
+PRESETS["full"] = dict(PRESETS["default"], learners={
+    "droq": {"config": "budget"}, "td3": {"config": "budget"}, "sac": {"config": "budget"},
+    "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}})  # PPO: 1,000 env steps per iteration
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0),
     pretrain_steps=600, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
@@ -124,7 +128,7 @@ def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
 
 
 def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
-    """The work units of ``preset`` ("quick" | "default"): learners and references x environments x
+    """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
     seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
@@ -389,7 +393,8 @@ def report(records: list[dict], out_dir) -> str:
 
 def main(argv=None) -> str:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.budget", description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="the tiny preset (seconds)")
+    ap.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                    help="quick: tiny (seconds); default: DroQ, the references, protocol (b); full: every learner")
     ap.add_argument("--out", type=Path, required=True, help="output folder")
     ap.add_argument("--only", nargs="+", default=None, help="controllers (default: all of the preset)")
     ap.add_argument("--seeds", nargs="+", type=int, default=None, help="training seeds (default: the preset's)")
@@ -398,7 +403,7 @@ def main(argv=None) -> str:
     from benchmarks.cells import CellStore
 
     store = CellStore(args.out / "cells")
-    plan = cells("quick" if args.quick else "default", args.only, args.seeds, args.envs)
+    plan = cells(args.preset, args.only, args.seeds, args.envs)
     records = []
     for i, cell in enumerate(plan):
         label = f"{cell['env']}-{cell['algo']}-s{cell['seed']}"

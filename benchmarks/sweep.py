@@ -9,8 +9,9 @@
 Sections (benchmarks/sweep_plan.py): ``table1`` (5-stage x easy/medium/hard x algorithms x seeds:
 final P/Pmax in the training and testing environments, Welch's t-test bolding), ``table2`` (timings of
 the paper's Table 2, from the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on
-one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100); when named with ``--only``,
-``reality`` (controllers under lab imperfections, benchmarks/reality.py). Everything lands in
+one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100), ``budget`` (score against env
+steps on a lab's budget, benchmarks/budget.py); when named with ``--only``, ``reality`` (controllers under lab
+imperfections, benchmarks/reality.py). Everything lands in
 ``results/<name>/``: tables (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored
 in ``cells/`` the moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips
 them. The work is cut into units (``Sweep.units``, from each section's declared cells) that Ray actors

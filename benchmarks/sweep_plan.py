@@ -2,8 +2,8 @@
 
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
 testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
-``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100) and,
-when named, ``reality`` (benchmarks/reality.py) and ``budget`` (benchmarks/budget.py). ``register(section)``
+``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100),
+``budget`` (benchmarks/budget.py) and, when named, ``reality`` (benchmarks/reality.py). ``register(section)``
 adds a section.
 """
 
@@ -190,13 +190,15 @@ def default_sections() -> tuple:
     return tuple(name for name, s in PLAN.items() if s.default)
 
 
+BUDGET_PRESETS = {"quick": "quick", "default": "default", "paper": "full"}  # sweep preset -> budget preset
+
+
 def _budget_section() -> CellSection:
-    """Score against env steps on a lab's budget (benchmarks/budget.py): the "quick" plan in a quick
-    run, the "default" one otherwise; run when asked for (``--only budget``)."""
-    return CellSection("budget", lambda p: budget.cells("quick" if p["name"] == "quick" else "default"),
-                       budget.compute,
+    """Score against env steps on a lab's budget (benchmarks/budget.py), at the budget preset of
+    ``BUDGET_PRESETS``; part of a run without ``--only``."""
+    return CellSection("budget", lambda p: budget.cells(BUDGET_PRESETS[p["name"]]), budget.compute,
                        lambda records, out: budget.report([{"cell": c, "result": r} for c, r in records], out / "budget"),
-                       cost=budget.cost)
+                       default=True, cost=budget.cost)
 
 
 for _section in (Table1(), Table2(), Stages(), Transfer(), Feedback(), reality.Reality(), _budget_section()):

@@ -124,7 +124,10 @@ def test_td3_update_to_data_ratio():
 
 def test_budget_plan_cells_and_report(tmp_path):
     default = [c for c in budget.cells("default") if c["kind"] != "adapt"]
-    assert {c["algo"] for c in default} >= {"droq", "td3", "spgd", "physics"}
+    assert {c["algo"] for c in default} == {"droq", "spgd", "physics"}
+    assert {c["algo"] for c in budget.cells("full")} == {"droq", "td3", "sac", "ppo", "spgd", "physics"}
+    # the default plan fits the sweep's 20 minutes on 2 workers by the cost model (docs/learners.md: measured)
+    assert sum(map(budget.cost, budget.cells("default"))) <= 2 * 20 * 60 * 1.05
     assert {c["env"] for c in default} == {"hard", "hard + lab"}
     assert all(c["checkpoints"] == [1000, 2000, 5000, 10_000, 20_000] and c["seed"] not in range(5) for c in default)
     assert len({c["seed"] for c in default if c["algo"] == "droq"}) == 5
@@ -158,7 +161,7 @@ def test_budget_plan_simulator_to_bench(tmp_path):
     assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len({c["bench_seed"] for c in adapt}) == 5
     assert all(c["pretrain_env"]["randomize"] == 1.0 and c["checkpoints"][-1] <= 5000 for c in adapt)
     assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
-    assert not [c for c in budget.cells("default", only=["td3"]) if c["kind"] == "adapt"]
+    assert not [c for c in budget.cells("full", only=["td3"]) if c["kind"] == "adapt"]
     by_algo = {c["algo"]: c for c in budget.cells("default") if c["kind"] != "adapt"}
     assert budget.cost(adapt[0]) > budget.cost(by_algo["droq"]) > budget.cost(by_algo["spgd"]) > 0
     assert "cost" not in by_algo["droq"]  # an estimate, not part of the cell's configuration
