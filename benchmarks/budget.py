@@ -56,7 +56,7 @@ PRESETS = {
                   learners={"droq": {"config": "budget", "learning_starts": 200, "eval_every": 200, "utd_ratio": 2.0,
                                      "hidden": [32, 32], "critic_hidden": [32, 32], "batch_size": 64}},
                   references={"spgd": {}, "physics": {"config": "frames", "starts": 4, "iters": 4}}),
-    # the sweep's default run: the best budget learner, the references and protocol (b) (~20 min on 2 cores)
+    # the sweep's default run: the best budget learner, the references and protocol (b) (17 min on 2 cores)
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
                     learners={"droq": {"config": "budget"}},
                     references={"spgd": {}, "physics": {}},
@@ -69,7 +69,7 @@ PRESETS = {
                                       "actor_lr": 3e-4, "critic_lr": 3e-4},
                                bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
-# every learner at its budget preset (the sweep's "paper" preset; ~64 min on 2 cores)
+# every learner at its budget preset (the sweep's "paper" preset; estimated 64 min on 2 cores)
 PRESETS["full"] = dict(PRESETS["default"], learners={
     "droq": {"config": "budget"}, "td3": {"config": "budget"}, "sac": {"config": "budget"},
     "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}})  # PPO: 1,000 env steps per iteration
