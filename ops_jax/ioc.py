@@ -41,10 +41,9 @@ import ast
 import asyncio
 import functools
 import math
+import os
 import socket
 import time
-
-import os
 
 import jax
 import jax.numpy as jnp
