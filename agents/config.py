@@ -19,6 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ops_jax.env import REWARDS
 from ops_jax.ranges import Range
 
 
@@ -57,6 +58,8 @@ def field(check):
 
 COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
 POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
+# the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
+TRAIN_REWARD = _optional(_choice(*REWARDS))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -285,19 +288,19 @@ class TD3Config(AlgoConfig):
             num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
             actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
             expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
-            total_steps=300_000, eval_every=10_000, eval_episodes=16, utd_ratio=None,
+            total_steps=300_000, eval_every=10_000, eval_episodes=16, utd_ratio=None, train_reward=None,
         ),
         "fast": dict(
             num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
             actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
             expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-            total_steps=300_000, eval_every=20_000, eval_episodes=16, utd_ratio=None,
+            total_steps=300_000, eval_every=20_000, eval_episodes=16, utd_ratio=None, train_reward=None,
         ),
         "budget": dict(
             num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
             actor_lr=1e-3, critic_lr=1e-3, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
             expl_std=0.2, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-            total_steps=20_000, eval_every=1_000, eval_episodes=16,
+            total_steps=20_000, eval_every=1_000, eval_episodes=16, train_reward=None,
         ),
     }
 
@@ -322,6 +325,7 @@ class TD3Config(AlgoConfig):
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
     utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
+    train_reward: str | None = field(TRAIN_REWARD)
 
     def check(self):
         check_replay(self)
@@ -357,7 +361,8 @@ class DroQConfig(AlgoConfig):
         num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
         critic_hidden=(64, 64), dropout=0.0, layer_norm=True, actor_lr=1e-3, critic_lr=1e-3, alpha_lr=1e-3,
         init_alpha=0.1, target_entropy=-1.0, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
-        policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16)}
+        policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16,
+        train_reward="linear")}
 
     config: str = field(_choice("budget"))
     num_envs: int = field(COUNT)
@@ -383,6 +388,7 @@ class DroQConfig(AlgoConfig):
     total_steps: int = field(COUNT0)
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
+    train_reward: str | None = field(TRAIN_REWARD)
 
     def check(self):
         check_replay(self)

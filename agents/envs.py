@@ -32,9 +32,10 @@ def built(env_config: dict) -> tuple:
     return _BUILT[key]
 
 
-def train_env_config(env_config: dict) -> dict:
-    """The env_config the learners train on: ``model="phasor"`` unless one is given."""
-    return {"model": "phasor", **env_config}
+def train_env_config(env_config: dict, reward: str | None = None) -> dict:
+    """The env_config the learners train on: ``model="phasor"`` unless one is given, and the
+    learner's own training ``reward`` (``ops_jax.REWARDS``) if it has one."""
+    return {"model": "phasor", **env_config, **({"reward": reward} if reward is not None else {})}
 
 
 def check_env_config(env_config) -> dict:

@@ -230,7 +230,7 @@ def _cached_build(learner: Learner, env_config: dict, h: dict, num_seeds: int) -
     """Seed-vmapped jitted training functions, built once per (learner, static env config,
     hyperparameters) in this process, so that other seeds or modes (their ``EnvParams`` are
     arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
-    env, env_params = built(train_env_config(env_config))
+    env, env_params = built(train_env_config(env_config, h["train_reward"]))
     sharding = base.split_over_devices(num_seeds, "seeds")
     key = (learner.name, env.config, repr(sorted((k, v) for k, v in h.items() if k not in _RUN_KEYS)), num_seeds > 1,
            sharding)

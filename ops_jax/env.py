@@ -37,7 +37,7 @@ from ops_jax.ranges import Range, check_fields, ranged, ranges
 INT32_MAX = 2**31 - 1  # step counters are int32
 
 MODES = ("easy", "medium", "hard", "custom")
-REWARDS = ("paper", "reference")
+REWARDS = ("paper", "reference", "linear")
 
 # Reference values of the difficulty modes (physics.md section 5).
 MODE_PARAMS = {
@@ -52,7 +52,7 @@ class EnvConfig:
     """Static configuration: changing it recompiles.
 
     stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
-    reward: "paper" (Eq. 3) | "reference" (the code's). max_steps: truncation length.
+    reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation length.
     feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
     stacked. include_noise: append the noise state to the observation. imperfect: apply
     ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
@@ -197,6 +197,8 @@ class OPSEnv:
     def _reward(self, power, p_init):
         if self.config.reward == "paper":
             return -((power - self.p_max) ** 2) / (self.p_orig - self.p_max) ** 2
+        if self.config.reward == "linear":
+            return (power - self.p_max) / (self.p_max - self.p_orig)
         return 1 - (power - self.p_max) ** 2 / (self.p_max * p_init) / self.config.stages
 
     def _reset_draws(self, key):

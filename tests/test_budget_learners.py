@@ -113,6 +113,20 @@ def test_bad_hyperparameters_name_the_field():
         agents.train("droq", ENV, expl_std=0.1)
 
 
+def test_training_reward_is_the_learners_choice():
+    assert DroQConfig.preset("budget").train_reward == "linear" and TD3Config.preset("paper").train_reward is None
+    with pytest.raises(ValueError, match=r"^train_reward must be one of \['paper', 'reference', 'linear'\]"):
+        DroQConfig.preset("budget", train_reward="power")
+    rewards = {}
+    for reward in ("paper", "linear"):
+        metrics = []
+        agents.train("droq", ENV, seed=0, total_steps=256 + 64, progress_fn=lambda s, m: metrics.append(m),
+                     train_reward=reward, **dict(HYPER, eval_every=64))
+        rewards[reward] = metrics[-1]["reward"]
+    # the same start, a reward of -sqrt(-r) of the paper's: lower wherever P is below P_max
+    assert rewards["linear"] < rewards["paper"] - 0.02, rewards
+
+
 def test_td3_update_to_data_ratio():
     """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep updates_per_iter."""
     c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)

@@ -334,11 +334,16 @@ def test_rewards():
         env, params = ops_jax.make(stages=3, mode="easy", reward=reward, init_spread=0.0, step_sigma=0.0)
         obs, state = env.reset(jax.random.key(0), params)
         _, _, r, *_ = env.step(jax.random.key(1), state, jnp.zeros(3), params)
-        expected = 0.0 if reward == "paper" else 1.0
+        expected = 1.0 if reward == "reference" else 0.0
         assert float(r) == pytest.approx(expected, abs=1e-5)
     env, params = ops_jax.make(stages=3, mode="easy", init_spread=0.1)
     ro = ops_jax.rollout(env, params, _zero_policy(3), jax.random.key(1), 16, 3)
     assert np.all(np.asarray(ro.reward) <= 0.0) and np.all(np.asarray(ro.reward) >= -1.0)
+    env_l, params_l = ops_jax.make(stages=3, mode="easy", init_spread=0.1, reward="linear")
+    ro_l = ops_jax.rollout(env_l, params_l, _zero_policy(3), jax.random.key(1), 16, 3)
+    # the same trajectories: the linear reward is minus the square root of the paper's
+    np.testing.assert_allclose(np.asarray(ro_l.reward), -np.sqrt(-np.asarray(ro.reward)), rtol=1e-4, atol=1e-6)
+    assert float(np.asarray(ro_l.reward).min()) < -0.05
 
 
 def test_frame_stack():

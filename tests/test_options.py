@@ -22,7 +22,7 @@ ROWS = {
     "mode": (["easy", "custom"], [("insane", ValueError, "mode")]),
     "model": (["field", "phasor"], [("ray", ValueError, "model")]),
     "detector": (["total", "polariser"], [("eye", ValueError, "detector")]),
-    "reward": (["paper", "reference"], [("money", ValueError, "reward")]),
+    "reward": (["paper", "reference", "linear"], [("money", ValueError, "reward")]),
     "max_steps": ([1, INT32_MAX], [(0, ValueError, f"max_steps must be {INT_RANGE}"),
                                    (2**31, ValueError, INT_RANGE), (2.0, ValueError, INT_RANGE)]),
     "feedback_k": ([1, 100], [(0, ValueError, f"feedback_k must be {INT_RANGE}"), (True, ValueError, INT_RANGE)]),
