@@ -66,6 +66,11 @@ class Algo:
         """Whether it trains (its config has named hyperparameter sets, "paper" / "fast")."""
         return "config" in {f.name for f in dataclasses.fields(self.config)}
 
+    def settings(self, hyper: dict) -> dict:
+        """Every field of the config that ``hyper`` (a preset name under "config" and overrides) resolves to, in its
+        stored form: what a run with ``hyper`` trains with under the presets of this version."""
+        return self.config.from_hyper(hyper).to_hyper()
+
     def load(self) -> AlgoModule:
         return importlib.import_module(self.module)
 

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.registry import NAMES
+from agents.registry import NAMES, get
 
 CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
 HARD = dict(stages=5, mode="hard", model="phasor")
@@ -151,7 +151,7 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
                 for seed in chosen[:1] if kind == "reference" else chosen:  # references: no training seed
                     out.append(dict(kind=kind, algo=algo, hyper=dict(hyper), env=env_name, env_config=dict(env_config),
                                     seed=int(seed), checkpoints=list(p["checkpoints"]), episodes=p["episodes"],
-                                    eval_seed=p["eval_seed"]))
+                                    eval_seed=p["eval_seed"], settings=get(algo).settings(hyper)))
     if adapt and (envs is None or BENCH in envs) and (only is None or adapt["algo"] in only):
         for seed in (p["seeds"] if seeds is None else seeds):
             bench_seed = int(seed) + adapt["bench_seed_offset"]
@@ -159,7 +159,8 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
                             env_config=unseen_bench(adapt["bench"], bench_seed, adapt["scale"]), bench_seed=bench_seed,
                             pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
                             pretrain_hyper=dict(adapt["pretrain_hyper"]), seed=int(seed),
-                            checkpoints=list(adapt["checkpoints"]), episodes=p["episodes"], eval_seed=p["eval_seed"]))
+                            checkpoints=list(adapt["checkpoints"]), episodes=p["episodes"], eval_seed=p["eval_seed"],
+                            settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
     return out
 
 

@@ -50,7 +50,8 @@ class Sweep:
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
         hyper.update(extra or {})
         return dict(kind="train", algo=algo, env=env_config, seed=seed,
-                    steps=self.p["budgets"][algo] if steps is None else steps, hyper=hyper, episodes=self.p["episodes"])
+                    steps=self.p["budgets"][algo] if steps is None else steps, hyper=hyper, episodes=self.p["episodes"],
+                    settings=algo_entry(algo).settings(hyper))  # a changed preset is another cell
 
     def _finished(self, label: str, config: dict, quiet: bool = True) -> bool:
         """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""

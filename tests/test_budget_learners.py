@@ -145,6 +145,9 @@ def test_budget_plan_cells_and_report(tmp_path):
     assert {c["env"] for c in default} == {"hard", "hard + lab"}
     assert all(c["checkpoints"] == [1000, 2000, 5000, 10_000, 20_000] and c["seed"] not in range(5) for c in default)
     assert len({c["seed"] for c in default if c["algo"] == "droq"}) == 5
+    # a cell names every setting its preset resolves to, so a changed preset is another cell, never a stored one
+    droq_cell = next(c for c in default if c["algo"] == "droq")
+    assert droq_cell["hyper"] == {"config": "budget"} and droq_cell["settings"] == DroQConfig.preset("budget").to_hyper()
     assert len([c for c in default if c["algo"] == "spgd"]) == 2  # one per environment: nothing to seed
     with pytest.raises(ValueError, match="preset must be one of"):
         budget.cells("slow")

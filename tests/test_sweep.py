@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import ttest_ind
 
-from agents.config import PhysicsConfig
+from agents.config import PhysicsConfig, TD3Config
 from benchmarks import sweep
 from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
@@ -78,6 +78,9 @@ def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
             assert all(config["checkpoint"].startswith(f"checkpoints/{u['train'][0]}-") for _, config in u["cells"])
         assert u["cost"] > 0
     td3 = [u for u in units if u["kind"] == "train" and u["algo"] == "td3"]
+    # a training cell names every setting its preset resolves to: a changed preset is another cell
+    td3_config = td3[0]["cells"][0][1]
+    assert td3_config["settings"] == TD3Config.make(**td3_config["hyper"]).to_hyper()
     assert all(len(u["seeds"]) == len(u["cells"]) for u in units if u["kind"] == "train")
     assert {len(u["seeds"]) for u in td3} == {5}  # vmapped seeds: one unit per table-1 mode
     assert {len(u["seeds"]) for u in units if u["kind"] == "train" and u["algo"] == "ppo"} == {1}
