@@ -360,7 +360,7 @@ class DroQConfig(AlgoConfig):
     PRESETS: ClassVar[dict] = {"budget": dict(
         num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
         critic_hidden=(64, 64), dropout=0.0, layer_norm=True, actor_lr=1e-3, critic_lr=1e-3, alpha_lr=1e-3,
-        init_alpha=0.1, target_entropy=-1.0, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
+        init_alpha=0.1, target_entropy=-1.0, gamma=0.97, tau=0.005, buffer_size=20_000, learning_starts=1000,
         policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16,
         train_reward="linear")}
 
