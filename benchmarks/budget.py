@@ -64,9 +64,9 @@ PRESETS = {
                                pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
                                pretrain_hyper={"config": "budget", "num_envs": 8, "utd_ratio": 1.25,
                                                "buffer_size": 100_000, "learning_starts": 2000, "eval_every": 10_000},
-                               # adapting: 1,000 steps of the pretrained policy, then 2 gentler gradient steps per step
-                               hyper={"config": "budget", "learning_starts": 1000, "eval_every": 250, "utd_ratio": 2.0,
-                                      "actor_lr": 3e-4, "critic_lr": 3e-4},
+                               # adapting: 250 steps of the pretrained policy, then 2 gentler gradient steps per step
+                               hyper={"config": "budget", "learning_starts": 250, "eval_every": 250, "utd_ratio": 2.0,
+                                      "actor_lr": 1e-4, "critic_lr": 1e-4},
                                bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
 # every learner at its budget preset (the sweep's "paper" preset; estimated 59 min on 2 cores)
