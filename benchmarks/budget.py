@@ -122,9 +122,8 @@ def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
     n = env_config["stages"]
     rng = np.random.default_rng(seed)
     lab = imperfections.preset("lab", n, scale)
-    drawn = {k: (rng.permutation(v) * rng.choice([-1.0, 1.0], n)).tolist()
-             for k, v in lab.items() if k in imperfections.PER_STAGE and k in imperfections.SCALED
-             and imperfections.RANGES[k].lo < 0}  # signed per-stage errors; leakage stays >= 0
+    drawn = {k: (rng.permutation(v) * rng.choice([-1.0, 1.0], n)).tolist() for k, v in lab.items()
+             if k in imperfections.LAYOUT}
     return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
 
 

@@ -45,6 +45,8 @@ class Imperfections:
     p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``: P_max without them).
     randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``)
     is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
+    randomize_layout: probability in [0, 1] that an episode's signed per-stage errors (``LAYOUT``)
+    are each permuted over the stages and their signs flipped at random (a layout never configured).
     """
 
     waveplate_error_deg: ArrayLike = ranged(Range(-10.0, 10.0, unit="deg", shape="stage", scaled=True), 0.0)
@@ -69,6 +71,7 @@ class Imperfections:
     resonance_rms: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", shape="resonance", scaled=True), (0.0, 0.0))
     p_best: ArrayLike = ranged(Range(0.0, inf_ok=True), 0.0)
     randomize: ArrayLike = ranged(Range(0.0, 1.0), 0.0)
+    randomize_layout: ArrayLike = ranged(Range(0.0, 1.0), 0.0)
 
 
 FIELDS = tuple(f.name for f in dataclasses.fields(Imperfections))
@@ -76,6 +79,7 @@ RANGES = ranges(Imperfections)  # field -> Range: bounds, shape, scaled
 PER_STAGE = tuple(k for k, r in RANGES.items() if r.shape == "stage")
 PER_RESONANCE = tuple(k for k, r in RANGES.items() if r.shape == "resonance")
 SCALED = tuple(k for k, r in RANGES.items() if r.scaled)  # error magnitudes; bits, span, saturation, shapes are not
+LAYOUT = tuple(k for k in PER_STAGE if k in SCALED and RANGES[k].lo < 0)  # signed per-stage errors (leakage is >= 0)
 
 # The "lab" preset (docs/imperfections.md: sources and assumptions). Per-stage patterns repeat
 # over the stages; signs alternate so that no error cancels by symmetry.
@@ -202,8 +206,22 @@ def _pulses(z, lab):
     return jnp.stack([amp * jnp.cos(phase), amp * jnp.sin(phase)])
 
 
+def _layout(key, lab: Imperfections) -> dict:
+    """With probability ``randomize_layout``, each ``LAYOUT`` pattern permuted over the stages, signs flipped at random."""
+    keys = jax.random.split(jax.random.fold_in(key, _TAG + 2), 2 * len(LAYOUT) + 1)
+    drawn = jax.random.uniform(keys[-1]) < lab.randomize_layout
+    out = {}
+    for i, k in enumerate(LAYOUT):
+        v = jnp.asarray(getattr(lab, k))
+        signs = jnp.where(jax.random.bernoulli(keys[2 * i], 0.5, v.shape), -1.0, 1.0)
+        out[k] = jnp.where(drawn, jax.random.permutation(keys[2 * i + 1], v) * signs, v)
+    return out
+
+
 def episode_values(key, lab: Imperfections) -> Imperfections:
-    """This episode's imperfections: each ``SCALED`` entry v becomes v (1 + randomize u)."""
+    """This episode's imperfections: the ``LAYOUT`` patterns re-drawn (``randomize_layout``), then each
+    ``SCALED`` entry v becomes v (1 + randomize u)."""
+    lab = dataclasses.replace(lab, **_layout(key, lab))
     u = noise.draws(jax.random.fold_in(key, _TAG + 1), uniform={k: jnp.shape(getattr(lab, k)) for k in SCALED})
     return dataclasses.replace(lab, **{k: getattr(lab, k) * (1 + lab.randomize * u[k]) for k in SCALED})
 

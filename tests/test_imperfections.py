@@ -293,6 +293,30 @@ def test_randomize_draws_each_episodes_imperfections():
         ops_jax.make(3, "hard", imperfections="lab", randomize=1.5)
 
 
+def test_randomize_layout_redraws_the_signed_per_stage_patterns():
+    env, p0 = ops_jax.make(5, "hard", imperfections="lab", model="phasor")
+    _, p1 = ops_jax.make(5, "hard", imperfections="lab", model="phasor", randomize_layout=1.0)
+    _, p_half = ops_jax.make(5, "hard", imperfections="lab", model="phasor", randomize_layout=0.5)
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    keys = jax.random.split(jax.random.key(0), 512)
+    fixed, drawn, half = (reset(keys, p)[1].lab.values for p in (p0, p1, p_half))
+    assert set(imperfections.LAYOUT) == {"waveplate_error_deg", "readout_offset", "readout_gain_error",
+                                         "actuator_gain_error"}
+    for name in imperfections.FIELDS:
+        v = np.asarray(getattr(p0.lab, name))
+        np.testing.assert_array_equal(getattr(fixed, name), np.broadcast_to(v, getattr(fixed, name).shape))
+        d = np.asarray(getattr(drawn, name))
+        if name not in imperfections.LAYOUT:
+            np.testing.assert_array_equal(d, np.broadcast_to(getattr(p1.lab, name), d.shape))
+            continue
+        np.testing.assert_allclose(np.sort(np.abs(d), axis=1), np.broadcast_to(np.sort(np.abs(v)), d.shape))  # a layout
+        assert np.mean(np.any(d != v, axis=1)) > 0.95 and np.mean(d < 0) == pytest.approx(0.5, abs=0.05)
+        changed = np.mean(np.any(np.asarray(getattr(half, name)) != v, axis=1))
+        assert 0.42 < changed < 0.58  # drawn in half the episodes
+    with pytest.raises(ValueError, match=r"randomize_layout must be a finite number in \[0, 1\]"):
+        ops_jax.make(3, "hard", imperfections="lab", randomize_layout=1.5)
+
+
 def test_reality_report_writes_table_csv_and_figure(tmp_path):
     from benchmarks import reality
 

@@ -79,6 +79,7 @@ ROWS = {
     "resonance_rms": ([(0.0, 0.01)], [((-1.0, 0.0), ValueError, "resonance_rms must be a finite number in [0, 1] wl")]),
     "p_best": ([0.0, 1.0], [(-1.0, ValueError, "p_best must be a number in [0, inf]")]),
     "randomize": ([0.0, 1.0], [(1.5, ValueError, "randomize must be a finite number in [0, 1]")]),
+    "randomize_layout": ([0.0, 1.0], [(-0.5, ValueError, "randomize_layout must be a finite number in [0, 1]")]),
     "render_mode": ([None, "rgb_array"], [("ascii", ValueError, "render_mode must be None or one of")]),
     "device": ([None, "cpu"], [(3, TypeError, "device must be None, a platform name"),
                                ("no-such-platform", ValueError, "device 'no-such-platform' is not available")]),
