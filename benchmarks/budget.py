@@ -20,7 +20,8 @@ Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the 
 ``pretrain_steps``), then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench
 (``unseen_bench``: the lab preset at twice its magnitudes, its per-stage error patterns re-drawn
 from a seed that pretraining never used), continuing from the pretrained networks
-(``start_from``, agents.offpolicy); P / P_best on that bench before adapting and at each checkpoint.
+(``start_from``, agents.offpolicy); P / P_best on that bench before adapting and at each checkpoint, beside
+the references' on the same bench (``bench reference`` cells: what a controller that needs no training holds there).
 
     python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
     python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
@@ -48,6 +49,7 @@ ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
 BENCH = "unseen bench"  # protocol (b)'s environment name
 OFF_POLICY = ("droq", "td3")  # trained once, evaluated at every checkpoint it passes
 REFERENCES = ("spgd", "physics")
+REFERENCE_KINDS = ("reference", "bench reference")  # one evaluation: on a protocol (a) env / on a protocol (b) bench
 TARGET = 0.9
 
 PRESETS = {
@@ -103,7 +105,7 @@ def _updates(algo: str, hyper: dict, steps: int) -> float:
 def cost(cell: dict) -> float:
     """Estimated seconds of ``cell`` (``S_PER_UPDATE``, ``S_PER_STEP``, ``FIXED_S``, ``ADAPT_FIXED_S``)."""
     algo, last = cell["algo"], max(cell["checkpoints"])
-    if cell["kind"] == "reference":
+    if cell["kind"] in REFERENCE_KINDS:
         return FIXED_S[algo]
     if cell["kind"] == "adapt":
         updates = _updates(algo, cell["pretrain_hyper"], cell["pretrain_steps"]) + _updates(algo, cell["hyper"], last)
@@ -151,15 +153,19 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
                     out.append(dict(kind=kind, algo=algo, hyper=dict(hyper), env=env_name, env_config=dict(env_config),
                                     seed=int(seed), checkpoints=list(p["checkpoints"]), episodes=p["episodes"],
                                     eval_seed=p["eval_seed"], settings=get(algo).settings(hyper)))
-    if adapt and (envs is None or BENCH in envs) and (only is None or adapt["algo"] in only):
+    if adapt and (envs is None or BENCH in envs):
         for seed in (p["seeds"] if seeds is None else seeds):
             bench_seed = int(seed) + adapt["bench_seed_offset"]
-            out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), env=BENCH,
-                            env_config=unseen_bench(adapt["bench"], bench_seed, adapt["scale"]), bench_seed=bench_seed,
-                            pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
-                            pretrain_hyper=dict(adapt["pretrain_hyper"]), seed=int(seed),
-                            checkpoints=list(adapt["checkpoints"]), episodes=p["episodes"], eval_seed=p["eval_seed"],
-                            settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
+            bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench"], bench_seed, adapt["scale"]),
+                         bench_seed=bench_seed, seed=int(seed), checkpoints=list(adapt["checkpoints"]),
+                         episodes=p["episodes"], eval_seed=p["eval_seed"])
+            if only is None or adapt["algo"] in only:
+                out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), **bench,
+                                pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
+                                pretrain_hyper=dict(adapt["pretrain_hyper"]),
+                                settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
+            out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **bench, settings=get(algo).settings(hyper))
+                    for algo, hyper in p["references"].items() if only is None or algo in only]
     return out
 
 
@@ -251,7 +257,7 @@ def compute(cell: dict) -> dict:
     """The record of one cell: ``scores`` {checkpoint (str): final P / P_best}, ``train_s``."""
     import agents
 
-    if cell["kind"] == "reference":
+    if cell["kind"] in REFERENCE_KINDS:
         t0 = time.perf_counter()
         result = agents.train(cell["algo"], cell["env_config"], seed=cell["seed"], **cell["hyper"])
         score = _score(result, cell["env_config"], cell)
@@ -284,7 +290,7 @@ def _median_steps(rs) -> str:
     return "not reached" if not np.isfinite(m) else f"{m:,.0f} ({sum(k is not None for k in reached)}/{len(rs)})"
 
 
-def _figure(groups: dict, adapted: list, path: Path) -> None:
+def _figure(groups: dict, adapted: list, on_bench: dict, path: Path) -> None:
     from benchmarks.sweep_report import _plt
 
     plt = _plt()
@@ -316,6 +322,9 @@ def _figure(groups: dict, adapted: list, path: Path) -> None:
             ks = [0] + r["cell"]["checkpoints"]
             ax.plot(ks, [r["result"]["before"]] + [r["result"]["scores"][str(k)] for k in ks[1:]], marker="o", ms=3,
                     color=f"C{i}", label=f"pretraining seed {r['cell']['seed']}")
+        for j, (algo, scores) in enumerate(on_bench.items()):
+            ax.axhline(np.mean(list(scores.values())), color="k", lw=1, ls=("--", "-.", ":")[j % 3],
+                       label=f"{NAMES.get(algo, algo)} (reference, mean over the benches)")
         ax.axhline(0.95, color="grey", lw=0.8, ls=":")
         ax.set_xlabel("env steps on the bench (0: pretrained only)")
         ax.set_title(f"{BENCH}: simulator to bench")
@@ -326,25 +335,42 @@ def _figure(groups: dict, adapted: list, path: Path) -> None:
     plt.close(fig)
 
 
-def _adapt_table(adapted: list) -> list:
-    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting."""
+def _bench_references(records) -> dict:
+    """{reference: {bench seed: P / P_best on that bench}} of the ``bench reference`` records."""
+    out = {}
+    for r in records:
+        c = r["cell"]
+        out.setdefault(c["algo"], {})[c["bench_seed"]] = r["result"]["scores"][str(c["checkpoints"][0])]
+    return out
+
+
+def _adapt_table(adapted: list, on_bench: dict) -> list:
+    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting,
+    and the references' on the same bench."""
     c = adapted[0]["cell"]
     ks = c["checkpoints"]
+    refs = {NAMES.get(a, a): scores for a, scores in on_bench.items()}
+    ref = lambda scores, bench: f" {scores[bench]:.3f} |" if bench in scores else " - |"
     lines = [f"## Simulator to bench ({NAMES.get(c['algo'], c['algo'])})", "",
              f"Pretrained {c['pretrain_steps']:,} env steps on the randomised simulator ({c['pretrain_env']}, "
              f"{c['pretrain_hyper']}), then trained on for up to {ks[-1]:,} env steps on an unseen bench (the lab "
              f"preset at {adapted[0]['cell']['env_config'].get('imperfection_scale')}x, per-stage errors re-drawn "
              "from the bench seed); final P / P_best on that bench.", "",
              "| pretraining seed | bench seed | before | " + " | ".join(f"after {k:,}" for k in ks)
-             + " | pretraining s | adapting s |", "|---|---|---|" + "---|" * len(ks) + "---|---|"]
+             + "".join(f" | {name} on the bench" for name in refs) + " | pretraining s | adapting s |",
+             "|---|---|---|" + "---|" * (len(ks) + len(refs)) + "---|---|"]
     for r in adapted:
-        res = r["result"]
-        lines.append(f"| {r['cell']['seed']} | {r['cell']['bench_seed']} | {res['before']:.3f} | "
-                     + " | ".join(f"{res['scores'][str(k)]:.3f}" for k in ks)
-                     + f" | {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
+        res, bench = r["result"], r["cell"]["bench_seed"]
+        lines.append(f"| {r['cell']['seed']} | {bench} | {res['before']:.3f} | "
+                     + " | ".join(f"{res['scores'][str(k)]:.3f}" for k in ks) + " |"
+                     + "".join(ref(scores, bench) for scores in refs.values())
+                     + f" {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
+    benches = [r["cell"]["bench_seed"] for r in adapted]
     for name, f in (("mean", np.mean), ("worst", np.min)):
         lines.append(f"| {name} | | {f([r['result']['before'] for r in adapted]):.3f} | "
-                     + " | ".join(f"{f([r['result']['scores'][str(k)] for r in adapted]):.3f}" for k in ks) + " | | |")
+                     + " | ".join(f"{f([r['result']['scores'][str(k)] for r in adapted]):.3f}" for k in ks) + " |"
+                     + "".join(f" {f([scores[b] for b in benches if b in scores]):.3f} |" if set(benches) & set(scores)
+                               else " - |" for scores in refs.values()) + " | |")
     return lines
 
 
@@ -355,7 +381,8 @@ def report(records: list[dict], out_dir) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     adapted = [r for r in records if r["cell"]["kind"] == "adapt"]
-    groups = _groups([r for r in records if r["cell"]["kind"] != "adapt"])
+    on_bench = _bench_references([r for r in records if r["cell"]["kind"] == "bench reference"])
+    groups = _groups([r for r in records if r["cell"]["kind"] in ("learner", "reference")])
     checkpoints = sorted({k for (_, _), rs in groups.items() for r in rs for k in r["cell"]["checkpoints"]})
     first = records[0]["cell"]
     lines = ["# Learning on a lab's budget", "",
@@ -382,10 +409,10 @@ def report(records: list[dict], out_dir) -> str:
         lines += ["", "Median wall time per cell (training to the last checkpoint, s): "
                   + ", ".join(f"{NAMES.get(a, a)} {w:.0f}" for a, w in walls.items()) + "."]
     if adapted:
-        lines += ["", *_adapt_table(adapted)]
+        lines += ["", *_adapt_table(adapted, on_bench)]
     lines += ["", f"{time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
               f"({platform.processor() or platform.machine()}).", "", "![P / P_best against env steps](budget.png)"]
-    _figure(groups, adapted, out / "budget.png")
+    _figure(groups, adapted, on_bench, out / "budget.png")
     write_json_atomic(out / "budget.json", records)
     text = "\n".join(lines) + "\n"
     (out / "budget.md").write_text(text)

@@ -137,7 +137,7 @@ def test_td3_update_to_data_ratio():
 
 
 def test_budget_plan_cells_and_report(tmp_path):
-    default = [c for c in budget.cells("default") if c["kind"] != "adapt"]
+    default = [c for c in budget.cells("default") if c["kind"] in ("learner", "reference")]
     assert {c["algo"] for c in default} == {"droq", "spgd", "physics"}
     assert {c["algo"] for c in budget.cells("full")} == {"droq", "td3", "sac", "ppo", "spgd", "physics"}
     # the default plan fits the sweep's 20 minutes on 2 workers by the cost model (docs/learners.md: measured)
@@ -178,8 +178,13 @@ def test_budget_plan_simulator_to_bench(tmp_path):
     assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len({c["bench_seed"] for c in adapt}) == 5
     assert all(c["pretrain_env"]["randomize"] == 1.0 and c["checkpoints"][-1] <= 5000 for c in adapt)
     assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
-    assert not [c for c in budget.cells("full", only=["td3"]) if c["kind"] == "adapt"]
-    by_algo = {c["algo"]: c for c in budget.cells("default") if c["kind"] != "adapt"}
+    assert not [c for c in budget.cells("full", only=["td3"]) if c["kind"] in ("adapt", "bench reference")]
+    on_bench = [c for c in budget.cells("default") if c["kind"] == "bench reference"]
+    assert sorted((c["algo"], c["bench_seed"]) for c in on_bench) == sorted(
+        (a, c["bench_seed"]) for a in ("spgd", "physics") for c in adapt)
+    assert all(c["env_config"] == next(a["env_config"] for a in adapt if a["bench_seed"] == c["bench_seed"])
+               for c in on_bench)
+    by_algo = {c["algo"]: c for c in budget.cells("default") if c["kind"] in ("learner", "reference")}
     assert budget.cost(by_algo["droq"]) > budget.cost(by_algo["spgd"]) > 0 and budget.cost(adapt[0]) > 0
     assert "cost" not in by_algo["droq"]  # an estimate, not part of the cell's configuration
 
@@ -188,9 +193,18 @@ def test_budget_plan_simulator_to_bench(tmp_path):
                 "result": {"before": before, "scores": dict(zip(["1000", "2000", "5000"], after)), "pretrain_s": 9.0,
                            "train_s": 3.0}}
 
-    text = budget.report([record(11, 0.6, [0.7, 0.8, 0.97]), record(12, 0.5, [0.9, 0.93, 0.91])], tmp_path)
-    assert "| 11 | 1011 | 0.600 | 0.700 | 0.800 | 0.970 | 9 | 3 |" in text
-    assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | | |" in text
+    def reference(algo, bench_seed, score):
+        cell = next(c for c in on_bench if c["algo"] == algo and c["bench_seed"] == bench_seed)
+        return {"cell": cell, "result": {"scores": {str(k): score for k in cell["checkpoints"]}, "train_s": 1.0}}
+
+    records = [record(11, 0.6, [0.7, 0.8, 0.97]), record(12, 0.5, [0.9, 0.93, 0.91]), reference("spgd", 1011, 0.96),
+               reference("spgd", 1012, 0.94), reference("physics", 1011, 0.95)]
+    text = budget.report(records, tmp_path)
+    assert "| SPGD on the bench | Physics on the bench |" in text
+    assert "| 11 | 1011 | 0.600 | 0.700 | 0.800 | 0.970 | 0.960 | 0.950 | 9 | 3 |" in text
+    assert "| 12 | 1012 | 0.500 | 0.900 | 0.930 | 0.910 | 0.940 | - | 9 | 3 |" in text
+    assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | 0.940 | 0.950 | | |" in text
+    assert "| unseen bench |" not in text  # the bench references stay out of protocol (a)'s table
     assert (tmp_path / "budget.png").stat().st_size > 5000
 
 
