@@ -16,12 +16,13 @@ and the physics-informed controller learn nothing: their one evaluation (one cel
 seed) is drawn at every checkpoint, as references. That is protocol (a), from scratch on the target.
 
 Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the randomised simulator
-(``randomize=1``: each episode's imperfections 0-2x the lab preset; any budget, the preset's
-``pretrain_steps``), then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench
-(``unseen_bench``: the lab preset at twice its magnitudes, its per-stage error patterns re-drawn
-from a seed that pretraining never used), continuing from the pretrained networks
-(``start_from``, agents.offpolicy); P / P_best on that bench before adapting and at each checkpoint, beside
-the references' on the same bench (``bench reference`` cells: what a controller that needs no training holds there).
+(``randomize=1``: each episode's imperfections 0-2x the lab preset; ``randomize_layout=1``: its signed
+per-stage error patterns permuted over the stages, signs flipped; any budget, the preset's ``pretrain_steps``),
+then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``unseen_bench``: the lab preset
+at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
+continuing from the pretrained networks (``start_from``, agents.offpolicy); P / P_best on that bench before
+adapting and at each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
+controller that needs no training holds there).
 
     python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
     python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
@@ -62,7 +63,8 @@ PRESETS = {
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
                     learners={"droq": {"config": "budget"}},
                     references={"spgd": {}, "physics": {}},
-                    adapt=dict(algo="droq", pretrain_env=dict(HARD, imperfections="lab", randomize=1.0),
+                    adapt=dict(algo="droq",
+                               pretrain_env=dict(HARD, imperfections="lab", randomize=1.0, randomize_layout=1.0),
                                pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
                                pretrain_hyper={"config": "budget", "num_envs": 8, "utd_ratio": 1.25,
                                                "buffer_size": 100_000, "learning_starts": 2000, "eval_every": 10_000},
@@ -76,7 +78,8 @@ PRESETS["full"] = dict(PRESETS["default"], learners={
     "droq": {"config": "budget"}, "td3": {"config": "budget"}, "sac": {"config": "budget"},
     "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}})  # PPO: 1,000 env steps per iteration
 PRESETS["quick"]["adapt"] = dict(
-    algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0),
+    algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
+                                   randomize_layout=1.0),
     pretrain_steps=600, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
     hyper=dict(PRESETS["quick"]["learners"]["droq"], learning_starts=100, eval_every=100),
     bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600))

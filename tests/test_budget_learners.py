@@ -176,7 +176,8 @@ def test_budget_plan_simulator_to_bench(tmp_path):
     """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and worst seed."""
     adapt = [c for c in budget.cells("default") if c["kind"] == "adapt"]
     assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len({c["bench_seed"] for c in adapt}) == 5
-    assert all(c["pretrain_env"]["randomize"] == 1.0 and c["checkpoints"][-1] <= 5000 for c in adapt)
+    assert all(c["pretrain_env"]["randomize"] == c["pretrain_env"]["randomize_layout"] == 1.0
+               and c["checkpoints"][-1] <= 5000 for c in adapt)
     assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
     assert not [c for c in budget.cells("full", only=["td3"]) if c["kind"] in ("adapt", "bench reference")]
     on_bench = [c for c in budget.cells("default") if c["kind"] == "bench reference"]
