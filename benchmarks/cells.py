@@ -4,7 +4,8 @@ Each cell is one JSON file named by a readable label and a hash of its configura
 atomically (temporary file, then rename) the moment the cell finishes. A re-run finds the file,
 checks that it parses and that its stored configuration equals the requested one, and skips the
 work; a truncated or corrupt file is reported and recomputed; a file for another configuration
-has another hash and is never mixed in.
+has another hash and is never mixed in. The label is a readable prefix only: a cell stored under
+another label (its position in a plan that has since grown or been narrowed) is found by its hash.
 """
 
 from __future__ import annotations
@@ -41,7 +42,9 @@ class CellStore:
         unless ``quiet``)."""
         path = self.path(label, config)
         if not path.exists():
-            return None
+            path = next(iter(sorted(self.folder.glob(f"*-{config_hash(config)}.json"))), None)
+            if path is None:
+                return None
         try:
             data = json.loads(path.read_text())
             if data["config"] != json.loads(json.dumps(config, default=str)):
