@@ -369,11 +369,11 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
                      + "".join(ref(scores, bench) for scores in refs.values())
                      + f" {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
     benches = [r["cell"]["bench_seed"] for r in adapted]
+    held = [[scores[b] for b in benches if b in scores] for scores in refs.values()]  # each reference's, these benches
     for name, f in (("mean", np.mean), ("worst", np.min)):
         lines.append(f"| {name} | | {f([r['result']['before'] for r in adapted]):.3f} | "
                      + " | ".join(f"{f([r['result']['scores'][str(k)] for r in adapted]):.3f}" for k in ks) + " |"
-                     + "".join(f" {f([scores[b] for b in benches if b in scores]):.3f} |" if set(benches) & set(scores)
-                               else " - |" for scores in refs.values()) + " | |")
+                     + "".join(f" {f(v):.3f} |" if v else " - |" for v in held) + " | |")
     return lines
 
 

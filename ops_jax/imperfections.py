@@ -45,8 +45,8 @@ class Imperfections:
     p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``: P_max without them).
     randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``)
     is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
-    randomize_layout: probability in [0, 1] that an episode's signed per-stage errors (``LAYOUT``)
-    are each permuted over the stages and their signs flipped at random (a layout never configured).
+    randomize_layout: probability in [0, 1] that an episode's signed per-stage error patterns (``LAYOUT``)
+    are each permuted over the stages, every entry's sign flipped at random (before ``randomize`` scales them).
     """
 
     waveplate_error_deg: ArrayLike = ranged(Range(-10.0, 10.0, unit="deg", shape="stage", scaled=True), 0.0)
