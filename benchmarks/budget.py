@@ -73,7 +73,7 @@ PRESETS = {
                                       "actor_lr": 1e-4, "critic_lr": 1e-4},
                                bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
 }
-# every learner at its budget preset (the sweep's "paper" preset; estimated 59 min on 2 cores)
+# every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
 PRESETS["full"] = dict(PRESETS["default"], learners={
     "droq": {"config": "budget"}, "td3": {"config": "budget"}, "sac": {"config": "budget"},
     "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}})  # PPO: 1,000 env steps per iteration
@@ -89,11 +89,11 @@ PRESETS["quick"]["adapt"] = dict(
 # step of brax's (their budget presets), a fixed part per training run (compilation, evaluations), a
 # reference's one evaluation; an adapt cell's pretraining, scoring and adapting besides its gradient steps.
 # Fitted to the sweep's budget section of 2026-11-26 (idle 2-core host, one core per cell: DroQ cells 114-161 s,
-# adapt cells 83-133 s, physics-informed 58-62 s, SPGD 4-8 s); TD3, SAC and PPO at their budget presets are
-# estimates, not measured.
-S_PER_UPDATE = {"droq": 4.5e-4, "td3": 3e-4}
-S_PER_STEP = {"sac": 6e-3, "ppo": 4e-4}
-FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 20.0, "spgd": 6.0, "physics": 60.0}
+# adapt cells 83-133 s, physics-informed 58-62 s, SPGD 4-8 s) and to its full plan's other learners (training to
+# the last checkpoint: TD3 58-102 s, SAC 240-384 s for its five runs, PPO 20-153 s).
+S_PER_UPDATE = {"droq": 4.5e-4, "td3": 2e-4}
+S_PER_STEP = {"sac": 4.5e-3, "ppo": 2e-4}
+FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 5.0, "spgd": 6.0, "physics": 60.0}
 ADAPT_FIXED_S = 35.0
 
 
