@@ -40,3 +40,14 @@ def compiles():
     """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``
     (``jax.monitoring``'s compile events): a check that nothing is traced or compiled again."""
     return _count_compiles
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop each test module's compiled programs when it ends: one process compiles hundreds of XLA programs
+    over the suite, and their code mappings would otherwise add up to the kernel's per-process map limit."""
+    yield
+    import gc
+
+    jax.clear_caches()
+    gc.collect()
