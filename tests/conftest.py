@@ -1,4 +1,5 @@
 import contextlib
+import gc
 import json
 import os
 from pathlib import Path
@@ -47,7 +48,5 @@ def _release_compiled_programs():
     """Drop each test module's compiled programs when it ends: one process compiles hundreds of XLA programs
     over the suite, and their code mappings would otherwise add up to the kernel's per-process map limit."""
     yield
-    import gc
-
     jax.clear_caches()
     gc.collect()
