@@ -56,6 +56,7 @@ def field(check):
     return dataclasses.field(metadata={"check": check})
 
 
+DITHER = Range(1e-6, 0.25, unit="wl")  # a dither's amplitude (SPGD, the trim)
 COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
 POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
 # the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
@@ -121,7 +122,18 @@ class AlgoConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class SPGDConfig(AlgoConfig):
+class EscapeConfig(AlgoConfig):
+    """The stall escape's fields (``agents.escape``), shared by SPGD and the trim: jump (wl), patience
+    (steps), p_stall and margin (P/Pmax)."""
+
+    jump: float = field(Range(0, 0.5, unit="wl"))
+    patience: float = field(Range(1, 1e6))
+    p_stall: float = field(Range(0, 1))
+    margin: float = field(Range(0, 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class SPGDConfig(EscapeConfig):
     """SPGD-PID (``agents.spgd``): dither (wl), gain schedule, PID and the stall escape."""
 
     NAME: ClassVar[str] = "SPGD"
@@ -130,8 +142,8 @@ class SPGDConfig(AlgoConfig):
         delta=0.002, delta0=0.04, anneal=20.0, kp=16.0, kp_min=0.1, kp_pow=2.0, ki=0.0, kd=0.0, leak=0.9,
         jump=0.25, patience=10.0, p_stall=0.9, margin=0.005)}
 
-    delta: float = field(Range(1e-6, 0.25))
-    delta0: float = field(Range(1e-6, 0.25))
+    delta: float = field(DITHER)
+    delta0: float = field(DITHER)
     anneal: float = field(Range(0, 1e6))
     kp: float = field(Range(0, 1e6))
     kp_min: float = field(Range(0, 1e6))
@@ -139,10 +151,22 @@ class SPGDConfig(AlgoConfig):
     ki: float = field(Range(0, 1e6))
     kd: float = field(Range(0, 1e6))
     leak: float = field(Range(0, 1))
-    jump: float = field(Range(0, 0.5))
-    patience: float = field(Range(1, 1e6))
-    p_stall: float = field(Range(0, 1))
-    margin: float = field(Range(0, 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class TrimConfig(EscapeConfig):
+    """The extremum-seeking trim (``agents.trim``): integral gain, dither (wl), the gate on P/Pmax and the
+    stall escape."""
+
+    NAME: ClassVar[str] = "trim"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {"default": dict(ki=0.003, amp=0.002, p_gate=0.0, release=1.0,
+                                               jump=0.0, patience=10.0, p_stall=0.6, margin=0.005)}
+
+    ki: float = field(Range(0, 1))
+    amp: float = field(DITHER)
+    p_gate: float = field(Range(0, 1))
+    release: float = field(Range(0, 1))
 
 
 @dataclasses.dataclass(frozen=True)

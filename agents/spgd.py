@@ -20,16 +20,8 @@ P/Pmax ~ 1 - 79 sum_i x_i^2 (x_i in wl, 5 stages), and the per-step update is st
 Kp < ~0.3 (kp_min 0.1 chosen); with a fixed Kp of 16 the lines jitter by ~0.01 wl and P hovers
 at 0.85-0.98.
 
-Stall escape (``jump`` > 0; ``jump = 0`` is plain SPGD-PID). The objective is periodic in each
-line with period wl/2 and has local maxima with one or more stages at a pi phase error (offset
-wl/4 = 0.25 wl): P/Pmax near 0.5, 0.44, 0.34, 0.24, from which no hill climber moves. After
-``patience`` consecutive steps below ``p_stall``, the probe of the next steps (one per step, so
-still 2 measurements per step) tests P at tau + jump * c for the candidates c in turn instead of the
-dither: each line alone (c = e_k), then each pair of lines (c = e_k + e_l), N (N + 1) / 2 in all.
-The first candidate that beats P(tau) by ``margin`` is committed: its lines are moved by ``jump``
-at full action speed (0.25 wl: 25 steps at 0.01 wl per step) while the other lines keep climbing.
-If none passes, the controller waits ``patience`` steps and tests again. Pairs matter: the most
-common trap (P/Pmax ~0.24, lines 1 and 3 at pi, line 2 near wl/8) is left by no single-line jump.
+Stall escape (``jump`` > 0; ``jump = 0`` is plain SPGD-PID): ``agents.escape``, which the trim
+(``agents.trim``) shares; during a committed jump its lines move at full action speed.
 
 ``SPGDConfig``'s preset holds values chosen by a grid search (5-stage, phasor, tuning seed 1000; other
 seeds for evaluation); ``python -m agents.spgd --search`` reruns the patience x margin grid. Measured
@@ -45,18 +37,38 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agents import escape
 from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import SPGDConfig
 from agents.envs import built, check_env_config
+
+def dither(key, shape) -> jax.Array:
+    """Random signs s in {-1, +1} (float32) of a one-probe perturbation d = amp * s."""
+    return jnp.where(jax.random.bernoulli(key, 0.5, shape), 1.0, -1.0).astype(jnp.float32)
+
+
+def power(obs, frame: int) -> jax.Array:
+    """P/Pmax of the observation's latest frame (B,) (obs[:, -frame] = 2 P/Pmax - 1)."""
+    return (obs[:, -frame] + 1) / 2
+
+
+def slope(p0, p1, s, amp) -> jax.Array:
+    """The one-probe gradient estimate g = [P(tau + amp s) - P(tau)] s / amp (B, N), 1/wl."""
+    return ((p1 - p0)[:, None] * s / amp).astype(jnp.float32)
+
 
 def gains(hyper: dict | SPGDConfig, action_scale: float = 0.01) -> dict:
     """The controller's parameters (float32 scalars) from hyperparameters (a ``SPGDConfig`` or
     overrides of its default preset), plus ``action_scale`` (wl per unit action of the environment
     it runs in; the escape's move needs it)."""
-    c = hyper if isinstance(hyper, SPGDConfig) else SPGDConfig.from_hyper(hyper)
+    return scaled(hyper if isinstance(hyper, SPGDConfig) else SPGDConfig.from_hyper(hyper), action_scale)
+
+
+def scaled(config, action_scale: float) -> dict:
+    """A controller's parameters: ``config``'s fields as float32 scalars and ``action_scale`` (wl per unit action)."""
     if isinstance(action_scale, bool) or not isinstance(action_scale, (int, float, np.number)) or not action_scale > 0:
         raise ValueError(f"action_scale must be a number > 0 (wl per unit action), got {action_scale!r}")
-    return {**{k: jnp.float32(v) for k, v in c.to_hyper().items()}, "action_scale": jnp.float32(action_scale)}
+    return {**{k: jnp.float32(v) for k, v in config.to_hyper().items()}, "action_scale": jnp.float32(action_scale)}
 
 
 def params_template(env_config, hyper):
@@ -72,48 +84,31 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     n = env.num_actions
     frame = env.frame_size
     default = gains(hyper or {}, float(env_params.action_scale))
-    # Escape candidates, in the order tested: each line alone, then each pair of lines.
-    pairs = [np.eye(n)[i] + np.eye(n)[j] for i, j in itertools.combinations(range(n), 2)]
-    candidates = jnp.asarray(np.concatenate([np.eye(n), np.reshape(pairs, (-1, n))]), jnp.float32)
-    c = candidates.shape[0]
+    cands = escape.candidates(n)
 
     def init(key, obs):
         del key
         b = obs.shape[0]
         z = jnp.zeros((b, n), jnp.float32)
-        zb = jnp.zeros((b,), jnp.float32)
-        # PID state; t: steps since init; stall: steps below p_stall; cand: next escape candidate;
-        # move: what is left of a committed jump per line (wl)
-        return {"i": z, "g_prev": z, "t": zb, "stall": zb, "cand": jnp.zeros((b,), jnp.int32), "move": z}
+        # PID state; t: steps since init; the escape's state (agents.escape)
+        return {"i": z, "g_prev": z, "t": jnp.zeros((b,), jnp.float32), **escape.init(b, n)}
 
     def act(params, carry, obs, key, probe):
         p = default if params is None else params
         b = obs.shape[0]
-        s = jnp.where(jax.random.bernoulli(key, 0.5, (b, n)), 1.0, -1.0).astype(jnp.float32)
-        p0 = (obs[:, -frame] + 1) / 2  # latest frame's normalised power
+        s = dither(key, (b, n))
+        p0 = power(obs, frame)
         # Annealed amplitude: delta0 at t = 0 decaying to delta with time constant `anneal` steps.
         frac = jnp.exp(-carry["t"] / jnp.maximum(p["anneal"], 1e-6))[:, None]
         amp = p["delta"] + (p["delta0"] - p["delta"]) * frac
-        moving = jnp.any(carry["move"] != 0, axis=1)
-        testing = (carry["stall"] >= p["patience"]) & ~moving & (p["jump"] > 0)
-        line = candidates[carry["cand"]]
-        p1 = probe(jnp.where(testing[:, None], p["jump"] * line, amp * s))  # one probe either way
-        g = jnp.where(testing[:, None], 0.0, (p1 - p0)[:, None] * s / amp).astype(jnp.float32)
+        offsets, testing = escape.probe_offsets(p, carry, cands, amp * s)
+        p1 = probe(offsets)  # one probe either way
+        g = jnp.where(testing[:, None], 0.0, slope(p0, p1, s, amp))
         i = p["leak"] * carry["i"] + g
         kp = p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
         u = jnp.clip(kp * g + p["ki"] * i + p["kd"] * (g - carry["g_prev"]), -1.0, 1.0)
-        # Escape: commit the tested line if it beats P(tau) by `margin`, then move it at full speed.
-        commit = testing & (p1 > p0 + p["margin"])
-        move = jnp.where(commit[:, None], p["jump"] * line, carry["move"])
-        push = jnp.clip(move / p["action_scale"], -1.0, 1.0)
-        action = jnp.where(move != 0, push, u)
-        left = move - push * p["action_scale"]
-        move = jnp.where(jnp.abs(left) < 1e-6, 0.0, left)
-        stall = jnp.where((p0 < p["p_stall"]) & ~commit & ~moving, carry["stall"] + 1, 0.0)
-        cand = jnp.where(testing & ~commit, (carry["cand"] + 1) % c, carry["cand"])
-        stall = jnp.where(testing & ~commit & (cand == 0), 0.0, stall)  # all lines failed: wait again
-        carry = {"i": i, "g_prev": g, "t": carry["t"] + 1, "stall": stall, "cand": cand, "move": move}
-        return action, carry
+        action, esc = escape.step(p, {k: carry[k] for k in ("stall", "cand", "move")}, cands, testing, p0, p1, u)
+        return action, {"i": i, "g_prev": g, "t": carry["t"] + 1, **esc}
 
     return Policy(init, act)
 

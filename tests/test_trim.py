@@ -1,0 +1,115 @@
+"""The extremum-seeking trim: removes a policy's static bias, is the policy itself at ki = 0, leaves the local
+maxima a hill climber stops on, one compiled program for every gain, gated, validated."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agents
+from agents import trim
+from agents.base import Policy
+from agents.envs import built
+
+ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
+BIAS = 0.04  # wl, on every line: P/Pmax about 0.6 on 3 stages
+
+
+def _biased_policy(env_config, bias=BIAS, gain=0.3, traces=None):
+    """A proportional controller on the length readouts whose set point is ``bias`` wl off the optimum."""
+    env, params = built(env_config)
+    n = env.num_actions
+    first = env.frame_size - n - (n if env.config.include_noise else 0)  # the readouts' place in a frame
+
+    def act(p, carry, obs, key, probe):
+        if traces is not None:
+            traces.append(1)
+        start = obs.shape[1] - env.frame_size + first  # the latest frame's
+        x = obs[:, start:start + n] * params.window
+        return jnp.clip(-gain * (x - bias) / params.action_scale, -1.0, 1.0), carry
+
+    return Policy(lambda key, obs: (), act)
+
+
+def _final(ev):
+    return float(ev.normalized_power[:, -10:].mean())
+
+
+def test_trim_removes_a_static_bias():
+    policy = _biased_policy(ENV)
+    alone = agents.evaluate(policy, ENV, episodes=16, seed=3, steps=200)
+    pair = trim.trimmed((policy, None), {"ki": 0.003}, env_config=ENV)
+    trimmed = agents.evaluate(pair, ENV, episodes=16, seed=3, steps=200)
+    assert _final(alone) < 0.85  # the bias costs P
+    assert _final(trimmed) > 0.97  # the trim climbs to the top
+    assert trimmed.summary["measurements_per_step"] == 2  # the observation and one probe
+
+
+def test_ki_zero_is_the_wrapped_policy():
+    policy = _biased_policy(ENV)
+    alone = agents.evaluate(policy, ENV, episodes=8, seed=4, steps=50)
+    off = agents.evaluate(trim.trimmed((policy, None), {"ki": 0.0}, env_config=ENV), ENV, episodes=8, seed=4, steps=50)
+    np.testing.assert_array_equal(alone.normalized_power, off.normalized_power)
+
+
+def test_escape_lifts_a_hill_climber_off_local_maxima():
+    env = {"stages": 5, "mode": "easy", "model": "phasor"}
+    plain = agents.train("spgd", env, seed=0, curve_episodes=1, jump=0.0)  # SPGD without its own escape
+    alone = agents.evaluate(plain, env, episodes=64, seed=7)
+    trimmed = agents.evaluate(trim.trimmed(plain, {"ki": 0.0, "jump": 0.25, "p_stall": 0.9}), env, episodes=64, seed=7)
+    assert alone.summary["final_mean"] < 0.95  # some episodes stay on local maxima
+    assert trimmed.summary["final_mean"] > alone.summary["final_mean"] + 0.04
+    assert trimmed.summary["measurements_per_step"] == 3  # the observation, SPGD's probe and the trim's
+
+
+def test_gains_are_traced_one_program_for_every_config():
+    traces = []
+    policy = trim.make_policy(_biased_policy(ENV, traces=traces), ENV)
+    scores = [_final(agents.evaluate((policy, {"policy": None, "trim": trim.gains({"ki": ki})}), ENV, episodes=8,
+                                     seed=5, steps=100)) for ki in (0.0, 0.003, 0.01)]
+    assert len(traces) == 1  # traced once, whatever the gains
+    assert scores[1] > scores[0] + 0.1
+
+
+def test_gate_holds_the_trim_below_it_and_release_clears_it():
+    policy = trim.make_policy(_biased_policy(ENV), ENV)
+    env, _ = built(ENV)
+    obs = jnp.zeros((2, env.observation_size), jnp.float32).at[:, -env.frame_size].set(jnp.array([0.6, -0.6]))
+    carry = policy.init(None, obs)
+    carry = dict(carry, c=jnp.full((2, 3), 0.5, jnp.float32))
+    probe = lambda offsets: jnp.full((2,), 0.9, jnp.float32)  # P/Pmax 0.9 at the probe: gradient > 0 along s
+    params = {"policy": None, "trim": trim.gains({"ki": 0.01, "p_gate": 0.5, "release": 0.5})}
+    _, out = policy.act(params, carry, obs, jax.random.key(0), probe)
+    c = np.asarray(out["c"])
+    # instance 0 reads P/Pmax 0.8 >= 0.5: integrates (|step| = ki x 0.1 / amp); instance 1 reads 0.2: released
+    np.testing.assert_allclose(np.abs(c[0] - 0.5), 0.01 * 0.1 / 0.002, rtol=1e-4)
+    np.testing.assert_allclose(c[1], 0.25)
+
+
+@pytest.mark.parametrize("hyper, word", [
+    ({"ki": -0.1}, "ki"), ({"ki": 2.0}, "ki"), ({"amp": 0.0}, "amp"), ({"p_gate": 1.5}, "p_gate"),
+    ({"release": -1.0}, "release"), ({"ki": "x"}, "ki"), ({"jump": 0.6}, "jump"), ({"patience": 0.0}, "patience"),
+])
+def test_bad_trim_settings_raise_naming_the_field(hyper, word):
+    with pytest.raises(ValueError, match=word):
+        trim.gains(hyper)
+
+
+def test_unknown_setting_and_bad_arguments():
+    with pytest.raises(TypeError, match=r"unknown trim hyperparameter\(s\) \['kp'\]; accepted: .*'ki'"):
+        trim.gains({"kp": 1.0})
+    with pytest.raises(ValueError, match="env_config"):
+        trim.trimmed((_biased_policy(ENV), None))
+    with pytest.raises(TypeError, match="TrainResult or a \\(Policy, params\\) pair"):
+        trim.trimmed("droq")
+    with pytest.raises(ValueError, match="action_scale"):
+        trim.gains({}, action_scale=-1.0)
+
+
+def test_trimmed_result_keeps_the_learners_params():
+    result = agents.train("spgd", ENV, seed=1, curve_episodes=2)
+    policy, params = trim.trimmed(result, {"ki": 0.0})
+    assert params["policy"] is result.params and float(params["trim"]["ki"]) == 0.0
+    a = agents.evaluate(result, ENV, episodes=4, seed=2, steps=30)
+    b = agents.evaluate((policy, params), ENV, episodes=4, seed=2, steps=30)
+    np.testing.assert_allclose(a.normalized_power, b.normalized_power, atol=1e-6)
