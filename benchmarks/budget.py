@@ -22,7 +22,8 @@ then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``
 at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
 continuing from the pretrained networks (``start_from``, agents.offpolicy); P / P_best on that bench before
 adapting and at each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
-controller that needs no training holds there).
+controller that needs no training holds there); and the same policies with the preset's extremum-seeking trim
+(``agents.trim``: one more probe per step, no learning), which removes the static bias an adapted policy keeps.
 
     python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
     python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
@@ -71,7 +72,8 @@ PRESETS = {
                                # adapting: 250 steps of the pretrained policy, then 2 gentler gradient steps per step
                                hyper={"config": "budget", "learning_starts": 250, "eval_every": 250, "utd_ratio": 2.0,
                                       "actor_lr": 1e-4, "critic_lr": 1e-4},
-                               bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000))),
+                               bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000),
+                               trim={})),  # agents.trim's default TrimConfig
 }
 # every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
 PRESETS["full"] = dict(PRESETS["default"], learners={
@@ -82,7 +84,7 @@ PRESETS["quick"]["adapt"] = dict(
                                    randomize_layout=1.0),
     pretrain_steps=600, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
     hyper=dict(PRESETS["quick"]["learners"]["droq"], learning_starts=100, eval_every=100),
-    bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600))
+    bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600), trim={})
 
 
 # Cost model of a cell on a 2-core CPU (seconds): per gradient step of the off-policy learners, per env
@@ -165,7 +167,7 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
             if only is None or adapt["algo"] in only:
                 out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), **bench,
                                 pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
-                                pretrain_hyper=dict(adapt["pretrain_hyper"]),
+                                pretrain_hyper=dict(adapt["pretrain_hyper"]), trim=dict(adapt["trim"]),
                                 settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
             out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **bench, settings=get(algo).settings(hyper))
                     for algo, hyper in p["references"].items() if only is None or algo in only]
@@ -208,6 +210,15 @@ def _scores(result, snapshots: dict, cell: dict) -> dict:
     return {str(k): _score((policy, snapshots[k]), cell["env_config"], cell) for k in sorted(snapshots)}
 
 
+def _trimmed_scores(pretrained, result, snapshots: dict, cell: dict) -> dict:
+    """P / P_best with the cell's trim (``agents.trim``) around the pretrained policy ("0") and each snapshot."""
+    from agents import trim
+
+    policy, params = trim.trimmed(result, cell["trim"], env_config=cell["env_config"])
+    states = {0: pretrained.params, **snapshots}
+    return {str(k): _score((policy, dict(params, policy=states[k])), cell["env_config"], cell) for k in sorted(states)}
+
+
 def _off_policy(cell: dict) -> dict:
     """One run to the last checkpoint, its snapshots evaluated: {checkpoint: score}, wall s."""
     t0 = time.perf_counter()
@@ -218,7 +229,8 @@ def _off_policy(cell: dict) -> dict:
 
 def _adapt(cell: dict) -> dict:
     """Protocol (b): pretrain on the randomised simulator, score on the unseen bench (``before``), train on
-    there from the pretrained state; ``scores`` at each checkpoint of bench env steps, ``pretrain_s``, ``train_s``."""
+    there from the pretrained state; ``scores`` at each checkpoint of bench env steps, ``trimmed``: the same with
+    the trim ("0": the pretrained policy), ``pretrain_s``, ``train_s``."""
     import agents
 
     t0 = time.perf_counter()
@@ -229,7 +241,8 @@ def _adapt(cell: dict) -> dict:
     t0 = time.perf_counter()
     result, snapshots = _snapshot_run(cell, start_from=pretrained)
     wall = time.perf_counter() - t0
-    return {"before": before, "scores": _scores(result, snapshots, cell), "pretrain_s": pretrain_s, "train_s": wall,
+    return {"before": before, "scores": _scores(result, snapshots, cell),
+            "trimmed": _trimmed_scores(pretrained, result, snapshots, cell), "pretrain_s": pretrain_s, "train_s": wall,
             "pretrain_steps": pretrained.env_steps}
 
 
@@ -325,6 +338,9 @@ def _figure(groups: dict, adapted: list, on_bench: dict, path: Path) -> None:
             ks = [0] + r["cell"]["checkpoints"]
             ax.plot(ks, [r["result"]["before"]] + [r["result"]["scores"][str(k)] for k in ks[1:]], marker="o", ms=3,
                     color=f"C{i}", label=f"pretraining seed {r['cell']['seed']}")
+            if "trimmed" in r["result"]:
+                ax.plot(ks, [r["result"]["trimmed"][str(k)] for k in ks], "--", marker="^", ms=3, color=f"C{i}",
+                        label="with the trim" if i == 0 else None)
         for j, (algo, scores) in enumerate(on_bench.items()):
             ax.axhline(np.mean(list(scores.values())), color="k", lw=1, ls=("--", "-.", ":")[j % 3],
                        label=f"{NAMES.get(algo, algo)} (reference, mean over the benches)")
@@ -348,32 +364,38 @@ def _bench_references(records) -> dict:
 
 
 def _adapt_table(adapted: list, on_bench: dict) -> list:
-    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting,
-    and the references' on the same bench."""
+    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting, with
+    the trim around the pretrained and the last adapted policy, and the references' on the same bench."""
     c = adapted[0]["cell"]
     ks = c["checkpoints"]
+    trimmed = all("trimmed" in r["result"] for r in adapted)
     refs = {NAMES.get(a, a): scores for a, scores in on_bench.items()}
     ref = lambda scores, bench: f" {scores[bench]:.3f} |" if bench in scores else " - |"
+    # the columns: (title, score of a record)
+    cols = [("before", lambda r: r["result"]["before"])]
+    cols += [(f"after {k:,}", lambda r, k=k: r["result"]["scores"][str(k)]) for k in ks]
+    if trimmed:
+        cols += [("before, trimmed", lambda r: r["result"]["trimmed"]["0"]),
+                 (f"after {ks[-1]:,}, trimmed", lambda r: r["result"]["trimmed"][str(ks[-1])])]
     lines = [f"## Simulator to bench ({NAMES.get(c['algo'], c['algo'])})", "",
              f"Pretrained {c['pretrain_steps']:,} env steps on the randomised simulator ({c['pretrain_env']}, "
              f"{c['pretrain_hyper']}), then trained on for up to {ks[-1]:,} env steps on an unseen bench (the lab "
              f"preset at {adapted[0]['cell']['env_config'].get('imperfection_scale')}x, per-stage errors re-drawn "
-             "from the bench seed); final P / P_best on that bench.", "",
-             "| pretraining seed | bench seed | before | " + " | ".join(f"after {k:,}" for k in ks)
+             "from the bench seed); final P / P_best on that bench"
+             + (f"; trimmed: with the extremum-seeking trim (agents.trim, {c['trim'] or 'default'})." if trimmed else "."),
+             "", "| pretraining seed | bench seed | " + " | ".join(t for t, _ in cols)
              + "".join(f" | {name} on the bench" for name in refs) + " | pretraining s | adapting s |",
-             "|---|---|---|" + "---|" * (len(ks) + len(refs)) + "---|---|"]
+             "|---|---|" + "---|" * (len(cols) + len(refs)) + "---|---|"]
     for r in adapted:
         res, bench = r["result"], r["cell"]["bench_seed"]
-        lines.append(f"| {r['cell']['seed']} | {bench} | {res['before']:.3f} | "
-                     + " | ".join(f"{res['scores'][str(k)]:.3f}" for k in ks) + " |"
+        lines.append(f"| {r['cell']['seed']} | {bench} | " + " | ".join(f"{f(r):.3f}" for _, f in cols) + " |"
                      + "".join(ref(scores, bench) for scores in refs.values())
                      + f" {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
     benches = [r["cell"]["bench_seed"] for r in adapted]
     held = [[scores[b] for b in benches if b in scores] for scores in refs.values()]  # each reference's, these benches
-    for name, f in (("mean", np.mean), ("worst", np.min)):
-        lines.append(f"| {name} | | {f([r['result']['before'] for r in adapted]):.3f} | "
-                     + " | ".join(f"{f([r['result']['scores'][str(k)] for r in adapted]):.3f}" for k in ks) + " |"
-                     + "".join(f" {f(v):.3f} |" if v else " - |" for v in held) + " | |")
+    for name, agg in (("mean", np.mean), ("worst", np.min)):
+        lines.append(f"| {name} | | " + " | ".join(f"{agg([f(r) for r in adapted]):.3f}" for _, f in cols) + " |"
+                     + "".join(f" {agg(v):.3f} |" if v else " - |" for v in held) + " | |")
     return lines
 
 

@@ -207,6 +207,14 @@ def test_budget_plan_simulator_to_bench(tmp_path):
     assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | 0.940 | 0.950 | | |" in text
     assert "| unseen bench |" not in text  # the bench references stay out of protocol (a)'s table
     assert (tmp_path / "budget.png").stat().st_size > 5000
+    # with the trim's scores ("0": around the pretrained policy), two more columns
+    for r, trimmed in zip(records, ({"0": 0.8, "1000": 0.9, "2000": 0.95, "5000": 0.99},
+                                    {"0": 0.7, "1000": 0.9, "2000": 0.95, "5000": 0.96})):
+        r["result"]["trimmed"] = trimmed
+    text = budget.report(records, tmp_path)
+    assert "| after 5,000 | before, trimmed | after 5,000, trimmed | SPGD on the bench |" in text
+    assert "| 11 | 1011 | 0.600 | 0.700 | 0.800 | 0.970 | 0.800 | 0.990 | 0.960 | 0.950 | 9 | 3 |" in text
+    assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | 0.700 | 0.960 | 0.940 | 0.950 | | |" in text
 
 
 def test_budget_quick_adapt_cell_end_to_end():
@@ -215,6 +223,7 @@ def test_budget_quick_adapt_cell_end_to_end():
     rec = budget.compute(cell)
     assert set(rec["scores"]) == {"300", "600"} and 0.0 < rec["before"] <= 1.0
     assert rec["pretrain_steps"] <= cell["pretrain_steps"] and all(0.0 < v <= 1.0 for v in rec["scores"].values())
+    assert set(rec["trimmed"]) == {"0", "300", "600"} and all(0.0 < v <= 1.0 for v in rec["trimmed"].values())
 
 
 def test_budget_quick_cell_end_to_end():
