@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from agents import base
+from agents import base, trim
 from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
                                   make_bench, signals, sim_mapping)
 from agents.cli import parse_set
@@ -110,8 +110,9 @@ class Agent:
         return np.asarray(action, np.float64)
 
 
-def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed: int):
-    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder."""
+def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed: int, trim_hyper: dict | None = None):
+    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder;
+    with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``: the default), wrapped in the trim (``agents.trim``)."""
     if spec in ("spgd", "physics"):
         env_config = {"stages": stages, **env_options}
         module = base.algo_module(spec)
@@ -122,6 +123,8 @@ def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed
         result = base.load(spec)
         env_config = {**result.env_config, **env_options}
         policy, params = result.policy(), result.params
+    if trim_hyper is not None:
+        policy, params = trim.trimmed((policy, params), trim_hyper, env_config)
     env, env_params = ops_jax.make(**base.check_env_config(env_config))
     if env.num_actions != stages:
         raise ValueError(f"the controller drives {env.num_actions} lines, the bench has {stages}")
@@ -362,6 +365,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--controller", required=True, help="spgd, physics or a folder written by agents.save")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
+    ap.add_argument("--trim", nargs="*", metavar="KEY=VALUE", default=None,
+                    help="wrap the controller in the extremum-seeking trim (agents.trim; one more probe per step), "
+                         "with these TrimConfig settings (none: its default)")
     ap.add_argument("--lockstep", action="store_true",
                     help="the simulated bench runs --lockstep: advance it one frame per step and probe")
     ap.add_argument("--seconds", type=float, default=60.0)
@@ -389,7 +395,8 @@ def _setup(args):
         mapping["safety"] = {**(mapping.get("safety") or {}), "stale_s": args.stale_s}
     mapping = check_mapping(mapping)
     agent, env_config, scale, window = load_controller(args.controller, len(mapping["lines"]), parse_set(args.env),
-                                                       parse_set(args.set), args.seed)
+                                                       parse_set(args.set), args.seed,
+                                                       None if args.trim is None else parse_set(args.trim))
     return mapping, agent, env_config, scale, window
 
 
@@ -415,6 +422,7 @@ def main(argv=None) -> int:
     loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, args.steps)
     loop.watch()
     md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
+          "trim": None if args.trim is None else parse_set(args.trim),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
     try:
         elapsed = _run(loop, md, out)

@@ -264,6 +264,21 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
 
 
+def test_run_with_the_trim_probes_once_more_per_step(iocs, tmp_path):
+    """SPGD wrapped in the extremum-seeking trim (agents.trim) over Channel Access: two probes per step."""
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
+                               "--trim", "ki=0.003", "jump=0.25", "--seconds", "3"))
+    assert rc == 0, log
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
+    assert summary["probes_per_step"] == 2
+    start = next(d["doc"] for d in documents(tmp_path) if d["name"] == "start")
+    assert start["trim"] == {"ki": 0.003, "jump": 0.25}
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
+                               "--trim", "ki=5", "--seconds", "3"))
+    assert rc == 2 and "ki must be" in log, log
+
+
 def test_unknown_pv_fails_at_once_naming_it(iocs, tmp_path):
     mapping = {**sim_mapping("FR:", 3), "safety": {"connect_s": 2.0}}
     mapping["lines"][1]["readback"] = "FR:LINE2:NOPE"
