@@ -60,7 +60,7 @@ PRESETS = {
                   learners={"droq": {"config": "budget", "learning_starts": 200, "eval_every": 200, "utd_ratio": 2.0,
                                      "hidden": [32, 32], "critic_hidden": [32, 32], "batch_size": 64}},
                   references={"spgd": {}, "physics": {"config": "frames", "starts": 4, "iters": 4}}),
-    # the sweep's default run: the best budget learner, the references and protocol (b) (17 min on 2 cores)
+    # the sweep's default run: the best budget learner, the references and protocol (b) (15 min on 2 cores)
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
                     learners={"droq": {"config": "budget"}},
                     references={"spgd": {}, "physics": {}},

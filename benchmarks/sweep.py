@@ -1,6 +1,6 @@
 """The paper's experiments on ops-jax, reproduced and extended, as one resumable command.
 
-    python -m benchmarks.sweep                      # default preset (5 seeds, ~52 min on 2 cores)
+    python -m benchmarks.sweep                      # default preset (5 seeds, ~51 min on 2 cores)
     python -m benchmarks.sweep --quick              # a first look in a few minutes
     python -m benchmarks.sweep --preset paper --seeds 20
     python -m benchmarks.sweep --only table1 --out results/mine
