@@ -42,6 +42,7 @@ from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import SPGDConfig
 from agents.envs import built, check_env_config
 
+
 def dither(key, shape) -> jax.Array:
     """Random signs s in {-1, +1} (float32) of a one-probe perturbation d = amp * s."""
     return jnp.where(jax.random.bernoulli(key, 0.5, shape), 1.0, -1.0).astype(jnp.float32)
