@@ -17,8 +17,8 @@ wrapped policy itself. The gate keeps the trim from integrating while the policy
 (P far from the top, where g says little about the final set point); ``release < 1`` lets a trim
 that has led the lines away from the top decay, so the policy takes over again. The escape leaves the
 local maxima (a stage at a pi phase error) where a policy, like any hill climber, can stop. Gate and escape are
-off by default: on the tuning benches both also kept the trim from freeing episodes in which the policy alone
-stops short (docs/learners.md).
+off by default: on the tuning benches the gate kept the trim from freeing episodes in which the policy alone
+stops short, and the escape fought policies still acquiring (docs/learners.md).
 
     policy, params = trim.trimmed(result)                     # a TrainResult, default TrimConfig
     agents.evaluate((policy, params), env_config, episodes=32)
