@@ -41,6 +41,11 @@ def init(b: int, n: int) -> dict:
             "move": jnp.zeros((b, n), jnp.float32)}
 
 
+def of(carry: dict) -> dict:
+    """The escape's state held in a controller's carry (the keys of ``init``)."""
+    return {k: carry[k] for k in ("stall", "cand", "move")}
+
+
 def _moving(state):
     return jnp.any(state["move"] != 0, axis=1)
 

@@ -108,7 +108,7 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
         i = p["leak"] * carry["i"] + g
         kp = p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
         u = jnp.clip(kp * g + p["ki"] * i + p["kd"] * (g - carry["g_prev"]), -1.0, 1.0)
-        action, esc = escape.step(p, {k: carry[k] for k in ("stall", "cand", "move")}, cands, testing, p0, p1, u)
+        action, esc = escape.step(p, escape.of(carry), cands, testing, p0, p1, u)
         return action, {"i": i, "g_prev": g, "t": carry["t"] + 1, **esc}
 
     return Policy(init, act)

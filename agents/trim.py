@@ -65,7 +65,7 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         a, inner_carry = policy.act(inner, carry["policy"], obs, key, probe)
         s = spgd.dither(jax.random.fold_in(key, DITHER_STREAM), (obs.shape[0], n))
         p0 = spgd.power(obs, frame)
-        esc = {k: carry[k] for k in ("stall", "cand", "move")}
+        esc = escape.of(carry)
         offsets, testing = escape.probe_offsets(p, esc, cands, p["amp"] * s)
         p1 = probe(offsets)
         g = jnp.where(testing[:, None], 0.0, spgd.slope(p0, p1, s, p["amp"]))
