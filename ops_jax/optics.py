@@ -1,15 +1,18 @@
 """Stacking with imperfect optics, in both physics models (field: exact; phasor: fast).
 
-Each stage i is the ideal one (physics.md section 3) with two changes:
-- PBS leakage ``leak_i`` (intensity fraction 1/ER): amplitude l = sqrt(leak) of each polarisation
-  takes the other arm, a = sqrt(1 - leak) the intended one, and both arms recombine:
-  P = a p + l delay(p), S = a delay(s) + l s.
-- wave plate rotation ``rot_i`` (rad; 45 degrees ideal, 45 + 2 eps for a half-wave plate set eps off):
-  p' = cos(rot) P + sin(rot) S, s' = -sin(rot) P + cos(rot) S; the next stage splits sin^2(rot):cos^2(rot).
+Each stage i is the ideal one (physics.md section 3) with two changes (docs/imperfections.md derives both):
+- a leaky PBS (``leak_i``, intensity fraction 1/ER sent to the wrong port on every pass): the light
+  passes the PBS twice, at the split and at the recombination, each pass a unitary split whose unused
+  output port is lost. The intended path keeps amplitude 1 - leak, the path that leaks on both passes
+  amplitude leak: P = (1 - leak) p + leak delay(p), S = (1 - leak) delay(s) + leak s. The stage map
+  has norm <= 1, so no configuration creates energy.
+- wave plate rotation ``rot_i`` (rad; 45 degrees ideal, 45 + 2 eps for a half-wave plate set eps off,
+  followed by the turning mirror's reflection): p' = cos(rot) P + sin(rot) S, s' = -sin(rot) P + cos(rot) S;
+  the next stage splits sin^2(rot):cos^2(rot).
 The 2^N input pulses carry complex weights ``pulses`` (re, im) (..., 2^N) (1 for identical pulses).
 The stage map is still linear and the same for every train entry, so the entries are summed first
 as in ``physics``. The phasor model drops the light that stage 1's leakage puts half a period
-(10 ps) off the 20 ps slot grid (relative P error ~ leak_1 x pulse overlap; see tests).
+(10 ps) off the 20 ps slot grid (error bound ``phasor_error_bound``).
 Lengths in wavelengths; works under jit, vmap and grad.
 """
 
@@ -51,15 +54,17 @@ def _weighted(w, basis, dtype):
 
 
 def _split_recombine_rotate(p, S_del, P_del, s, a, l, c, sn):
-    """Leaky PBS pair then the wave plate, on (re, im) pairs; a, l, c, sn broadcast."""
+    """Leaky PBS (intended path a, doubly leaked path l) then the wave plate, on (re, im) pairs;
+    a, l, c, sn broadcast."""
     P = tuple(a * u + l * v for u, v in zip(p, P_del))
     S = tuple(a * u + l * v for u, v in zip(S_del, s))
     return tuple(c * u + sn * v for u, v in zip(P, S)), tuple(c * v - sn * u for u, v in zip(P, S))
 
 
 def _per_stage(rot, leak):
-    """(cos, sin, a, l) per stage, stage axis first."""
-    a, l = jnp.sqrt(1 - leak), jnp.sqrt(leak)
+    """(cos, sin, a, l) per stage, stage axis first: a = 1 - leak (split and recombined as intended),
+    l = leak (sent to the wrong arm and recombined from it: two leaks, amplitudes sqrt(leak) each)."""
+    a, l = 1 - leak, leak
     return tuple(jnp.moveaxis(v, -1, 0) for v in (jnp.cos(rot), jnp.sin(rot), a, l))
 
 
@@ -133,3 +138,14 @@ def measure(deltas_wl, rot, leak, pulses, *, stages: int, model: str = "field", 
 def ideal_pulses(stages: int, batch=()):
     """Unit weights (re, im) of identical input pulses."""
     return jnp.ones((*batch, 2**stages)), jnp.zeros((*batch, 2**stages))
+
+
+PHASOR_ERROR = (2e-4, 0.2)  # |P_phasor - P_field| <= (c0 + c1 leak_1) P_max (E / E_ideal)^2, docs/imperfections.md
+
+
+def phasor_error_bound(leak_1, pulses=None, *, stages: int, detector: str = "total"):
+    """The documented bound on |P_phasor - P_field| (P units) for stage 1's leakage ``leak_1`` and the
+    input pulse weights ``pulses`` (re, im) (..., 2^N) (None: identical pulses), whose mean energy
+    E / E_ideal scales P_max by its square."""
+    energy = 1.0 if pulses is None else jnp.mean(pulses[0] ** 2 + pulses[1] ** 2, axis=-1)
+    return (PHASOR_ERROR[0] + PHASOR_ERROR[1] * leak_1) * physics.p_max(stages, detector) * energy**2

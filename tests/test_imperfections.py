@@ -13,9 +13,31 @@ import ops_jax
 from ops_jax import hardware, imperfections, optics, physics, vibration
 
 
+def _hand_stage(p, s, D, leak, wp_err_deg):
+    """One folded delay-line stage written out port by port (docs/imperfections.md): a symmetric
+    lossless PBS (each polarisation: transmission t, reflection r = i |r|, unitary) passed twice, a
+    quarter-wave double pass swapping p and s in each arm, arm B delayed by D, then a half-wave plate
+    (a mirror matrix) and the turning mirror (diag(1, -1)). Returns p', s' and the (p, s) fields that
+    leave by the input port."""
+    a, l = np.sqrt(1 - leak), np.sqrt(leak)
+    t_p, r_p, t_s, r_s = a, 1j * l, l, 1j * a  # p is transmitted, s reflected, each leaking l
+    # Split: port 1 -> arm A (transmitted) and arm B (reflected); each arm swaps p and s on its way back.
+    arm_a = (t_s * s, t_p * p)  # (p, s) back at the PBS from arm A
+    arm_b = (D * r_s * s, D * r_p * p)  # from arm B, delayed
+    # Recombination: arm A's light reflects into the output port, arm B's transmits; the rest returns to port 1.
+    out_p, out_s = r_p * arm_a[0] + t_p * arm_b[0], r_s * arm_a[1] + t_s * arm_b[1]
+    back_p, back_s = t_p * arm_a[0] + r_p * arm_b[0], t_s * arm_a[1] + r_s * arm_b[1]
+    # The merged stage output: "P" is the output's s (arm A's p), "S" its p (arm B's s); the common phase i removed.
+    P, S = -1j * out_s, -1j * out_p
+    th = np.pi / 8 + np.deg2rad(wp_err_deg)
+    hwp = np.array([[np.cos(2 * th), np.sin(2 * th)], [np.sin(2 * th), -np.cos(2 * th)]])
+    p2, s2 = np.diag([1.0, -1.0]) @ hwp @ np.array([P, S])
+    return p2, s2, np.array([back_p, back_s])
+
+
 def _hand_power(x, wp_err_deg, leak, weights, N):
-    """P of N stages from the spec written out with explicit 2x2 Jones matrices per stage, merging
-    the train entries pairwise (no shortcuts), float64 NumPy."""
+    """(P, energy in, energy out, energy lost) of N stages from the folded-stage model written out with
+    explicit ports per stage, merging the train entries pairwise (no shortcuts), float64 NumPy."""
     T, c, lam = 20.0, 0.299792458, 1030e-6
     n = 40 * 2**N
     W = 2**N * T
@@ -35,32 +57,34 @@ def _hand_power(x, wp_err_deg, leak, weights, N):
     for k, lab in enumerate(labels):
         A = (-1 if lab.startswith("-") else 1) * weights[k] * spec(a0) * np.exp(-1j * w * k * T / 2)
         train.append(np.array([A, zero]) if lab.endswith("p") else np.array([zero, A]))
+    energy = lambda ps: float(np.sum(np.abs(ps) ** 2))
+    e_in, lost = energy(sum(train)), 0.0
     for i in range(N):
+        back = 0.0
         L = 2.0**i * (T / 2) * c / 2 + x[i] * lam
         D = np.exp(-1j * w * (-2 * L / c))  # the delay operator (diagonal in frequency)
-        al, l = np.sqrt(1 - leak[i]), np.sqrt(leak[i])
-        phi = np.pi / 4 + 2 * np.deg2rad(wp_err_deg[i])
-        pbs = np.array([[al + l * D, 0 * D], [0 * D, al * D + l]])  # (2, 2, n): p keeps / s delayed
-        wp = np.array([[np.cos(phi), np.sin(phi)], [-np.sin(phi), np.cos(phi)]])
         merged = []
         for m in range(len(train) // 2):
-            ps = train[2 * m] + train[2 * m + 1]
-            PS = np.einsum("abk,bk->ak", pbs, ps)
-            merged.append(wp @ PS)
-        train = merged
+            p, s = train[2 * m] + train[2 * m + 1]
+            p, s, returned = _hand_stage(p, s, D, leak[i], wp_err_deg[i])
+            merged.append(np.array([p, s]))
+            back = back + returned  # the pairs' returned light overlaps in time: summed as fields
+        train, lost = merged, lost + energy(back)
     I = np.abs(field(train[0][0])) ** 2 + np.abs(field(train[0][1])) ** 2
-    return 1e9 * dt * 1e-12 * np.trapezoid(I**2)
+    return 1e9 * dt * 1e-12 * np.trapezoid(I**2), e_in, energy(train[0]), lost
 
 
 @pytest.mark.parametrize("N", [1, 2])
-def test_field_model_matches_hand_written_jones(N):
+def test_field_model_matches_hand_written_folded_stages(N):
+    """The optics model is the folded stage written port by port; that stage loses exactly the light that
+    leaves by its input port (energy in = out + lost); leakage and wave plate errors change P."""
     rng = np.random.default_rng(N)
     x = rng.uniform(-0.2, 0.2, N)
     err = rng.uniform(-3, 3, N)
-    leak = rng.uniform(0, 0.05, N)
+    leak = rng.uniform(0.01, 0.3, N)
     weights = (1 + 0.1 * rng.standard_normal(2**N)) * np.exp(0.3j * rng.standard_normal(2**N))
-    want = _hand_power(x, err, leak, weights, N)
-    ideal = _hand_power(x, np.zeros(N), np.zeros(N), np.ones(2**N), N)
+    want, e_in, e_out, lost = _hand_power(x, err, leak, weights, N)
+    ideal, *_ = _hand_power(x, np.zeros(N), np.zeros(N), np.ones(2**N), N)
     with jax.enable_x64(True):
         got = optics.measure(jnp.asarray(x), optics.rotation(jnp.asarray(err)), jnp.asarray(leak),
                              (jnp.asarray(weights.real), jnp.asarray(weights.imag)), stages=N).power
@@ -68,6 +92,9 @@ def test_field_model_matches_hand_written_jones(N):
     assert abs(float(got) - want) < 1e-9 * want
     assert abs(float(ref) - ideal) < 1e-9 * ideal  # the hand calculation is the spec's
     assert abs(want - ideal) > 1e-3 * ideal  # and the imperfections do change P
+    assert e_out + lost == pytest.approx(e_in, rel=1e-12) and lost > 1e-3 * e_in
+    lossless = _hand_power(x, err, np.zeros(N), weights, N)
+    assert lossless[2] == pytest.approx(e_in, rel=1e-12) and lossless[3] == 0.0
 
 
 def test_splitting_ratio_of_a_waveplate_error():
@@ -88,11 +115,11 @@ def test_phasor_matches_field_with_imperfections():
     p = optics.measure(x, rot, leak, pulses, stages=N, model="phasor")
     np.testing.assert_allclose(p.power, f.power, rtol=1e-3)
     np.testing.assert_allclose(p.samples, f.samples, atol=1e-3 * physics.peak_intensity(N))
-    # Stage 1's leaked light falls between the phasor's slots: the documented bound 0.2 sqrt(leak_1).
+    # Stage 1's leaked light falls between the phasor's slots: within the documented bound.
     leak1 = jnp.array([1e-3, 0, 0, 0, 0])
     f1 = optics.measure(x, rot, leak1, pulses, stages=N, model="field").power
     p1 = optics.measure(x, rot, leak1, pulses, stages=N, model="phasor").power
-    assert float(jnp.max(jnp.abs(p1 - f1) / f1)) < 0.2 * np.sqrt(1e-3)
+    assert float(jnp.max(jnp.abs(p1 - f1) / optics.phasor_error_bound(1e-3, pulses, stages=N))) < 1
 
 
 @pytest.mark.parametrize("model", ["phasor", "field"])
