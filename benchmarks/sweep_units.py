@@ -80,8 +80,8 @@ class Sweep:
         config = self._train_config(algo, env_config, seed, extra, steps)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
-        # A controller with nothing to train records an evaluation as its curve: the same one as
-        # the training-environment evaluation below, which is then served from memory.
+        # A controller with nothing to train records an evaluation as its curve: the same draws as
+        # the training-environment evaluation below (which computes them again, with the compiled program kept).
         curve = {} if is_learner(algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
