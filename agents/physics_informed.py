@@ -324,7 +324,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
           curve_episodes: int = 32, config: PhysicsConfig | str | None = None, **hyper) -> TrainResult:
     """Nothing to learn (the model is the simulator): validates; the curve is
-    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
+    ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
     env_config = check_env_config(env_config)
     h = PhysicsConfig.make(config, **hyper).to_hyper()
     return evaluated_result("physics", env_config, h, policy_params(env_config), seed, curve_episodes, progress_fn)

@@ -112,8 +112,8 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
           curve_episodes: int = 32, config: SPGDConfig | str | None = None, **hyper) -> TrainResult:
     """No learning: the params are ``gains(config)`` (default: the searched preset) with the
     environment's action scale. The curve is
-    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to ``progress_fn(0, metrics)``; ``total_steps`` is
-    ignored (0 env steps used)."""
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
+    ``progress_fn(0, metrics)``; ``total_steps`` is ignored (0 env steps used)."""
     env_config = check_env_config(env_config)
     c = SPGDConfig.make(config, **hyper)
     _, env_params = built(env_config)
