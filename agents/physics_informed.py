@@ -249,10 +249,10 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     env_config = check_env_config(env_config)
     h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
     env, _ = built(env_config)
-    cfg, layout = env.config, env.layout
+    cfg, obs_layout = env.config, env.layout
     n = cfg.stages
-    ny = layout.detector_size  # P and the 2^n - 1 samples
-    if not layout.lengths and (h["use_lengths"] or h["lengths_only"]):
+    ny = obs_layout.detector_size  # P and the 2^n - 1 samples
+    if not obs_layout.lengths and (h["use_lengths"] or h["lengths_only"]):
         raise ValueError("use_lengths and lengths_only must be False on an environment without length readouts "
                          "(observe_lengths=False): use config=\"frames\"")
     fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
@@ -289,8 +289,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         p = default if params is None else params
         scale, window = p["action_scale"], p["window"]
         b = obs.shape[0]
-        y = layout.detector(obs)
-        x_len = layout.length_readouts(obs, window) if layout.lengths else jnp.zeros((b, n), jnp.float32)
+        y = obs_layout.detector(obs)
+        x_len = obs_layout.length_readouts(obs, window) if obs_layout.lengths else jnp.zeros((b, n), jnp.float32)
         valid = carry["valid"][:, None]
         th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
         move = jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]  # length change + estimated drift since y_prev
