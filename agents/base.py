@@ -38,6 +38,7 @@ import numpy as np
 
 from agents import registry
 from agents.envs import built, check_env_config  # noqa: F401  (check_env_config: the algorithms' validation)
+from ops_jax import EnvSpec
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
@@ -71,6 +72,11 @@ class TrainResult:
         steps = np.asarray(self.curve.get("step", ()))
         return int(steps[-1]) if steps.size else 0
 
+    @property
+    def env_spec(self) -> EnvSpec:
+        """The training environment's ``ops_jax.EnvSpec``."""
+        return EnvSpec.from_options(self.env_config)
+
     def policy(self) -> Policy:
         return algo_module(self.algo).make_policy(self.env_config, self.hyper)
 
@@ -94,9 +100,10 @@ def algo_module(algo: str) -> registry.AlgoModule:
     return registry.get(algo).load()
 
 
-def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
+def train(algo: str, env_config: EnvSpec | dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> TrainResult:
-    """Train ``algo`` (a name of ``ALGOS``) on ``ops_jax.make(**env_config)``.
+    """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
+    dict of ``ops_jax.make`` options, converted once: ``TrainResult.env_config`` is its dict form).
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
     fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
     module = algo_module(algo)
@@ -106,7 +113,8 @@ def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None
     return module.train(env_config, seed=seed, total_steps=total_steps, progress_fn=progress_fn, **hyper)
 
 
-def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
+def train_seeds(algo: str, env_config: EnvSpec | dict, *, seeds, total_steps: int | None = None,
+                **hyper) -> list[TrainResult]:
     """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
     (``Algo.vmaps_seeds``, e.g. ``agents.td3.train_seeds``), else one call per seed."""
     module = algo_module(algo)
@@ -146,11 +154,12 @@ def _as_policy(result_or_policy):
     raise TypeError("evaluate takes a TrainResult, a Policy or a (Policy, params) pair")
 
 
-def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: int = 0,
+def evaluate(result_or_policy, env_config: EnvSpec | dict, *, episodes: int = 20, seed: int = 0,
              steps: int | None = None, drift_episode: int = 10) -> EvalResult:
     """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
-    configuration's max_steps) in one jitted scan, without auto-reset. Each episode starts as the
-    ``drift_episode``-th reset of its environment, so hard mode's drift is fully on (r in [-1, 1]);
+    configuration's max_steps) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a dict) in
+    one jitted scan, without auto-reset. Each episode starts as the ``drift_episode``-th reset of its
+    environment, so hard mode's drift is fully on (r in [-1, 1]);
     a different ``seed`` gives a different drift realisation (the paper's testing environment).
     The evaluation is deterministic: a repeated call computes the same numbers again (only the compiled
     program is kept). A ``TrainResult`` evaluated on an environment whose observation or action layout

@@ -374,6 +374,16 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``. Lab imperfections:
     ``imperfections="lab"`` (or "none"), ``imperfection_scale`` (x the preset's errors) and any
     ``imperfections.Imperfections`` field; setting any turns ``imperfect`` on and fills in p_best."""
+    config, params = configure(stages, mode, **overrides)
+    env = OPSEnv(config)
+    p_best = imperfections.best_power(config, params.lab) if config.imperfect else env.p_max
+    params = dataclasses.replace(params, lab=dataclasses.replace(params.lab, p_best=np.asarray(p_best, np.float32)))
+    return env, params
+
+
+def configure(stages: int = 5, mode: str = "hard", **overrides):
+    """The validated ``(EnvConfig, EnvParams)`` of ``make(stages, mode, **overrides)`` (raises what ``make``
+    raises), without building the environment or searching P_best (``params.lab.p_best`` unset)."""
     physics._check_choice("mode", mode, MODES)
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
@@ -392,10 +402,8 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     # Fixed dtypes (not Python scalars): a jitted step then never retraces on a weak-type change.
     params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
                           for k, v in vars(params).items() if k != "lab"}, lab=lab)
-    env = OPSEnv(config)
-    p_best = imperfections.best_power(config, lab) if config.imperfect else env.p_max
-    params = dataclasses.replace(params, lab=dataclasses.replace(lab, p_best=np.asarray(p_best, np.float32)))
-    return env, params
+    _validate_config(config)
+    return config, params
 
 
 class Rollout(NamedTuple):
