@@ -26,7 +26,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 import time
 from collections import OrderedDict
 from pathlib import Path
@@ -37,7 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import registry
-from agents.envs import built, check_env_config  # noqa: F401  (check_env_config: the algorithms' validation)
+from agents.envs import built, check_env_config
+from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
 from ops_jax import EnvSpec
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
@@ -322,7 +322,7 @@ def save(path, result: TrainResult) -> Path:
         params_sha256=hashlib.sha256(blob).hexdigest(),
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=path.name + ".tmp"))
+    tmp = temp_dir(path.parent, path.name)
     (tmp / "params.msgpack").write_bytes(blob)
     (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
     if path.exists():

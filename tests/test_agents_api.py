@@ -65,6 +65,8 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
                          {"step": np.array([0, 10]), "normalized_power": np.array([0.5, 0.9])},
                          {"simulation": 1.0, "optimisation": 0.0, "total": 1.0}, 7)
     path = agents.save(tmp_path / "ck", result)
+    (tmp_path / "plain").mkdir()
+    assert path.stat().st_mode == (tmp_path / "plain").stat().st_mode  # its neighbours' permissions
     back = agents.load(path)
     assert back.algo == "spgd" and back.seed == 7 and back.hyper == {"gain": 1.0}
     np.testing.assert_array_equal(np.asarray(back.curve["normalized_power"]), [0.5, 0.9])
