@@ -3,6 +3,7 @@ physics-informed controller, behind one ``train`` / ``evaluate`` / ``save`` / ``
 configured by its config type (``agents.config``: presets "paper", "fast", ... overridable per field);
 ``agents.trim``: an extremum-seeking trim around any of their policies."""
 
+from agents import algos  # noqa: F401  (registers the algorithms)
 from agents.base import ALGOS, EvalResult, Policy, TrainResult, evaluate, load, save, summarize, train, train_seeds
 from agents.config import DroQConfig, PhysicsConfig, PPOConfig, SACConfig, SPGDConfig, TD3Config, TrimConfig
 

@@ -26,7 +26,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 import time
 from collections import OrderedDict
 from pathlib import Path
@@ -37,7 +36,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import registry
-from agents.envs import built, check_env_config  # noqa: F401  (check_env_config: the algorithms' validation)
+from agents.envs import built, check_env_config
+from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
+from ops_jax import EnvSpec
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
@@ -71,6 +72,11 @@ class TrainResult:
         steps = np.asarray(self.curve.get("step", ()))
         return int(steps[-1]) if steps.size else 0
 
+    @property
+    def env_spec(self) -> EnvSpec:
+        """The training environment's ``ops_jax.EnvSpec``."""
+        return EnvSpec.from_options(self.env_config)
+
     def policy(self) -> Policy:
         return algo_module(self.algo).make_policy(self.env_config, self.hyper)
 
@@ -80,8 +86,9 @@ class EvalResult(NamedTuple):
     P/P_best, P_best the best P reachable with the configuration's static imperfections (P_max on the
     ideal system: then the same array); ``summary``: final mean/std, steps to reach 0.9 (median over
     episodes that reach it) and the fraction that do, measurements per control step, inference time per
-    control step (s, batched), ``score``: the ratio to report ("P/P_best" with imperfections, then with
-    ``final_mean_best``, ``final_std_best`` and ``mean_last10_best``; else "P/Pmax")."""
+    control step (s, batched), ``final_mean_best``, ``final_std_best`` and ``mean_last10_best`` (of P/P_best;
+    P/Pmax's on the ideal system), ``score``: the ratio to report ("P/P_best" with imperfections, else
+    "P/Pmax")."""
 
     normalized_power: np.ndarray
     terminated: np.ndarray
@@ -93,9 +100,10 @@ def algo_module(algo: str) -> registry.AlgoModule:
     return registry.get(algo).load()
 
 
-def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None = None,
+def train(algo: str, env_config: EnvSpec | dict, *, seed: int = 0, total_steps: int | None = None,
           progress_fn: Callable[[int, dict], None] | None = None, **hyper) -> TrainResult:
-    """Train ``algo`` (a name of ``ALGOS``) on ``ops_jax.make(**env_config)``.
+    """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
+    dict of ``ops_jax.make`` options, converted once: ``TrainResult.env_config`` is its dict form).
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
     fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
     module = algo_module(algo)
@@ -105,7 +113,8 @@ def train(algo: str, env_config: dict, *, seed: int = 0, total_steps: int | None
     return module.train(env_config, seed=seed, total_steps=total_steps, progress_fn=progress_fn, **hyper)
 
 
-def train_seeds(algo: str, env_config: dict, *, seeds, total_steps: int | None = None, **hyper) -> list[TrainResult]:
+def train_seeds(algo: str, env_config: EnvSpec | dict, *, seeds, total_steps: int | None = None,
+                **hyper) -> list[TrainResult]:
     """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
     (``Algo.vmaps_seeds``, e.g. ``agents.td3.train_seeds``), else one call per seed."""
     module = algo_module(algo)
@@ -145,25 +154,27 @@ def _as_policy(result_or_policy):
     raise TypeError("evaluate takes a TrainResult, a Policy or a (Policy, params) pair")
 
 
-def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: int = 0,
+def evaluate(result_or_policy, env_config: EnvSpec | dict, *, episodes: int = 20, seed: int = 0,
              steps: int | None = None, drift_episode: int = 10) -> EvalResult:
     """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
-    configuration's max_steps) in one jitted scan, without auto-reset. Each episode starts as the
-    ``drift_episode``-th reset of its environment, so hard mode's drift is fully on (r in [-1, 1]);
+    configuration's max_steps) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a dict) in
+    one jitted scan, without auto-reset. Each episode starts as the ``drift_episode``-th reset of its
+    environment, so hard mode's drift is fully on (r in [-1, 1]);
     a different ``seed`` gives a different drift realisation (the paper's testing environment).
-    A repeated call with the same program, parameters, environment, episodes and seed returns the
-    stored result (the same object; the evaluation is deterministic)."""
-    policy, params = _as_policy(result_or_policy)
-    env_config = check_env_config(env_config)
-    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
+    The evaluation is deterministic: a repeated call computes the same numbers again (only the compiled
+    program is kept). A ``TrainResult`` evaluated on an environment whose observation or action layout
+    differs from its training environment's raises ValueError naming both layouts."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    env_config = check_env_config(env_config)
     env, env_params = built(env_config)
+    if isinstance(result_or_policy, TrainResult):
+        trained_layout = built(result_or_policy.env_config)[0].layout
+        if trained_layout != env.layout:
+            raise ValueError(f"the {result_or_policy.algo} policy was trained on observations of "
+                             f"{trained_layout.describe()}; env_config gives {env.layout.describe()}")
+    policy, params = _as_policy(result_or_policy)
     steps = int(steps or env.config.max_steps)
-    memo = (_source_ident(result_or_policy, policy), json.dumps(env_config, sort_keys=True, default=str),
-            int(episodes), int(seed), steps, int(drift_episode), _digest(params))
-    if memo in _RESULTS:  # the same program, parameters, environment and draws: the same result
-        _RESULTS.move_to_end(memo)
-        return _RESULTS[memo]
     run, probes, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
@@ -179,14 +190,11 @@ def evaluate(result_or_policy, env_config: dict, *, episodes: int = 20, seed: in
     npow_best, summary["score"] = npow, "P/Pmax"
     if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
         npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
-        best = summarize(npow_best)
-        summary.update(final_mean_best=best["final_mean"], final_std_best=best["final_std"],
-                       mean_last10_best=best["mean_last10"], score="P/P_best")
-    out = EvalResult(npow, term, summary, npow_best)
-    _RESULTS[memo] = out
-    if len(_RESULTS) > _RESULTS_MAX:
-        _RESULTS.popitem(last=False)
-    return out
+        summary["score"] = "P/P_best"
+    best = summarize(npow_best) if npow_best is not npow else summary
+    summary.update(final_mean_best=best["final_mean"], final_std_best=best["final_std"],
+                   mean_last10_best=best["mean_last10"])
+    return EvalResult(npow, term, summary, npow_best)
 
 
 def summarize(npow: np.ndarray, **extra) -> dict:
@@ -228,10 +236,6 @@ def episode_ids(episodes: int):
 
 _EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()
 _EVALUATORS_MAX = 64
-# Finished evaluations (evaluation is deterministic): e.g. SPGD's and the physics controller's
-# "training" curve is an evaluation that the sweep then asks for again as the training environment.
-_RESULTS: "OrderedDict[tuple, EvalResult]" = OrderedDict()
-_RESULTS_MAX = 256
 
 
 def _source_ident(source, policy: Policy):
@@ -241,17 +245,6 @@ def _source_ident(source, policy: Policy):
         static = built(source.env_config)[0].config
         return ("result", source.algo, static, json.dumps(source.hyper, sort_keys=True, default=str))
     return ("policy", policy)
-
-
-def _digest(params) -> str:
-    """Content hash of a parameter pytree (structure, shapes, dtypes and bytes)."""
-    leaves, treedef = jax.tree.flatten(params)
-    h = hashlib.sha256(str(treedef).encode())
-    for leaf in leaves:
-        a = np.asarray(leaf)
-        h.update(f"{a.shape}{a.dtype}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
 
 
 def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: int):
@@ -329,7 +322,7 @@ def save(path, result: TrainResult) -> Path:
         params_sha256=hashlib.sha256(blob).hexdigest(),
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=path.name + ".tmp"))
+    tmp = temp_dir(path.parent, path.name)
     (tmp / "params.msgpack").write_bytes(blob)
     (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
     if path.exists():

@@ -197,13 +197,13 @@ class Loop:
                 lengths[i] = sensor.value.get()
                 self.check(sensor.value, lengths[i], now)
         lengths /= self.mapping["units_per_wl"]
-        frame = np.concatenate([[2 * power / d["power_full_scale"] - 1], 2 * trace / d["trace_peak"] - 1,
-                                lengths / self.window])
         env = self.agent.env
-        if frame.size != env.frame_size:
-            self.trip(f"the bench's frame has {frame.size} entries, the controller expects {env.frame_size} "
-                      f"(scope trace of {trace.size} samples for {self.n} lines?)")
-            raise SafetyStop(self.stop_reason)
+        try:
+            frame = env.layout.encode(power / d["power_full_scale"], trace / d["trace_peak"], lengths, self.window,
+                                      xp=np)
+        except ValueError as exc:
+            self.trip(f"the bench's frame does not fit the controller: {exc}")
+            raise SafetyStop(self.stop_reason) from None
         stack = env.config.frame_stack
         self.frames = [frame] * stack if self.frames is None else (self.frames + [frame])[-stack:]
         return np.concatenate(self.frames)

@@ -86,12 +86,20 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
 
     out = args.out or Path("runs") / args.algo
-    env_config = {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
-    config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
     try:
-        base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
+        module = base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
     except KeyboardInterrupt:
         exit_interrupted(f"stopped while starting; nothing written to {out}")
+    try:  # every argument checked before the progress starts: a mistake is one line
+        for name in ("steps", "episodes"):
+            value, least = getattr(args, name), 0 if name == "steps" else 1
+            if value is not None and value < least:
+                raise ValueError(f"--{name} must be an integer >= {least}, got {value}")
+        env_config = base.check_env_config({"stages": args.stages, "mode": args.mode, **parse_set(args.env)})
+        config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+        module.make_policy(env_config, config.to_hyper())
+    except (TypeError, ValueError) as exc:
+        ap.exit(2, f"{ap.prog}: error: {exc}\n")
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 

@@ -1,7 +1,9 @@
 """Environments built once per configuration: ``built(env_config)`` is ``ops_jax.make(**env_config)``
 memoised by the configuration's content, so the P_best search of an imperfect configuration (an
 ascent over the static optics, ``ops_jax.imperfections.best_power``) runs once per configuration
-and process, however many trainings, policies and evaluations use it."""
+and process, however many trainings, policies and evaluations use it. A configuration is an
+``ops_jax.EnvSpec`` or a dict of ``ops_jax.make`` keyword arguments (``check_env_config`` converts it once,
+at the API's boundary)."""
 
 from __future__ import annotations
 
@@ -9,21 +11,25 @@ import json
 from collections import OrderedDict
 
 import ops_jax
+from ops_jax import EnvSpec
 
 _BUILT: "OrderedDict[str, tuple]" = OrderedDict()
 _BUILT_MAX = 64
 
 
-def built(env_config: dict) -> tuple:
+def built(env_config: EnvSpec | dict) -> tuple:
     """``(env, params)`` of ``ops_jax.make(**env_config)`` (raises what ``make`` raises), built once per
-    configuration (a configuration holding arrays or objects is built at every call). Shared: do not
-    modify the params' arrays in place."""
+    configuration. Shared: do not modify the params' arrays in place."""
+    if isinstance(env_config, EnvSpec):
+        env_config = env_config.as_dict()
     if not isinstance(env_config, dict):
-        raise TypeError(f"env_config must be a dict of ops_jax.make keyword arguments, got {type(env_config).__name__}")
+        raise TypeError(f"env_config must be an ops_jax.EnvSpec or a dict of ops_jax.make keyword arguments, "
+                        f"got {type(env_config).__name__}")
     try:
         key = json.dumps(env_config, sort_keys=True)
-    except TypeError:
-        return ops_jax.make(**env_config)
+    except TypeError:  # arrays or numpy scalars: their spec's form
+        env_config = EnvSpec.from_options(env_config).as_dict()
+        key = json.dumps(env_config, sort_keys=True)
     if key not in _BUILT:
         _BUILT[key] = ops_jax.make(**env_config)
         if len(_BUILT) > _BUILT_MAX:
@@ -38,7 +44,9 @@ def train_env_config(env_config: dict, reward: str | None = None) -> dict:
     return {"model": "phasor", **env_config, **({"reward": reward} if reward is not None else {})}
 
 
-def check_env_config(env_config) -> dict:
-    """Validate an ``ops_jax.make`` keyword dict (raises what ``make`` raises); a copy of it."""
-    built(env_config)
-    return dict(env_config)
+def check_env_config(env_config: EnvSpec | dict) -> dict:
+    """The ``ops_jax.make`` keyword dict of an ``EnvSpec`` or a dict, validated (raises what ``make``
+    raises; TypeError for anything else): ``EnvSpec.from_options(env_config).as_dict()``."""
+    options = EnvSpec.from_options(env_config).as_dict()
+    built(options)
+    return options

@@ -1,18 +1,42 @@
-"""Atomic file writes shared by the training command line and the benchmarks."""
+"""Atomic file writes shared by the training command line, the checkpoints and the benchmarks. What they
+create gets the permissions of any new file or folder (0666 / 0777 less the umask), as its neighbours."""
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 
-def write_json_atomic(path: Path, data) -> None:
-    """Write JSON to a temporary file in the same folder, then rename it into place."""
+def _temp_name(parent: Path, name: str) -> Path:
+    return parent / f"{name}.{secrets.token_hex(6)}.tmp"
+
+
+def write_bytes_atomic(path: Path, blob: bytes) -> None:
+    """Write ``blob`` to a temporary file in the same folder, then rename it into place."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(data, f, indent=1, default=float)
-    os.replace(tmp, path)
+    tmp = _temp_name(path.parent, path.name)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json_atomic(path: Path, data) -> None:
+    """Write JSON (indented, numpy numbers as floats) atomically (``write_bytes_atomic``)."""
+    write_bytes_atomic(path, json.dumps(data, indent=1, default=float).encode())
+
+
+def temp_dir(parent: Path, name: str) -> Path:
+    """A new empty folder in ``parent`` (created there), to fill and then rename to ``parent / name``."""
+    parent = Path(parent)
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = _temp_name(parent, name)
+    tmp.mkdir(0o777)
+    return tmp

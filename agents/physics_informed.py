@@ -23,7 +23,9 @@ The length channel: the observation also holds the (noisy, normalised) delay-lin
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
 adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
 them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). With
-``use_lengths=False`` (the "frames" preset) the controller never looks at them.
+``use_lengths=False`` (the "frames" preset) the controller never looks at them. On an environment
+whose observation holds no length readouts (``observe_lengths=False``), ``use_lengths=True`` or
+``lengths_only=True`` raises ValueError when the policy is built: use ``config="frames"``.
 ``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
@@ -247,10 +249,12 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     env_config = check_env_config(env_config)
     h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
     env, _ = built(env_config)
-    cfg = env.config
+    cfg, obs_layout = env.config, env.layout
     n = cfg.stages
-    frame = env.frame_size
-    ny = 2**n  # P and the 2^n - 1 samples
+    ny = obs_layout.detector_size  # P and the 2^n - 1 samples
+    if not obs_layout.lengths and (h["use_lengths"] or h["lengths_only"]):
+        raise ValueError("use_lengths and lengths_only must be False on an environment without length readouts "
+                         "(observe_lengths=False): use config=\"frames\"")
     fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
     default = policy_params(env_config)
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
@@ -285,9 +289,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         p = default if params is None else params
         scale, window = p["action_scale"], p["window"]
         b = obs.shape[0]
-        last = obs[:, obs.shape[1] - frame:]
-        y = last[:, :ny]
-        x_len = last[:, ny:ny + n] * window
+        y = obs_layout.detector(obs)
+        x_len = obs_layout.length_readouts(obs, window) if obs_layout.lengths else jnp.zeros((b, n), jnp.float32)
         valid = carry["valid"][:, None]
         th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
         move = jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]  # length change + estimated drift since y_prev
@@ -321,8 +324,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
           curve_episodes: int = 32, config: PhysicsConfig | str | None = None, **hyper) -> TrainResult:
     """Nothing to learn (the model is the simulator): validates; the curve is
-    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
-    when asked for again), reported once to ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
+    ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
     env_config = check_env_config(env_config)
     h = PhysicsConfig.make(config, **hyper).to_hyper()
     return evaluated_result("physics", env_config, h, policy_params(env_config), seed, curve_episodes, progress_fn)

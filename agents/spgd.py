@@ -3,8 +3,8 @@ with a gain schedule and an escape from the landscape's local maxima.
 
 Each control step, per instance (B of them):
 1. draw a perturbation d = amp * s, s in {-1, +1}^N (Bernoulli signs), d in wavelengths (wl);
-2. P(tau) is read from the current observation (obs[:, 0] = 2 P/Pmax - 1 + obs noise, no extra
-   measurement) and P(tau + d) is one counted ``probe``: 2 measurements per control step;
+2. P(tau) is read from the current observation (its latest frame's P/Pmax, ``env.layout.power``, with
+   the observation noise; no extra measurement) and P(tau + d) is one counted ``probe``: 2 measurements per control step;
 3. gradient estimate g = [P(tau + d) - P(tau)] * s / amp  (P in units of P/Pmax, g in 1/wl;
    this is the classic [P(tau+d) - P(tau)] * d rescaled by 1/amp^2, an estimate of dP/dx);
 4. PID on g: i <- leak * i + g, u = Kp(P) g + Ki i + Kd (g - g_prev), action = clip(u, -1, 1)
@@ -48,11 +48,6 @@ def dither(key, shape) -> jax.Array:
     return jnp.where(jax.random.bernoulli(key, 0.5, shape), 1.0, -1.0).astype(jnp.float32)
 
 
-def power(obs, frame: int) -> jax.Array:
-    """P/Pmax of the observation's latest frame (B,) (obs[:, -frame] = 2 P/Pmax - 1)."""
-    return (obs[:, -frame] + 1) / 2
-
-
 def slope(p0, p1, s, amp) -> jax.Array:
     """The one-probe gradient estimate g = [P(tau + amp s) - P(tau)] s / amp (B, N), 1/wl."""
     return ((p1 - p0)[:, None] * s / amp).astype(jnp.float32)
@@ -82,8 +77,7 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
     the environment's default action scale."""
     env_config = check_env_config(env_config)
     env, env_params = built(env_config)
-    n = env.num_actions
-    frame = env.frame_size
+    n, layout = env.num_actions, env.layout
     default = gains(hyper or {}, float(env_params.action_scale))
     cands = escape.candidates(n)
 
@@ -98,7 +92,7 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
         p = default if params is None else params
         b = obs.shape[0]
         s = dither(key, (b, n))
-        p0 = power(obs, frame)
+        p0 = layout.power(obs)
         # Annealed amplitude: delta0 at t = 0 decaying to delta with time constant `anneal` steps.
         frac = jnp.exp(-carry["t"] / jnp.maximum(p["anneal"], 1e-6))[:, None]
         amp = p["delta"] + (p["delta0"] - p["delta"]) * frac
@@ -118,9 +112,8 @@ def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, pr
           curve_episodes: int = 32, config: SPGDConfig | str | None = None, **hyper) -> TrainResult:
     """No learning: the params are ``gains(config)`` (default: the searched preset) with the
     environment's action scale. The curve is
-    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)`` (served from memory
-    when asked for again), reported once to ``progress_fn(0, metrics)``; ``total_steps`` is
-    ignored (0 env steps used)."""
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
+    ``progress_fn(0, metrics)``; ``total_steps`` is ignored (0 env steps used)."""
     env_config = check_env_config(env_config)
     c = SPGDConfig.make(config, **hyper)
     _, env_params = built(env_config)

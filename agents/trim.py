@@ -52,7 +52,7 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
     """``policy`` with the trim; the wrapped program's params are ``{"policy": its params, "trim": gains(...)}``
     (``None``: the wrapped policy's default params and the default trim)."""
     env, env_params = built(check_env_config(env_config))
-    n, frame = env.num_actions, env.frame_size
+    n, layout = env.num_actions, env.layout
     default = gains(None, float(env_params.action_scale))
     cands = escape.candidates(n)
 
@@ -64,7 +64,7 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         inner, p = (None, default) if params is None else (params["policy"], params["trim"])
         a, inner_carry = policy.act(inner, carry["policy"], obs, key, probe)
         s = spgd.dither(jax.random.fold_in(key, DITHER_STREAM), (obs.shape[0], n))
-        p0 = spgd.power(obs, frame)
+        p0 = layout.power(obs)
         esc = escape.of(carry)
         offsets, testing = escape.probe_offsets(p, esc, cands, p["amp"] * s)
         p1 = probe(offsets)

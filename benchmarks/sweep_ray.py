@@ -23,6 +23,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from agents.io import temp_dir, write_bytes_atomic
 from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
@@ -117,7 +118,7 @@ def store_files(out: Path, files: dict) -> None:
     for folder, content in folders.items():
         dest = out / folder
         dest.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=dest.parent, prefix=dest.name + ".tmp"))
+        tmp = temp_dir(dest.parent, dest.name)
         for name, blob in content.items():
             (tmp / name).write_bytes(blob)
         if dest.exists():
@@ -125,10 +126,7 @@ def store_files(out: Path, files: dict) -> None:
         os.replace(tmp, dest)
     for rel, blob in files.items():
         if rel.startswith("cells/"):
-            fd, tmp = tempfile.mkstemp(dir=out / "cells", prefix=Path(rel).name, suffix=".tmp")
-            with os.fdopen(fd, "wb") as f:
-                f.write(blob)
-            os.replace(tmp, out / rel)
+            write_bytes_atomic(out / rel, blob)
 
 
 def _kind(unit: dict) -> str:

@@ -13,6 +13,7 @@ from typing import Callable
 import numpy as np
 
 from benchmarks import sweep_plan
+from ops_jax import EnvSpec
 from benchmarks.cells import CellStore, config_hash
 from benchmarks.sweep_section import IMPERFECT_COST, TEST_SEED_OFFSET
 
@@ -42,14 +43,15 @@ class Sweep:
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- trained controllers --------------------------------------------------------------------
-    def _train_config(self, algo: str, env_config: dict, seed: int, extra: dict | None = None,
+    def _train_config(self, algo: str, env_config: EnvSpec | dict, seed: int, extra: dict | None = None,
                       steps: int | None = None) -> dict:
-        """A training cell's configuration; ``extra``: hyperparameters over the preset's (a section's variant);
+        """A training cell's configuration (its environment in the dict form of ``ops_jax.EnvSpec``, so a spec and
+        its dict are one cell); ``extra``: hyperparameters over the preset's (a section's variant);
         ``steps``: a budget other than the preset's (a section's own)."""
         hyper = {"config": self.p["config"]} if is_learner(algo) else {}
         hyper.update(self.p.get("hyper", {}).get(algo, {}))
         hyper.update(extra or {})
-        return dict(kind="train", algo=algo, env=env_config, seed=seed,
+        return dict(kind="train", algo=algo, env=EnvSpec.from_options(env_config).as_dict(), seed=seed,
                     steps=self.p["budgets"][algo] if steps is None else steps, hyper=hyper, episodes=self.p["episodes"],
                     settings=algo_entry(algo).settings(hyper))  # a changed preset is another cell
 
@@ -80,8 +82,8 @@ class Sweep:
         config = self._train_config(algo, env_config, seed, extra, steps)
         ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
 
-        # A controller with nothing to train records an evaluation as its curve: the same one as
-        # the training-environment evaluation below, which is then served from memory.
+        # A controller with nothing to train records an evaluation as its curve: the same draws as
+        # the training-environment evaluation below (which computes them again, with the compiled program kept).
         curve = {} if is_learner(algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
@@ -228,8 +230,9 @@ class Sweep:
         sweep_report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
         return counts
 
-    def _eval_config(self, checkpoint: str, env_config: dict, seed: int) -> dict:
-        return dict(kind="eval", checkpoint=checkpoint, env=env_config, seed=seed, episodes=self.p["episodes"])
+    def _eval_config(self, checkpoint: str, env_config: EnvSpec | dict, seed: int) -> dict:
+        return dict(kind="eval", checkpoint=checkpoint, env=EnvSpec.from_options(env_config).as_dict(), seed=seed,
+                    episodes=self.p["episodes"])
 
 
 def _eval_record(ev) -> dict:

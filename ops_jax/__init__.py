@@ -16,6 +16,7 @@ from ops_jax.env import (
     make,
     rollout,
 )
+from ops_jax.spec import EnvSpec
 
 __version__ = "0.1.0"
 
@@ -24,6 +25,7 @@ __all__ = [
     "REWARDS",
     "EnvConfig",
     "EnvParams",
+    "EnvSpec",
     "EnvState",
     "OPSEnv",
     "Rollout",

@@ -3,11 +3,13 @@
 
 Lengths are offsets from the optimal delay-line lengths in wavelengths (wl).
 
-Observation (dimension 2^N + N, times ``frame_stack``; + N with ``include_noise``), each entry
-mapped affinely to about [-1, 1]:
+Observation (dimension 2^N + N, times ``frame_stack``; - N with ``observe_lengths=False``, + N with
+``include_noise``), laid out as ``OPSEnv.layout`` (``ops_jax.observation``) says, each entry mapped
+affinely to about [-1, 1]:
 - ``2 P / P_max - 1`` (the stacked energy),
 - ``2 I_m / I_peak - 1`` for the 2^N - 1 oscilloscope samples (I_peak: peak of the ideal pulse),
-- ``x_i / window`` for the N offsets (window = 3 wl, the termination bound),
+- ``x_i / window`` for the N offsets (window = 3 wl, the termination bound), unless
+  ``observe_lengths=False`` (the detector's frames alone, the paper's state),
 - with ``include_noise``: ``mu_t / 5e-4 wl``, the current free-running mean per stage (the
   paper's POMDP noise state e),
 then Gaussian observation noise of std ``obs_noise`` on every entry (the reference adds 1e-4).
@@ -32,6 +34,7 @@ from jax.custom_batching import custom_vmap
 from jax.typing import ArrayLike
 
 from ops_jax import imperfections, noise, physics
+from ops_jax.observation import ObservationLayout
 from ops_jax.ranges import Range, check_fields, ranged, ranges
 
 INT32_MAX = 2**31 - 1  # step counters are int32
@@ -54,7 +57,8 @@ class EnvConfig:
     stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
     reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation length.
     feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
-    stacked. include_noise: append the noise state to the observation. imperfect: apply
+    stacked. observe_lengths: the N length readouts in the observation (False: the detector's frames
+only). include_noise: append the noise state to the observation. imperfect: apply
     ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
     """
 
@@ -67,6 +71,7 @@ class EnvConfig:
     frame_stack: int = ranged(Range(1, INT32_MAX, integer=True), 1)
     include_noise: bool = False
     imperfect: bool = False
+    observe_lengths: bool = True
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -132,7 +137,7 @@ def _validate_config(cfg: EnvConfig) -> None:
     physics._check_choice("reward", cfg.reward, REWARDS)
     for name, accepted in ranges(cfg).items():
         accepted(name, getattr(cfg, name))
-    for name in ("include_noise", "imperfect"):
+    for name in ("observe_lengths", "include_noise", "imperfect"):
         if not isinstance(getattr(cfg, name), (bool, np.bool_)):
             raise TypeError(f"{name} must be a bool, got {getattr(cfg, name)!r}")
 
@@ -155,13 +160,18 @@ class OPSEnv:
         return self.config.stages
 
     @property
+    def layout(self) -> ObservationLayout:
+        """Where each reading sits in an observation, and its scale (``ops_jax.observation``)."""
+        c = self.config
+        return ObservationLayout(c.stages, c.frame_stack, c.observe_lengths, c.include_noise)
+
+    @property
     def frame_size(self) -> int:
-        n = self.config.stages
-        return 2**n + n + (n if self.config.include_noise else 0)
+        return self.layout.frame_size
 
     @property
     def observation_size(self) -> int:
-        return self.frame_size * self.config.frame_stack
+        return self.layout.size
 
     def default_params(self) -> EnvParams:
         return EnvParams()
@@ -184,15 +194,8 @@ class OPSEnv:
 
     def _frame(self, z, m, deltas, mu, params):
         """The observation frame; ``z`` (frame_size,) standard normals for the observation noise."""
-        parts = [
-            (2 * m.power / self.p_max - 1)[None],
-            2 * m.samples / self.peak - 1,
-            deltas / params.window,
-        ]
-        if self.config.include_noise:
-            parts.append(mu / noise.REFERENCE_SIGMA_WL)
-        frame = jnp.concatenate(parts).astype(jnp.float32)
-        return frame + params.obs_noise * z
+        frame = self.layout.encode(m.power / self.p_max, m.samples / self.peak, deltas, params.window, mu)
+        return frame.astype(jnp.float32) + params.obs_noise * z
 
     def _reward(self, power, p_init):
         if self.config.reward == "paper":
@@ -371,6 +374,16 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``. Lab imperfections:
     ``imperfections="lab"`` (or "none"), ``imperfection_scale`` (x the preset's errors) and any
     ``imperfections.Imperfections`` field; setting any turns ``imperfect`` on and fills in p_best."""
+    config, params = configure(stages, mode, **overrides)
+    env = OPSEnv(config)
+    p_best = imperfections.best_power(config, params.lab) if config.imperfect else env.p_max
+    params = dataclasses.replace(params, lab=dataclasses.replace(params.lab, p_best=np.asarray(p_best, np.float32)))
+    return env, params
+
+
+def configure(stages: int = 5, mode: str = "hard", **overrides):
+    """The validated ``(EnvConfig, EnvParams)`` of ``make(stages, mode, **overrides)`` (raises what ``make``
+    raises), without building the environment or searching P_best (``params.lab.p_best`` unset)."""
     physics._check_choice("mode", mode, MODES)
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
@@ -389,10 +402,8 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     # Fixed dtypes (not Python scalars): a jitted step then never retraces on a weak-type change.
     params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
                           for k, v in vars(params).items() if k != "lab"}, lab=lab)
-    env = OPSEnv(config)
-    p_best = imperfections.best_power(config, lab) if config.imperfect else env.p_max
-    params = dataclasses.replace(params, lab=dataclasses.replace(lab, p_best=np.asarray(p_best, np.float32)))
-    return env, params
+    _validate_config(config)
+    return config, params
 
 
 class Rollout(NamedTuple):

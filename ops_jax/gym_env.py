@@ -138,7 +138,6 @@ def _picklable_device(device):
 
 def _observation_bounds(env, params) -> np.ndarray:
     """Per-entry bound B (obs in [-B, B]) of one frame, from the physics and the noise parameters."""
-    n = env.config.stages
     p = {k: float(np.max(np.asarray(v))) for k, v in vars(params).items() if k != "lab"}
     margin = 10.0 * p["obs_noise"] + 1e-3
     k = env.config.feedback_k
@@ -149,10 +148,13 @@ def _observation_bounds(env, params) -> np.ndarray:
     signal = 1.0
     if env.config.imperfect:
         signal, x_max = imperfections.observation_bounds(params.lab, x_max)
-    parts = [np.full(2**n, signal + margin), np.full(n, x_max / p["window"] + margin)]
-    if env.config.include_noise:
-        parts.append(np.full(n, mu_max / noise.REFERENCE_SIGMA_WL + margin))
-    return np.tile(np.concatenate(parts), env.config.frame_stack).astype(np.float32)
+    layout = env.layout
+    bound = np.full(layout.frame_size, signal + margin)  # the detector's entries
+    if layout.lengths:
+        bound[layout.lengths_slice] = x_max / p["window"] + margin
+    if layout.noise:
+        bound[layout.noise_slice] = mu_max / noise.REFERENCE_SIGMA_WL + margin
+    return np.tile(bound, layout.frame_stack).astype(np.float32)
 
 
 def _split_step_keys(key, num_envs: int):

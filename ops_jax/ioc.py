@@ -100,7 +100,7 @@ class Bench:
         self._step = jax.jit(self._advance)
         self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
         self.t = 0
-        self.frame = self._decode(np.asarray(obs)[-self.env.frame_size:], np.zeros(self.n),
+        self.frame = self._decode(self.env.layout.latest(np.asarray(obs)), np.zeros(self.n),
                                   *self._true_power(self.state), False)
         # compile once, before serving (the result is discarded: the step is pure)
         jax.block_until_ready(self._step(self.state, np.zeros(self.n, np.float32), 1))
@@ -115,14 +115,12 @@ class Bench:
         k_env = jax.random.split(jax.random.fold_in(self._k_run, t - 1))[1]
         obs, state, _, terminated, _, info = self.env.step_env(jax.random.fold_in(k_env, 0), state, action, self.params)
         position = state.lab.position if self.env.config.imperfect else jnp.zeros(self.n)
-        return state, obs[-self.env.frame_size:], position, info["normalized_power"], \
+        return state, self.env.layout.latest(obs), position, info["normalized_power"], \
             info["normalized_power_best"], terminated
 
     def _decode(self, frame, position, npow, npow_best, outside) -> dict:
         """PV values of one observation frame (float64: the client re-encodes it exactly)."""
-        f = np.asarray(frame, np.float64)
-        m = 2**self.n
-        return {"power": (f[0] + 1) / 2, "trace": (f[1:m] + 1) / 2, "length": f[m:m + self.n] * float(self.params.window),
+        return {**self.env.layout.decode(frame, self.params.window),
                 "position": np.asarray(position, np.float64), "p_pmax": float(npow), "p_pbest": float(npow_best),
                 "outside": bool(outside)}
 

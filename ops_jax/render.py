@@ -132,11 +132,6 @@ def frame_title(stages: int, normalized_power: float, step=None) -> str:
     return f"{head},  P/Pmax = {normalized_power:.3f}"
 
 
-def oscilloscope_frame(deltas_wl, stages: int, *, step=None, detector: str = "total") -> np.ndarray:
-    """One (H, W, 3) uint8 oscilloscope frame for offsets ``deltas_wl`` (N,) wl."""
-    return Oscilloscope(stages, detector).frame(deltas_wl, step)
-
-
 _human = {}
 
 

@@ -35,6 +35,7 @@ def test_evaluate_counts_probes_and_is_deterministic():
     c = agents.evaluate(pair, ENV, episodes=6, seed=4, steps=20)
     assert a.normalized_power.shape == (6, 20)
     assert a.summary["measurements_per_step"] == 3
+    assert b is not a and not np.shares_memory(a.normalized_power, b.normalized_power)  # computed again
     np.testing.assert_array_equal(a.normalized_power, b.normalized_power)
     assert not np.allclose(a.normalized_power, c.normalized_power)
     assert 0 < a.summary["final_mean"] <= 1
@@ -64,6 +65,8 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
                          {"step": np.array([0, 10]), "normalized_power": np.array([0.5, 0.9])},
                          {"simulation": 1.0, "optimisation": 0.0, "total": 1.0}, 7)
     path = agents.save(tmp_path / "ck", result)
+    (tmp_path / "plain").mkdir()
+    assert path.stat().st_mode == (tmp_path / "plain").stat().st_mode  # its neighbours' permissions
     back = agents.load(path)
     assert back.algo == "spgd" and back.seed == 7 and back.hyper == {"gain": 1.0}
     np.testing.assert_array_equal(np.asarray(back.curve["normalized_power"]), [0.5, 0.9])
@@ -84,6 +87,8 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
         (lambda: agents.train("spgd", ENV, total_steps=-5), ValueError, "total_steps"),
         (lambda: agents.evaluate(_dither_policy(), ENV, episodes=0), ValueError, "episodes"),
         (lambda: agents.evaluate("policy", ENV), TypeError, "evaluate takes"),
+        (lambda: agents.evaluate(TrainResult("spgd", {"stages": 5, "mode": "hard"}, {}, None, {}, {}, 0), ENV),
+         ValueError, r"trained on observations of stages=5.*env_config gives stages=3"),
     ],
 )
 def test_bad_input(call, exc, words):
@@ -112,14 +117,28 @@ def test_evaluate_compiles_once_per_policy_and_static_config(compiles):
     assert n[0] >= 1  # another static configuration: its own program
 
 
-def test_repeated_evaluation_is_served_from_memory():
-    pair = (_dither_policy(), {"k": jnp.float32(5.0)})
+def test_repeated_evaluation_runs_the_program_again(compiles):
+    """Only the compiled program is kept: a repeated call runs it (the policy's host callback fires again)
+    without compiling, and gives the same numbers in a new result."""
+    runs = []
+    inner = _dither_policy()
+
+    def act(params, carry, obs, key, probe):
+        jax.debug.callback(lambda: runs.append(1))
+        return inner.act(params, carry, obs, key, probe)
+
+    pair = (Policy(inner.init, act), {"k": jnp.float32(5.0)})
     a = agents.evaluate(pair, ENV, episodes=4, seed=11, steps=10)
-    assert agents.evaluate(pair, ENV, episodes=4, seed=11, steps=10) is a
+    before = len(runs)
+    with compiles() as n:
+        b = agents.evaluate(pair, ENV, episodes=4, seed=11, steps=10)
+    assert n[0] == 0 and len(runs) > before
+    assert b is not a
+    np.testing.assert_array_equal(a.normalized_power, b.normalized_power)
     other = agents.evaluate((pair[0], {"k": jnp.float32(4.0)}), ENV, episodes=4, seed=11, steps=10)  # other params
-    assert other is not a and not np.array_equal(other.normalized_power, a.normalized_power)
-    assert agents.evaluate(pair, {**ENV, "mode": "easy"}, episodes=4, seed=11, steps=10) is not a
-    assert agents.evaluate(pair, ENV, episodes=4, seed=12, steps=10) is not a
+    assert not np.array_equal(other.normalized_power, a.normalized_power)
+    assert not np.array_equal(agents.evaluate(pair, ENV, episodes=4, seed=12, steps=10).normalized_power,
+                              a.normalized_power)
 
 
 def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
@@ -134,6 +153,18 @@ def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
     assert summary["algo"] == "spgd" and summary["evaluation"]["episodes"] == 4
     assert 0 < summary["evaluation"]["final_mean"] <= 1
     assert "P_Pmax=" in res.stderr  # the progress line's evaluation metric
+    assert (out / "summary.json").stat().st_mode == (out / "curve.csv").stat().st_mode  # its neighbours' permissions
+
+
+@pytest.mark.parametrize("argv, words", [(["--algo", "td3", "--stages", "0"], "stages must be an integer >= 1, got 0"),
+                                         (["--algo", "physics", "--env", "observe_lengths=False"], "config=\"frames\"")])
+def test_training_cli_refuses_bad_arguments_in_one_line(argv, words, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
+    res = subprocess.run([sys.executable, "-m", "agents.train", *argv, "--out", str(tmp_path / "run")], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stdout == ""
+    assert res.stderr.splitlines() == [f"python -m agents.train: error: {res.stderr.split('error: ', 1)[-1].strip()}"]
+    assert words in res.stderr and not (tmp_path / "run").exists()
 
 
 @pytest.mark.parametrize("algo", sorted(agents.ALGOS))
@@ -179,4 +210,6 @@ def test_evaluate_reports_p_best_and_builds_the_environment_once(monkeypatch):
     assert ev.summary["final_mean_best"] == pytest.approx(ev.normalized_power_best[:, -1].mean())
     ideal = agents.evaluate(result, {"stages": 5, "mode": "hard"}, episodes=4, seed=1)
     assert ideal.normalized_power_best is ideal.normalized_power and ideal.summary["score"] == "P/Pmax"
+    for key in ("final_mean", "final_std", "mean_last10"):  # the documented P/P_best score, P/Pmax here
+        assert ideal.summary[key + "_best"] == ideal.summary[key]
     assert len(calls) == 1

@@ -58,6 +58,7 @@ def test_contract_and_registration():
 
     be.register()
     assert envs.get_environment("ops", stages=2).ops_env.config.model == "phasor"
+    assert envs.get_environment("ops", stages=2, observe_lengths=False).observation_size == 4  # frames only
     assert envs.get_environment("ops", stages=2, model="field").ops_env.config.model == "field"
     with pytest.raises(TypeError, match="unknown option"):
         OPSBraxEnv(stages=2, nonsense=1)

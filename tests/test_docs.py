@@ -135,13 +135,23 @@ def test_documented_command_parses(where, argv, help_outputs):
 @pytest.mark.parametrize("where, argv", [(w, a) for w, a in shell_commands() if a[:2] == ["pip", "install"]],
                          ids=lambda v: v if isinstance(v, str) else _name(v))
 def test_documented_pip_install_names_existing_extras(where, argv):
+    """Each requirement of the command is the project (a clone ``.`` or ``ops-jax``) with extras it declares,
+    or another package's name (with extras and versions): every case asserts on every word it installs."""
     import tomllib
 
-    declared = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"])
-    for word in argv[2:]:
-        m = re.fullmatch(r"(?:\.|ops-jax)\[([\w,-]+)\].*", word)
-        if m:
-            assert set(m.group(1).split(",")) <= declared, f"{where}: {word}; extras are {sorted(declared)}"
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    declared = set(project["optional-dependencies"])
+    requirements = [word for word in argv[2:] if not word.startswith("-")]
+    assert requirements, f"{where}: {_name(argv)} installs nothing"
+    for word in requirements:
+        ours = re.fullmatch(r"(?:\.|ops-jax)(?:\[([\w,-]+)\])?(?: @ .+)?", word, re.S)
+        if ours:
+            extras_named = set(filter(None, (ours.group(1) or "").split(",")))
+            assert extras_named <= declared, f"{where}: {word}; extras are {sorted(declared)}"
+            assert project["name"] == "ops-jax"
+        else:
+            other = re.fullmatch(r"[A-Za-z0-9][\w.-]*(\[[\w,-]+\])?([<>=!~]=?[\w.*]+)?", word)
+            assert other and not word.startswith(("ops-jax", "ops_jax", ".")), f"{where}: {word!r} is no requirement"
 
 
 @pytest.mark.parametrize("where, body", fenced("yaml"), ids=lambda v: v if isinstance(v, str) and ".md:" in v else "")

@@ -6,6 +6,7 @@ import pickle
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium
 import jax
@@ -40,6 +41,12 @@ def test_check_env_passes_with_warnings_as_errors():
         for _ in range(3):
             env.step(env.action_space.sample())
         env.render()
+        frames_only = gymnasium.make("ops_jax/OPS-v0", stages=3, mode="hard", model="phasor", observe_lengths=False)
+        check_env(frames_only.unwrapped)  # the option passes through; P and the 7 samples per frame
+        assert frames_only.observation_space.shape == (2**3,) == frames_only.reset(seed=0)[0].shape
+    with pytest.warns(UserWarning, match="unwrapped"):  # the checker warns about any wrapper, as the README says
+        check_env(env)
+    assert "check_env(env.unwrapped)" in (Path(__file__).resolve().parents[1] / "README.md").read_text()
 
 
 def test_types_spaces_and_truncation():

@@ -1,5 +1,6 @@
 """The packages import only downwards (ops_jax <- agents <- benchmarks) and no project modules
-import each other in a cycle, counting every import statement (function-local ones included)."""
+import each other in a cycle, counting every import statement (function-local ones included) and every
+module named in a string (an import made at run time, e.g. ``importlib.import_module("agents.td3")``)."""
 
 import ast
 import importlib
@@ -18,15 +19,21 @@ def module_name(path: Path) -> str:
 
 def import_graph() -> dict:
     """{module: {project modules it imports}}. ``from pkg import name`` counts as an import of
-    ``pkg.name`` when that is a module, else of ``pkg``."""
+    ``pkg.name`` when that is a module, else of ``pkg``; a string that is a module's full name counts as
+    an import of it (made at run time)."""
     files = {module_name(p): p for layer in LAYERS for p in (REPO / layer).rglob("*.py")}
     graph = {}
     for name, path in files.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-        edges = set()
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        edges, tree = set(), ast.parse(path.read_text(), str(path))
+        logger_names = {id(a) for node in ast.walk(tree) if isinstance(node, ast.Call)  # a logger's name: no module
+                        and getattr(node.func, "attr", getattr(node.func, "id", "")) == "getLogger" for a in node.args}
+        for node in ast.walk(tree):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                targets = [node.value] if "." in node.value and node.value in files else []
+                targets = [t for t in targets if id(node) not in logger_names]
             elif isinstance(node, ast.ImportFrom):
                 base = node.module or ""
                 if node.level:
@@ -79,6 +86,7 @@ def test_graph_sees_function_local_imports():
     graph = import_graph()
     assert "benchmarks.sweep_report" in graph["benchmarks.sweep_units"]  # imported inside Sweep.run
     assert "ops_jax.render" in graph["ops_jax.gym_env"]  # imported inside render()
+    assert "agents.td3" in graph["agents.algos"]  # named in the registry's table, imported at run time
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 

@@ -18,14 +18,11 @@ BIAS = 0.04  # wl, on every line: P/Pmax about 0.6 on 3 stages
 def _biased_policy(env_config, bias=BIAS, gain=0.3, traces=None):
     """A proportional controller on the length readouts whose set point is ``bias`` wl off the optimum."""
     env, params = built(env_config)
-    n = env.num_actions
-    first = env.frame_size - n - (n if env.config.include_noise else 0)  # the readouts' place in a frame
 
     def act(p, carry, obs, key, probe):
         if traces is not None:
             traces.append(1)
-        start = obs.shape[1] - env.frame_size + first  # the latest frame's
-        x = obs[:, start:start + n] * params.window
+        x = env.layout.length_readouts(obs, params.window)  # the latest frame's
         return jnp.clip(-gain * (x - bias) / params.action_scale, -1.0, 1.0), carry
 
     return Policy(lambda key, obs: (), act)
