@@ -9,7 +9,8 @@ single-instance step time.
     python -m benchmarks.throughput --gymnax --stages 5 --batch 4096 --models phasor --repeats 5
 
 ``--gymnax``: only ``jax.vmap`` of the gymnax adapter's step (``ops_jax.gymnax_env``, needs the gymnax
-extra) against ``step_batch``, side by side; the other tables are left out.
+extra) against ``step_batch``, side by side, by wall time and by this process's CPU time (less moved by other
+jobs on a shared machine); the other tables are left out.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ def program_text(compiled) -> str:
 def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> list[dict]:
     """One row per step path; the paths' repeats alternate, so load changes hit them alike."""
     key = jax.random.key(1)
-    compiled, compile_s, times = {}, {}, {p: [] for p in paths}
+    compiled, compile_s, times, cpu = {}, {}, {p: [] for p in paths}, {p: [] for p in paths}
     for p in paths:
         run, obs, state = build(stages, model, batch, p)
         t0 = time.perf_counter()
@@ -93,9 +94,10 @@ def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> l
     for i in range(repeats):
         for p in paths:
             fn, obs, state = compiled[p]
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn(jax.random.key(2 + i), obs, state))
             times[p].append(time.perf_counter() - t0)
+            cpu[p].append(time.process_time() - c0)
     rows = []
     for p in paths:
         median = statistics.median(times[p])
@@ -106,12 +108,14 @@ def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> l
             step=p,
             compile_s=compile_s[p],
             median_scan_s=median,
+            median_scan_cpu_s=statistics.median(cpu[p]),  # this process's CPU seconds: less moved by other jobs
             steps_per_s=batch * SCAN_STEPS / median,
             us_per_step_per_instance=1e6 * median / (batch * SCAN_STEPS),
         ))
     base = rows[0]["steps_per_s"]
     for r in rows:
         r["vs_" + paths[0]] = r["steps_per_s"] / base
+        r["cpu_vs_" + paths[0]] = rows[0]["median_scan_cpu_s"] / r["median_scan_cpu_s"]
         r["same_program_as_" + paths[0]] = program_text(compiled[r["step"]][0]) == program_text(compiled[paths[0]][0])
     return rows
 
@@ -203,7 +207,8 @@ def measure_gymnax(args, results: dict) -> None:
     from importlib.metadata import version
 
     results["meta"]["gymnax"] = version("gymnax")
-    header = f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} {'compile s':>9}"
+    header = (f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} "
+              f"{'CPU s':>7} {'x (CPU)':>7} {'compile s':>9}")
     print(header + "\n" + "-" * len(header))
     for model in args.models:
         for n in args.stages:
@@ -211,7 +216,8 @@ def measure_gymnax(args, results: dict) -> None:
                 for row in measure(n, model, b, args.repeats, paths=GYMNAX_PATHS):
                     results["rows"].append(row)
                     print(f"{model:7} {n:>2} {b:>6} {row['step']:>10} {row['steps_per_s']:>13,.0f} "
-                          f"{row['vs_step_batch']:>12.3f} {row['compile_s']:>9.2f}")
+                          f"{row['vs_step_batch']:>12.3f} {row['median_scan_cpu_s']:>7.2f} "
+                          f"{row['cpu_vs_step_batch']:>7.3f} {row['compile_s']:>9.2f}")
 
 
 def measure_all(args, results: dict) -> None:

@@ -23,6 +23,12 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 KW = dict(stages=3, mode="hard", model="phasor", max_steps=6)
 
 
+@pytest.fixture(scope="module")
+def made():
+    """One adapter for the step tests: its jitted step compiles once."""
+    return gymnax_env.make(**KW)
+
+
 def _load(name):
     spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -48,8 +54,8 @@ def test_bad_option_names_the_parameter():
         gymnax_env.make(stages=3, no_such_option=1)
 
 
-def test_step_is_ops_step_six_values_with_truncation_and_reset():
-    env, params = gymnax_env.make(**KW)
+def test_step_is_ops_step_six_values_with_truncation_and_reset(made):
+    env, params = made
     ops_env, ops_params = ops_jax.make(**KW)
     obs, state = env.reset(jax.random.key(0), params)
     obs_o, state_o = ops_env.reset(jax.random.key(0), ops_params)
@@ -72,10 +78,10 @@ def test_step_is_ops_step_six_values_with_truncation_and_reset():
     assert int(state.episode) == 1  # the next episode carries the count (hard mode's drift ramp)
 
 
-def test_max_steps_in_episode_is_a_dynamic_parameter():
-    env, params = gymnax_env.make(**KW)
+def test_max_steps_in_episode_is_a_dynamic_parameter(made):
+    env, params = made
     params = params.replace(max_steps_in_episode=3)
-    step = jax.jit(env.step)
+    step = env.step
     _, state = env.reset(jax.random.key(1), params)
     flags = []
     for i in range(4):
@@ -84,8 +90,8 @@ def test_max_steps_in_episode_is_a_dynamic_parameter():
     assert flags == [False, False, True, False]
 
 
-def test_vmap_of_step_is_step_batch():
-    env, params = gymnax_env.make(**KW)
+def test_vmap_of_step_is_step_batch(made):
+    env, params = made
     b = 5
     keys = jax.random.split(jax.random.key(2), b)
     _, states = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
