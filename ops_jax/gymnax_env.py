@@ -90,10 +90,10 @@ class OPSGymnax(environment.Environment):
 
     def observation_space(self, params: OPSGymnaxParams | None = None) -> spaces.Box:
         """A finite Box from the parameters' physics and noise (the Gymnasium adapter's bounds)."""
-        ops_params = (params or self.default_params).ops
+        ops_params = (self.default_params if params is None else params).ops
         try:
             bound = _observation_bounds(self.ops_env, ops_params)
-        except jax.errors.ConcretizationTypeError:  # traced parameters: the default ones' bounds
+        except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):  # traced: the defaults' bounds
             bound = _observation_bounds(self.ops_env, self.default_params.ops)
         return spaces.Box(jnp.asarray(-bound), jnp.asarray(bound), (self.ops_env.observation_size,), jnp.float32)
 

@@ -44,3 +44,18 @@ def test_missing_tensorboardx_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "tensorboardX", None)
     with pytest.raises(ImportError, match=r'pip install -e "\.\[tensorboard\]"'):
         TensorBoardLogger(tmp_path)
+
+
+def test_cli_logdir_without_tensorboardx_is_one_line(tmp_path):
+    """``python -m agents.train --logdir`` without the tensorboard extra stops before training, in one line."""
+    import os
+    import subprocess
+    from pathlib import Path
+
+    (tmp_path / "sitecustomize.py").write_text("import sys\nsys.modules['tensorboardX'] = None\n")
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "agents.train", "--algo", "spgd", "--stages", "2", "--out", "run",
+                          "--logdir", "tb"], capture_output=True, text=True, timeout=180, cwd=tmp_path,
+                         env={**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{repo}"})
+    assert out.returncode == 1 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert out.stderr.strip().endswith('pip install -e ".[tensorboard]"') and not (tmp_path / "run").exists()
