@@ -139,7 +139,7 @@ def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> Non
     its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
     from benchmarks import robust
 
-    taus = np.linspace(0.5, 1.0, 101) if taus is None else np.asarray(taus)
+    taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for i, (label, x) in enumerate(scores.items()):
