@@ -78,7 +78,8 @@ def _time_env_steps(env, num_envs: int, steps: int, seed: int) -> float:
 
 class Recorder:
     """brax ``progress_fn``: collects the evaluation curve and passes each evaluation on to
-    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s)."""
+    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s and brax's training losses,
+    e.g. policy_loss, v_loss for PPO; actor_loss, critic_loss for SAC)."""
 
     def __init__(self, progress_fn=None):
         self.t0 = time.perf_counter()
@@ -94,8 +95,10 @@ class Recorder:
         )
         self.rows.append(row)
         if self.progress_fn is not None:
+            losses = {k.split("/", 1)[1]: float(v) for k, v in metrics.items()
+                      if k.startswith("training/") and "loss" in k and np.ndim(v) == 0}
             self.progress_fn(row["step"], dict(normalized_power=row["normalized_power"], reward=row["reward"],
-                                               elapsed_s=row["wall"]))
+                                               elapsed_s=row["wall"], **losses))
 
     def curve(self) -> dict:
         keys = ("step", "normalized_power", "reward", "wall")

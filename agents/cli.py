@@ -4,10 +4,13 @@ Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
 
     python -m agents.train --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
                            [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
+                           [--logdir DIR]
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time); it prints the testing score, P/P_best with imperfections, else
+the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
+(``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
+tensorboard extra). It prints the testing score, P/P_best with imperfections, else
 P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
 steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
 (nothing during training, the checkpoint after it) and exit status 130.
@@ -83,6 +86,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--eval-seed", type=int, default=1, help="seed of the testing environment")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="hyperparameter overrides")
     ap.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options")
+    ap.add_argument("--logdir", type=Path, default=None,
+                    help="TensorBoard event files of the training curve (needs the tensorboard extra)")
     args = ap.parse_args(argv)
 
     out = args.out or Path("runs") / args.algo
@@ -100,6 +105,14 @@ def main(argv=None) -> dict:
         module.make_policy(env_config, config.to_hyper())
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
+    logger = None
+    if args.logdir is not None:
+        from agents.tensorboard import TensorBoardLogger
+
+        try:
+            logger = TensorBoardLogger(args.logdir)
+        except ImportError as e:  # one line naming the extra, not a traceback
+            raise SystemExit(f"python -m agents.train --logdir: {e}") from None
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
@@ -107,6 +120,8 @@ def main(argv=None) -> dict:
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
         bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
 
+    if logger is not None:
+        logger.then, show = show, logger
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
                             config=config)
@@ -116,6 +131,8 @@ def main(argv=None) -> dict:
         exit_interrupted(f"stopped {at}; nothing written to {out}; run the same command again to train from the start")
     finally:
         bar.close()
+        if logger is not None:
+            logger.close()
     try:
         return finish(args, out, env_config, result)
     except KeyboardInterrupt:

@@ -380,7 +380,7 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
                                               actor_loss=float(np.nanmean(m["actor_loss"])),
                                               reward=float(m["reward"].mean()))
             progress_fn(step, dict(normalized_power=float(npow.mean()), elapsed_s=time.perf_counter() - t_start,
-                                   **extra))
+                                   update_ratio=updates_per_iter(h) / per_iter, **extra))
 
     nan = np.full(len(seeds), np.nan)
     step = warm_iters * per_iter

@@ -399,6 +399,34 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
     return lines
 
 
+def _robust_lines(groups: dict, checkpoints) -> list:
+    """IQM [95 % CI] over seeds per row and checkpoint, and per environment the probability of improvement
+    between its controllers at the last checkpoint all of them reached."""
+    from benchmarks import robust
+    from benchmarks.sweep_report import aggregate_table
+
+    lines = ["IQM over seeds [95 % CI] of the same scores:", "",
+             "| environment | controller | " + " | ".join(f"{k:,}" for k in checkpoints) + " |",
+             "|---|---|" + "---|" * len(checkpoints)]
+    for (env, algo), rs in groups.items():
+        row = []
+        for k in checkpoints:
+            v = [r["result"]["scores"][str(k)] for r in rs if str(k) in r["result"]["scores"]]
+            row.append("{:.3f} [{:.3f}, {:.3f}]".format(*robust.bootstrap_ci(v)) if v else "-")
+        lines.append(f"| {env} | {NAMES.get(algo, algo)} | " + " | ".join(row) + " |")
+    lines += ["", robust.NOTE]
+    for env in dict.fromkeys(e for e, _ in groups):
+        rows = {a: rs for (e, a), rs in groups.items() if e == env}
+        common = [k for k in checkpoints if all(str(k) in r["result"]["scores"] for rs in rows.values() for r in rs)]
+        if len(rows) < 2 or not common:
+            continue
+        k = common[-1]
+        scores = {NAMES.get(a, a): np.array([r["result"]["scores"][str(k)] for r in rs]) for a, rs in rows.items()}
+        lines += ["", f"{env}, after {k:,} env steps: probability of improvement P(row > column), a seed of the row's "
+                  "controller above one of the column's (ties count half).", "", *aggregate_table(scores)]
+    return lines
+
+
 def report(records: list[dict], out_dir) -> str:
     """budget.md (returned), budget.png and budget.json in ``out_dir``; ``records``: [{"cell", "result"}]."""
     from agents.io import write_json_atomic
@@ -428,6 +456,7 @@ def report(records: list[dict], out_dir) -> str:
             seeds = ", ".join(str(r["cell"]["seed"]) for r in rs)
             who, steps = f"{NAMES.get(algo, algo)} (seeds {seeds})", _median_steps(rs)
         lines.append(f"| {env} | {who} | {steps} | " + " | ".join(row) + " |")
+    lines += ["", "No bold in these tables.", "", *_robust_lines(groups, checkpoints)]
     walls = {algo: np.median([r["result"]["train_s"] for (_, a), rs in groups.items() if a == algo for r in rs])
              for algo in dict.fromkeys(a for _, a in groups)}
     if walls:

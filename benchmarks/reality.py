@@ -114,8 +114,10 @@ def best_ratios() -> dict:
 
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
-    """reality.md (Welch-bolded table), reality.csv, reality.json and reality.png in ``out``."""
-    from benchmarks.sweep_report import NAMES, _fmt, _plt, bold_mask, bold_rule
+    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv, reality.json,
+    reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
+    from benchmarks import robust
+    from benchmarks.sweep_report import NAMES, _fmt, _plt, aggregate_table, bold_mask, bold_rule, performance_profile
 
     names = [n for n, _ in LEVELS]
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
@@ -134,7 +136,18 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
         cells = [_fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names]
         a, training = algo.split("/")
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
-    lines += ["", bold_rule(seeds)]
+    lines += ["", bold_rule(seeds), "", "IQM over seeds [95 % CI] of the same scores (not bolded):", "",
+              "| controller | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    intervals = {algo: {n: robust.bootstrap_ci(results[algo][n]) for n in names} for algo in results}
+    label = {algo: f"{NAMES.get(algo.split('/')[0], algo)} ({algo.split('/')[1]})" for algo in results}
+    for algo in results:
+        lines.append(f"| {label[algo]} | " + " | ".join("{:.3f} [{:.3f}, {:.3f}]".format(*intervals[algo][n])
+                                                    for n in names) + " |")
+    matrices = {label[a]: np.array([results[a][n] for n in names]).T for a in results}
+    lines += ["", robust.NOTE, "", "Over the three levels (as tasks): IQM [95 % CI] and the probability of improvement "
+              "P(row > column), a seed of the row's controller above one of the column's at the same level (ties "
+              "count half), averaged over the levels. No bold.", "", *aggregate_table(matrices),
+              "", "![performance profile](reality_profile.png)"]
     took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
     lines += ["", "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
               "identify (ideal, with online identification of the imperfections), readout (identify, "
@@ -145,11 +158,12 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
     (out / "reality.md").write_text("\n".join(lines) + "\n")
     with open(out / "reality.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["controller", "trained", "level", "mean", "std", "seeds"])
+        w.writerow(["controller", "trained", "level", "mean", "std", "seeds", "iqm", "iqm_ci_lo", "iqm_ci_hi"])
         for algo in results:
             for n in names:
                 v = results[algo][n]
-                w.writerow([*algo.split("/"), n, f"{np.mean(v):.6f}", f"{np.std(v):.6f}", len(v)])
+                w.writerow([*algo.split("/"), n, f"{np.mean(v):.6f}", f"{np.std(v):.6f}", len(v),
+                            *(f"{x:.6f}" for x in intervals[algo][n])])
     (out / "reality.json").write_text(json.dumps(results, indent=1))
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -169,3 +183,4 @@ def report(out: Path, results: dict, preset: dict, command: str, wall_s: float |
     fig.tight_layout()
     fig.savefig(out / "reality.png", dpi=120)
     plt.close(fig)
+    performance_profile(out / "reality_profile.png", matrices, "final P / P_best, levels none + lab + 2x lab")

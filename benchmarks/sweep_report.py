@@ -65,8 +65,13 @@ def _plt():
 
 
 def table1(out: Path, runs: dict, p: dict):
+    """table1.md / .csv (mean ± std, Welch bolding, IQM [95 % CI] per cell; per algorithm the IQM over modes;
+    the probability of improvement between algorithms) and performance_profile.png."""
+    from benchmarks import robust
+
     algos = p["algos"]
     rows_md, rows_csv = [], []
+    finals = {}  # (env, algo): (seeds, modes) matrix of final P/Pmax
     for mode in MODES:
         for env in ENVS:
             samples = {a: [_per_seed_final(runs[mode, a, s], env) for s in range(p["seeds"])] for a in algos}
@@ -74,22 +79,79 @@ def table1(out: Path, runs: dict, p: dict):
             paper = PAPER_TABLE1[mode, env]
             cells = [_fmt(np.mean(samples[a]), np.std(samples[a]), bold[a]) for a in algos]
             paper_cells = [_fmt(*paper[a]) if a in paper else "–" for a in algos]
+            intervals = {a: robust.bootstrap_ci(samples[a]) for a in algos}
             rows_md.append(f"| {mode} | {env} | " + " | ".join(cells) + " |")
+            rows_md.append("| | IQM [95 % CI] | " + " | ".join("{:.4f} [{:.4f}, {:.4f}]".format(*intervals[a])
+                                                            for a in algos) + " |")
             rows_md.append("| | paper | " + " | ".join(paper_cells) + " |")
             for a in algos:
+                finals.setdefault((env, a), []).append(samples[a])
                 rows_csv.append([mode, env, a, np.mean(samples[a]), np.std(samples[a]), len(samples[a]), bold[a],
-                                 *(paper[a] if a in paper else ("", ""))])
+                                 *intervals[a], *(paper[a] if a in paper else ("", ""))])
+    finals = {k: np.array(v).T for k, v in finals.items()}
     header = "| mode | evaluation env | " + " | ".join(NAMES[a] for a in algos) + " |"
     sep = "|" + "---|" * (len(algos) + 2)
     text = (f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
-            f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes). "
-            "The 'paper' rows are the published values (20 seeds, stable-baselines3).\n\n"
-            + "\n".join([header, sep, *rows_md]) + "\n\n" + bold_rule(p["seeds"]) + "\n")
+            f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
+            "and the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published values "
+            "(20 seeds, stable-baselines3).\n\n"
+            + "\n".join([header, sep, *rows_md]) + "\n\n" + bold_rule(p["seeds"]) + " The IQM rows are not bolded.\n\n"
+            + robust.NOTE + "\n\n" + "\n".join(robust_tables(finals, algos)) + "\n")
     (out / "table1.md").write_text(text)
     with open(out / "table1.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["mode", "env", "algo", "mean", "std", "seeds", "bold", "paper_mean", "paper_std"])
+        w.writerow(["mode", "env", "algo", "mean", "std", "seeds", "bold", "iqm", "iqm_ci_lo", "iqm_ci_hi",
+                    "paper_mean", "paper_std"])
         w.writerows(rows_csv)
+    performance_profile(out / "performance_profile.png", {NAMES[a]: finals["testing", a] for a in algos},
+                        "final testing P/Pmax, 5-stage easy + medium + hard")
+
+
+def robust_tables(finals: dict, algos) -> list:
+    """Markdown lines: per evaluation env, each algorithm's IQM over seeds x modes [95 % CI], and the
+    probability that a seed of the row's algorithm beats one of the column's on the same mode."""
+    lines = ["## Aggregate over the three modes", "",
+             "IQM over every seed and mode (the three modes as tasks of a stratified bootstrap), and the "
+             "probability of improvement P(row > column): the chance that a seed of the row's algorithm ends "
+             "above a seed of the column's on the same mode (ties count half), averaged over the modes. "
+             "No bold in these tables.", ""]
+    for env in ENVS:
+        lines += [f"**{env}**", "", *aggregate_table({NAMES[a]: finals[env, a] for a in algos}), ""]
+    return lines
+
+
+def aggregate_table(scores: dict) -> list:
+    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the probability of
+    improvement over every other label (P(row > column), averaged over tasks)."""
+    from benchmarks import robust
+
+    labels = list(scores)
+    lines = ["| | IQM [95 % CI] | " + " | ".join(f"P(> {b})" for b in labels) + " |", "|---|---|" + "---|" * len(labels)]
+    for a in labels:
+        ci = "{:.4f} [{:.4f}, {:.4f}]".format(*robust.bootstrap_ci(scores[a]))
+        poi = ["–" if b == a else f"{robust.probability_of_improvement(scores[a], scores[b]):.2f}" for b in labels]
+        lines.append(f"| {a} | {ci} | " + " | ".join(poi) + " |")
+    return lines
+
+
+def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> None:
+    """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring above tau, with
+    its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
+    from benchmarks import robust
+
+    taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for i, (label, x) in enumerate(scores.items()):
+        prof, lo, hi = robust.profile_ci(x, taus)
+        ax.plot(taus, prof, color=f"C{i}", label=label)
+        ax.fill_between(taus, lo, hi, color=f"C{i}", alpha=0.15, lw=0)
+    ax.set_xlabel(f"tau ({xlabel})")
+    ax.set_ylabel("fraction of runs with score > tau")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title("performance profile (band: 95 % bootstrap CI)")
+    _save(fig, ax, path)
 
 
 def convergence_step(steps, values, tol=0.02):

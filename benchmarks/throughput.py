@@ -6,6 +6,11 @@ single-instance step time.
 
     python -m benchmarks.throughput [--stages 3 5 7] [--batch 1 64 1024 8192] [--repeats 5]
                                     [--out results/throughput.json]
+    python -m benchmarks.throughput --gymnax --stages 5 --batch 4096 --models phasor --repeats 5
+
+``--gymnax``: only ``jax.vmap`` of the gymnax adapter's step (``ops_jax.gymnax_env``, needs the gymnax
+extra) against ``step_batch``, side by side, by wall time and by this process's CPU time (less moved by other
+jobs on a shared machine); the other tables are left out.
 """
 
 from __future__ import annotations
@@ -31,14 +36,20 @@ from ops_jax.progress import exit_interrupted, progress
 
 SCAN_STEPS = 200
 PATHS = ("step_batch", "vmap")  # env.step_batch(keys, ...) | jax.vmap(env.step)(keys, ...)
+GYMNAX_PATHS = ("step_batch", "gymnax")  # ... | jax.vmap of the gymnax adapter's step
 
 
 def build(stages: int, model: str, batch: int, path: str = "step_batch"):
-    """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS) from a given state.
-    With several local devices that divide the batch, the batch is split across them
+    """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS or GYMNAX_PATHS) from a given
+    state. With several local devices that divide the batch, the batch is split across them
     (``agents.base.split_over_devices``)."""
     env, params = ops_jax.make(stages, "hard", model=model)
     step = env.step_batch if path == "step_batch" else jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    if path == "gymnax":
+        from ops_jax import gymnax_env
+
+        gymnax, gymnax_params = gymnax_env.make(stages, "hard", model=model)
+        step = jax.vmap(lambda k, s, a, p: gymnax.step(k, s, a, gymnax_params), in_axes=(0, 0, 0, None))
     sharding = split_over_devices(batch, "batch")
     shard = (lambda x: x) if sharding is None else (lambda x: jax.lax.with_sharding_constraint(x, sharding))
 
@@ -73,7 +84,7 @@ def program_text(compiled) -> str:
 def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> list[dict]:
     """One row per step path; the paths' repeats alternate, so load changes hit them alike."""
     key = jax.random.key(1)
-    compiled, compile_s, times = {}, {}, {p: [] for p in paths}
+    compiled, compile_s, times, cpu = {}, {}, {p: [] for p in paths}, {p: [] for p in paths}
     for p in paths:
         run, obs, state = build(stages, model, batch, p)
         t0 = time.perf_counter()
@@ -83,9 +94,10 @@ def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> l
     for i in range(repeats):
         for p in paths:
             fn, obs, state = compiled[p]
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn(jax.random.key(2 + i), obs, state))
             times[p].append(time.perf_counter() - t0)
+            cpu[p].append(time.process_time() - c0)
     rows = []
     for p in paths:
         median = statistics.median(times[p])
@@ -96,12 +108,14 @@ def measure(stages: int, model: str, batch: int, repeats: int, paths=PATHS) -> l
             step=p,
             compile_s=compile_s[p],
             median_scan_s=median,
+            median_scan_cpu_s=statistics.median(cpu[p]),  # this process's CPU seconds: less moved by other jobs
             steps_per_s=batch * SCAN_STEPS / median,
             us_per_step_per_instance=1e6 * median / (batch * SCAN_STEPS),
         ))
     base = rows[0]["steps_per_s"]
     for r in rows:
         r["vs_" + paths[0]] = r["steps_per_s"] / base
+        r["cpu_vs_" + paths[0]] = rows[0]["median_scan_cpu_s"] / r["median_scan_cpu_s"]
         r["same_program_as_" + paths[0]] = program_text(compiled[r["step"]][0]) == program_text(compiled[paths[0]][0])
     return rows
 
@@ -154,6 +168,8 @@ def main(argv=None):
     ap.add_argument("--host-devices", type=int, default=1,
                     help="CPU only: split the CPU into this many JAX devices (one thread each) and the batch "
                          "across them; sets XLA_FLAGS=--xla_force_host_platform_device_count (default 1)")
+    ap.add_argument("--gymnax", action="store_true",
+                    help="only vmap(gymnax adapter step) against step_batch (needs the gymnax extra)")
     ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
     args = ap.parse_args(argv)
     if args.host_devices < 1:
@@ -173,7 +189,7 @@ def main(argv=None):
         repeats=args.repeats,
     ), rows=[], physics_measure=[], gymnasium=[], gymnasium_modes=None)
     try:
-        measure_all(args, results)
+        (measure_gymnax if args.gymnax else measure_all)(args, results)
     except KeyboardInterrupt:
         results["meta"]["interrupted"] = True
         write_json_atomic(args.out, results)
@@ -183,6 +199,25 @@ def main(argv=None):
     write_json_atomic(args.out, results)
     print(f"wrote {args.out}")
     return results["rows"]
+
+
+def measure_gymnax(args, results: dict) -> None:
+    """vmap of the gymnax adapter's step against ``step_batch``, per model, stage count and batch, appended
+    to ``results["rows"]``; the two timed alternately in one process."""
+    from importlib.metadata import version
+
+    results["meta"]["gymnax"] = version("gymnax")
+    header = (f"{'model':7} {'N':>2} {'batch':>6} {'step':>10} {'env-steps/s':>13} {'x step_batch':>12} "
+              f"{'CPU s':>7} {'x (CPU)':>7} {'compile s':>9}")
+    print(header + "\n" + "-" * len(header))
+    for model in args.models:
+        for n in args.stages:
+            for b in args.batch:
+                for row in measure(n, model, b, args.repeats, paths=GYMNAX_PATHS):
+                    results["rows"].append(row)
+                    print(f"{model:7} {n:>2} {b:>6} {row['step']:>10} {row['steps_per_s']:>13,.0f} "
+                          f"{row['vs_step_batch']:>12.3f} {row['median_scan_cpu_s']:>7.2f} "
+                          f"{row['cpu_vs_step_batch']:>7.3f} {row['compile_s']:>9.2f}")
 
 
 def measure_all(args, results: dict) -> None:

@@ -20,7 +20,8 @@ def _python(code: str, **env) -> subprocess.CompletedProcess:
 
 def test_import_ops_jax_loads_no_learner_or_plotting_library():
     code = ("import sys, ops_jax, ops_jax.gym_env, ops_jax.render; "
-            "print(sorted(m for m in ('brax', 'flax', 'optax', 'matplotlib') if m in sys.modules))")
+            "heavy = ('brax', 'flax', 'optax', 'matplotlib', 'gymnax', 'tensorboardX'); "
+            "print(sorted(m for m in heavy if m in sys.modules))")
     out = _python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"

@@ -354,7 +354,7 @@ def test_reality_report_writes_table_csv_and_figure(tmp_path):
     assert "| SPGD (ideal) | 0.9850 ± 0.0050 |" in md and "PPO (randomised)" in md
     assert "**" not in md and "No bold: 2 seeds" in md  # too few seeds to tell values apart
     rows = (tmp_path / "reality.csv").read_text().splitlines()
-    assert rows[0] == "controller,trained,level,mean,std,seeds" and len(rows) == 7
+    assert rows[0] == "controller,trained,level,mean,std,seeds,iqm,iqm_ci_lo,iqm_ci_hi" and len(rows) == 7
     assert (tmp_path / "reality.png").stat().st_size > 1000
 
 

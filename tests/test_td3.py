@@ -98,6 +98,30 @@ def test_cli_end_to_end(tmp_path):
     assert res.returncode == 0 and "--algo" in res.stdout
 
 
+def test_cli_logdir_writes_the_curve_to_tensorboard(tmp_path):
+    """``--logdir``: the evaluation curve, losses and update ratio as TensorBoard scalars against env steps."""
+    from agents import cli
+
+    pytest.importorskip("tensorboardX")
+    from test_tensorboard import read_scalars
+
+    out, logdir = tmp_path / "run", tmp_path / "tb"
+    argv = ["--algo", "td3", "--stages", "3", "--mode", "easy", "--out", str(out), "--steps", "8512", "--seed", "1",
+            "--episodes", "4", "--env", "model='phasor'", "--logdir", str(logdir), "--set"] + [
+            f"{k}={v!r}" for k, v in HYPER.items()]
+    summary = cli.main(argv)
+    rows = list(csv.DictReader(open(out / "curve.csv")))
+    scalars = read_scalars(logdir)
+    steps, values = scalars["eval/normalized_power"]
+    assert steps == [int(r["step"]) for r in rows]
+    np.testing.assert_allclose(values, [float(r["normalized_power"]) for r in rows], rtol=1e-6)
+    h = summary["hyper"]
+    ratio = offpolicy.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+    np.testing.assert_allclose(scalars["train/update_ratio"][1], ratio, rtol=1e-6)
+    assert scalars["loss/critic_loss"][0] == steps[1:]  # losses from the first training chunk on
+    assert np.all(np.isfinite(scalars["loss/critic_loss"][1]))
+
+
 FEW = dict(HYPER, eval_every=320)  # the warm-up, then chunks of 10 iterations (40 gradient steps)
 FEW_STEPS = 1024 + 2 * 320
 
