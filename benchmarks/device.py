@@ -52,8 +52,8 @@ TRAIN = {
     "sac": (30_000, {"config": "fast", "min_replay_size": 2048}),
 }
 TRAIN_TINY = {
-    "droq": (300, {"config": "budget", "learning_starts": 100, "eval_every": 100, "eval_episodes": 2}),
-    "td3": (512, {"config": "fast", "num_envs": 8, "learning_starts": 128, "eval_every": 128, "eval_episodes": 2}),
+    "droq": (300, {"config": "budget", "learning_starts": 128, "eval_every": 100, "eval_episodes": 2}),
+    "td3": (512, {"config": "fast", "num_envs": 8, "learning_starts": 256, "eval_every": 128, "eval_episodes": 2}),
     "sac": (1024, {"config": "fast", "num_envs": 8, "min_replay_size": 256, "num_evals": 2, "num_eval_envs": 4,
                    "grad_updates_per_step": 2}),
 }
@@ -146,11 +146,28 @@ def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) 
         record(out)
 
 
+def step_dtypes(stages: int, model: str) -> list[str]:
+    """The dtypes of every array that ``reset_batch`` and ``step_batch`` return (traced, not run)."""
+    import jax
+    import jax.numpy as jnp
+
+    import ops_jax
+
+    env, params = ops_jax.make(stages, "hard", model=model)
+    keys = jax.random.split(jax.random.key(0), 2)
+    obs, state = jax.eval_shape(env.reset_batch, keys, params)
+    stepped = jax.eval_shape(env.step_batch, keys, state, jnp.zeros((2, stages)), params)
+    return sorted({str(x.dtype) for x in jax.tree.leaves((obs, state, stepped))})
+
+
 def section_step_batch(args, deadline: float, record) -> dict:
     """env-steps/s of a jitted 200-step scan of ``env.step_batch`` (``benchmarks.throughput.measure``)."""
+    import jax
+
     from benchmarks.throughput import SCAN_STEPS, measure
 
-    out = dict(scan_steps=SCAN_STEPS, repeats=args.repeats)
+    out = dict(scan_steps=SCAN_STEPS, repeats=args.repeats, x64=bool(jax.config.read("jax_enable_x64")),
+               dtypes={m: step_dtypes(args.stages[0], m) for m in args.models})
 
     def one(model, n, b):
         (row,) = measure(n, model, b, args.repeats, paths=("step_batch",))
@@ -231,7 +248,7 @@ def train_rate(algo: str, steps: int, hyper: dict, deadline: float, record, out:
     trained = result.env_steps
     out.update(env_steps=trained, wall_s_train=wall, compile_s=compile_s[0], compiles=compile_s[1],
                steps_per_s=trained / wall, steps_per_s_excl_compile=trained / max(wall - compile_s[0], 1e-9),
-               timing={k: v for k, v in result.timing.items() if isinstance(v, (int, float))})
+               wall_time={k: v for k, v in result.wall_time.items() if isinstance(v, (int, float))})
     return out
 
 
