@@ -265,11 +265,11 @@ def section_sweep(args, deadline: float, record) -> dict:
     """Wall time of ``python -m benchmarks.sweep --quick --only table1`` (fresh output folder and
     compilation cache), in a process stopped at ``deadline``."""
     work = Path(tempfile.mkdtemp(prefix="ops-jax-device-sweep-"))
-    cmd = [sys.executable, "-m", "benchmarks.sweep", "--quick", "--only", "table1", "--out", str(work / "out")]
-    if args.tiny:
-        cmd += ["--algos", "spgd", "--seeds", "2"]
+    base = ["-m", "benchmarks.sweep", "--quick", "--only", "table1"] + (["--algos", "spgd", "--seeds", "2"] if args.tiny
+                                                                         else [])
+    cmd = [sys.executable, *base, "--out", str(work / "out")]
     env = {**os.environ, "OPS_JAX_CACHE": str(work / "xla-cache"), "PYTHONPATH": _pythonpath()}
-    out = dict(command=" ".join(["python"] + cmd[1:-2] + ["--out", "<tmp>"]))
+    out = dict(command=" ".join(["python", *base, "--out", "<tmp>"]))
     record(out)
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
