@@ -113,22 +113,29 @@ def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) 
     import gc
 
     rows, summary = out.setdefault("rows", []), out.setdefault("configs", [])
+    out["planned"] = [dict(model=m, stages=n) for m, n in configs]
+    record(out)
     weights = [CONFIG_WEIGHTS.get(c, 1.0) for c in configs]
     for i, (model, n) in enumerate(configs):
         t_cfg = time.monotonic()
+        if deadline - t_cfg < MIN_SECTION_S:
+            break
         cfg_deadline = t_cfg + (deadline - t_cfg) * weights[i] / sum(weights[i:])
         s = dict(model=model, stages=n, batches=[], best_steps_per_s=None, best_batch=None, oom_at_batch=None,
                  stopped="end", error=None)
         summary.append(s)
         for b in batch_list:
             t0 = time.monotonic()
+            out["running"] = dict(model=model, stages=n, batch=b)
             try:
                 row = measure_one(model, n, b)
             except Exception as err:  # noqa: BLE001 (out of memory ends the scan; anything else is recorded)
+                out.pop("running", None)
                 gc.collect()
                 s["stopped"] = "oom" if is_oom(err) else "error"
                 s["oom_at_batch" if is_oom(err) else "error"] = b if is_oom(err) else short_error(err)
                 break
+            out.pop("running", None)
             cost = time.monotonic() - t0
             row["wall_s"] = cost
             rows.append(row)
@@ -166,7 +173,7 @@ def section_step_batch(args, deadline: float, record) -> dict:
 
     from benchmarks.throughput import SCAN_STEPS, measure
 
-    out = dict(scan_steps=SCAN_STEPS, repeats=args.repeats, x64=bool(jax.config.read("jax_enable_x64")),
+    out = dict(scan_steps=SCAN_STEPS, repeats=args.repeats, x64=bool(getattr(jax.config, "jax_enable_x64", False)),
                dtypes={m: step_dtypes(args.stages[0], m) for m in args.models})
 
     def one(model, n, b):
@@ -277,7 +284,7 @@ def section_sweep(args, deadline: float, record) -> dict:
     try:
         log, _ = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
     except subprocess.TimeoutExpired:
-        _stop(proc, signal.SIGINT, 20.0)
+        _stop(proc, signal.SIGINT, 8.0)
         out["wall_s_sweep"] = time.perf_counter() - t0
         record(out)
         raise OutOfTime(f"the quick sweep ran past its deadline ({out['wall_s_sweep']:.0f} s)") from None
@@ -302,10 +309,34 @@ def child_main(args) -> int:
     path = Path(args.child_out)
     deadline = time.monotonic() + args.deadline_s
     out: dict = {}
+    live = [out]
 
     def record(partial):
+        live[0] = partial
         write_json_atomic(path, dict(result=partial, error=None))
 
+    def at_deadline():
+        """Past the deadline (a batch or training chunk still running): keep what is measured and exit.
+        A scan section is then complete up to its budget (exit 0), a training run is not (exit 1)."""
+        partial = live[0]
+        running = partial.pop("running", None) if isinstance(partial, dict) else None
+        scan = args.child in ("step_batch", "rollout")
+        if running and partial.get("configs"):
+            cfg = partial["configs"][-1]
+            cfg.update(stopped="deadline", deadline_at_batch=running["batch"])
+        error = None if scan else f"still running at its deadline ({args.deadline_s:.0f} s)"
+        try:
+            write_json_atomic(path, dict(result=partial, error=error))
+        finally:
+            sys.stdout.flush()
+            os._exit(0 if scan else 1)
+
+    if args.child not in ("info", "sweep"):  # the sweep stops its own process at the deadline
+        import threading
+
+        watchdog = threading.Timer(max(0.0, deadline - time.monotonic()) + 2.0, at_deadline)
+        watchdog.daemon = True
+        watchdog.start()
     try:
         result = device_info() if args.child == "info" else SECTION_FNS[args.child](args, deadline, record)
     except BaseException as err:  # noqa: BLE001 (written down for the parent, then the exit status says it)
