@@ -421,6 +421,54 @@ def _best_phasor_n5(sections: dict):
     return max(rates) if rates else None
 
 
+def _scan_cell(section: dict, model: str, n: int) -> str:
+    cfg = next((c for c in section.get("configs", []) if c["model"] == model and c["stages"] == n), None)
+    if cfg is None:
+        return "not run"
+    if cfg["best_steps_per_s"] is None:
+        return f"none ({cfg['stopped']})"
+    if cfg["stopped"] == "oom":
+        end = f", out of memory at {cfg['oom_at_batch']:,}"
+    elif cfg["stopped"] in ("end", "error"):
+        end = "" if cfg["stopped"] == "end" else ", then an error"
+    else:  # budget, deadline: the scan stopped for time
+        end = f", stopped for time after {cfg['batches'][-1]:,}"
+    return f"{cfg['best_steps_per_s']:,.0f} (batch {cfg['best_batch']:,}{end})"
+
+
+def _train_cell(section: dict) -> str:
+    if section.get("env_steps"):
+        return (f"{section['env_steps']:,} steps in {section['wall_s_train']:.1f} s: {section['steps_per_s']:,.0f}/s, "
+                f"{section['steps_per_s_excl_compile']:,.0f}/s without {section['compile_s']:.0f} s compiling")
+    last = (section.get("progress") or [None])[-1]
+    if last:
+        return f"{section['status']}: {last['step']:,} of {section['total_steps']:,} steps in {last['elapsed_s']:.0f} s"
+    return f"{section.get('status', 'not run')}" + (f" ({section['error'][:60]})" if section.get("error") else "")
+
+
+def compare_table(docs: list) -> str:
+    """A markdown table of device JSON files side by side (one column each)."""
+    head = [f"{(d.get('device') or {}).get('kind', '?')} ({(d.get('device') or {}).get('platform', '?')})" for d in docs]
+    rows = [("host, date", [f"{d.get('host')}, {str(d.get('date'))[:10]}" for d in docs]),
+            ("JAX", [str(d.get("jax")) for d in docs]),
+            ("command", [f"`{d.get('command')}`" for d in docs])]
+    sec = [d.get("sections", {}) for d in docs]
+    for name, label in (("step_batch", "step_batch"), ("rollout", "ops_jax.rollout")):
+        planned = [c for s in sec for c in s.get(name, {}).get("planned") or s.get(name, {}).get("configs", [])]
+        pairs = sorted({(c["model"], c["stages"]) for c in planned}, key=lambda mn: (mn[0] != "phasor", mn[1]))
+        for model, n in pairs:
+            rows.append((f"{label}, {model} N = {n}: env-steps/s", [_scan_cell(s.get(name, {}), model, n) for s in sec]))
+    for algo in ("droq", "td3", "sac"):
+        rows.append((f"{algo} training", [_train_cell(s.get(algo, {})) for s in sec]))
+    rows.append(("quick sweep, table1: wall s", [
+        f"{s['sweep']['wall_s_sweep']:.0f} ({s['sweep']['status']})" if s.get("sweep", {}).get("wall_s_sweep")
+        else _train_cell(s.get("sweep", {})) for s in sec]))
+    rows.append(("whole command: wall s", [f"{d.get('wall_s', 0):.0f}" for d in docs]))
+    lines = ["| | " + " | ".join(head) + " |", "|---|" + "---|" * len(docs)]
+    lines += [f"| {label} | " + " | ".join(cells) + " |" for label, cells in rows]
+    return "\n".join(lines)
+
+
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(prog="python -m benchmarks.device", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -439,6 +487,8 @@ def parse_args(argv=None):
     ap.add_argument("--batch-exp", type=int, nargs="+", default=None, metavar="K",
                     help="batch sizes 2^LO .. 2^HI [in steps of 2^STRIDE] (default 10 20; --tiny: 4 6)")
     ap.add_argument("--repeats", type=int, default=None, help="timed runs per batch (default 3; --tiny: 2)")
+    ap.add_argument("--table", nargs="+", type=Path, metavar="JSON",
+                    help="print these runs' JSON side by side as a markdown table, and measure nothing")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--child-out", help=argparse.SUPPRESS)
     ap.add_argument("--deadline-s", type=float, default=60.0, help=argparse.SUPPRESS)
@@ -464,6 +514,9 @@ def main(argv=None) -> dict:
     args = parse_args(argv)
     if args.child:
         raise SystemExit(child_main(args))
+    if args.table:
+        print(compare_table([json.loads(p.read_text()) for p in args.table]))
+        return {}
     t_start = time.monotonic()
     deadline = t_start + args.budget_s
     names = list(args.sections or [s for s in SECTIONS if not (args.tiny and s == "sweep")])

@@ -29,6 +29,8 @@ def test_tiny_run_writes_every_section_with_its_status(tmp_path):
     assert stored["phasor_n5_steps_per_s"] == row["steps_per_s"]
     bad = stored["sections"]["no_such_section"]
     assert bad["status"] == "failed" and "unknown section" in bad["error"]
+    table = device.compare_table([stored, stored])
+    assert f"| step_batch, phasor N = 5: env-steps/s | {row['steps_per_s']:,.0f} (batch 16) |" in table
 
 
 def test_sections_past_the_budget_are_skipped_and_still_written(tmp_path):
