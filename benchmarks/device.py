@@ -180,7 +180,7 @@ def section_step_batch(args, deadline: float, record) -> dict:
         (row,) = measure(n, model, b, args.repeats, paths=("step_batch",))
         return {k: row[k] for k in ("model", "stages", "batch", "compile_s", "median_scan_s", "steps_per_s")}
 
-    _scan(one, [(m, n) for m in args.models for n in args.stages], batches(args.tiny, args.batch_exp), deadline, record, out)
+    _scan(one, [(m, n) for n in args.stages for m in args.models], batches(args.tiny, args.batch_exp), deadline, record, out)
     return out
 
 
@@ -214,7 +214,7 @@ def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int =
 def section_rollout(args, deadline: float, record) -> dict:
     """env-steps/s of ``ops_jax.rollout`` over 200 steps, the trajectory kept on the device."""
     out = dict(scan_steps=200, repeats=args.repeats)
-    _scan(lambda m, n, b: rollout_rate(n, m, b, args.repeats), [(m, n) for m in args.models for n in args.stages],
+    _scan(lambda m, n, b: rollout_rate(n, m, b, args.repeats), [(m, n) for n in args.stages for m in args.models],
           batches(args.tiny, args.batch_exp), deadline, record, out)
     return out
 
