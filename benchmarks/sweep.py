@@ -30,6 +30,8 @@ import os
 # Before jax loads (the imports below load it): XLA's C++ log lines, e.g. one per program loaded from
 # the persistent compilation cache, would drown the progress output.
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+# A GPU shared with the workers: no process reserves most of its memory up front (benchmarks/sweep_ray.py).
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 import argparse  # noqa: E402
 import json  # noqa: E402

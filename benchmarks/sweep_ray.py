@@ -27,7 +27,9 @@ from agents.io import temp_dir, write_bytes_atomic
 from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
-FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE")
+FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE",
+                 "XLA_PYTHON_CLIENT_MEM_FRACTION", "XLA_PYTHON_CLIENT_ALLOCATOR")
+GPU_MEMORY_SHARED = 0.9  # the fraction of a GPU's memory that the workers sharing it divide between them
 PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
 OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units return kilobytes to megabytes
 
@@ -230,6 +232,8 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     if todo:
         import ray
 
+        if address is None and worker_gpus == 0:  # Ray before 2.48 hid the GPUs from workers claiming none
+            os.environ.setdefault("RAY_EXPERIMENTAL_NOSET_CUDA_VISIBLE_DEVICES", "1")
         connect(address, jobs)
         try:
             computed, workers = _compute(ray, sweep, todo, done, jobs, restarts, worker_gpus, out, preset, reused,
@@ -239,14 +243,27 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     return Sweep(preset, out, _stderr).run(sections, workers, computed, started)
 
 
+def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
+    """The variables set in each of ``n`` workers before jax starts: this process's ``FORWARDED_ENV``, and
+    for workers sharing a GPU (a local instance with ``worker_gpus`` 0, or a fraction of a GPU each) no
+    preallocation and each a cap on its share of the GPU's memory (``XLA_PYTHON_CLIENT_MEM_FRACTION``);
+    values set in this process win."""
+    environ = os.environ if environ is None else environ
+    env = {k: environ[k] for k in FORWARDED_ENV if k in environ}
+    env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
+    share = GPU_MEMORY_SHARED / n if (local and worker_gpus == 0) else GPU_MEMORY_SHARED * worker_gpus
+    if 0 < share < GPU_MEMORY_SHARED or (local and worker_gpus == 0):
+        env.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", f"{share:.3f}")
+    return env
+
+
 def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
              preset: dict, reused: int = 0, local: bool = False):
     """The scheduling loop: units to idle workers, returned files into the store (``reused``: the plan's
     cells stored before, said on the progress line; ``local``: a local instance, whose workers get a share
     of the CPUs each). Returns (cells computed, a record per worker)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
-    env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
-    env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # workers sharing a GPU must not each reserve most of it
+    env = worker_env(n, worker_gpus, local)
     actor = ray.remote(num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts)(SweepWorker)
     shares = cpu_shares(n) if local else [None] * n
     actors = [actor.remote(preset, env, cpus) for cpus in shares]
