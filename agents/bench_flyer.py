@@ -1,0 +1,61 @@
+"""A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect`` hands back its
+events in pages, ``complete`` finishes when the loop ends (fails with the loop's exception)."""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+
+from ophyd.status import Status
+
+
+class LoopFlyer:
+    """Runs ``start()`` then ``step() -> (data, timestamps)`` until ``done()`` in a thread of its own; each
+    step is one event of the stream ``stream`` described by ``data_keys``. Nothing of the loop goes through
+    the RunEngine: it sees the events only when it collects them."""
+
+    def __init__(self, name: str, data_keys: dict, start, step, done, stream: str = "primary"):
+        self.name, self.parent, self.stream = name, None, stream
+        self._data_keys, self._start, self._step, self._done = data_keys, start, step, done
+        self._events: collections.deque = collections.deque()
+        self._thread: threading.Thread | None = None
+        self._complete: Status | None = None
+        self.error: BaseException | None = None
+
+    def kickoff(self) -> Status:
+        """Start the loop; done at once."""
+        self._complete = Status(obj=self)
+        self._thread = threading.Thread(target=self._run, name=f"{self.name}-loop", daemon=True)
+        self._thread.start()
+        status = Status(obj=self)
+        status.set_finished()
+        return status
+
+    def _run(self):
+        try:
+            self._start()
+            while not self._done():
+                data, timestamps = self._step()
+                self._events.append({"data": data, "timestamps": timestamps, "time": time.time()})
+        except Exception as exc:  # handed to the plan through the completion status
+            self.error = exc
+            self._complete.set_exception(exc)
+        else:
+            self._complete.set_finished()
+
+    def complete(self) -> Status:
+        """Finishes when the loop has ended."""
+        return self._complete
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def describe_collect(self) -> dict:
+        return {self.stream: self._data_keys}
+
+    def collect(self):
+        """The events recorded since the last call (partial events, bluesky packs them into a page)."""
+        while self._events:
+            yield self._events.popleft()
