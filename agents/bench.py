@@ -44,7 +44,7 @@ import numpy as np
 import ops_jax
 from agents import base, trim
 from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
-                                  make_bench, signals, sim_mapping)
+                                  make_bench, monitored, signals, sim_mapping)
 from agents.bench_flyer import LoopFlyer
 from agents.cli import parse_set
 from agents.io import write_json_atomic
@@ -226,7 +226,7 @@ class Loop:
     def observe(self) -> np.ndarray:
         """The controller's observation (the simulator's encoding) from the current readings."""
         d, now = self.mapping["detector"], time.time()
-        power, trace = self.det.power.get(), np.asarray(self.det.trace.get(), np.float64)
+        power, trace = monitored(self.det.power), np.asarray(monitored(self.det.trace), np.float64)
         self.check(self.det.power, power, now)
         self.check(self.det.trace, trace, now)
         env = self.agent.env
@@ -236,7 +236,7 @@ class Loop:
             for i in range(self.n):
                 sensor = getattr(self.bench, f"length{i + 1}", None)
                 if sensor is not None:
-                    lengths[i] = sensor.value.get()
+                    lengths[i] = monitored(sensor.value)
                     self.check(sensor.value, lengths[i], now)
             parts.append(lengths / self.mapping["units_per_wl"] / self.window)
         frame = np.concatenate(parts)
@@ -257,14 +257,14 @@ class Loop:
             self.det.after(time.time() + self.mapping["detector"]["settle_s"])
 
     def probe_power(self) -> float:
-        value = self.det.power.get()
+        value = monitored(self.det.power)
         self.check(self.det.power, value, time.time())
         return float(value) / self.mapping["detector"]["power_full_scale"]
 
     def readings(self) -> tuple[dict, dict]:
         """The event's readings of the frame just used (the bench's hinted and normal signals): values and
         IOC time stamps."""
-        return {k: sig.get() for k, sig in self.reads}, {k: sig.timestamp for k, sig in self.reads}
+        return {k: monitored(sig) for k, sig in self.reads}, {k: sig.timestamp for k, sig in self.reads}
 
     def frame(self):
         """Wait for a frame not used before (``stale_s`` at most)."""
@@ -333,9 +333,9 @@ class Loop:
     def record(self, latency_ms: list, decide_ms: float):
         ev = getattr(self.bench, "evaluation", None)
         self.rec["time_s"].append(time.perf_counter() - self.t0)
-        self.rec["tick"].append(int(self.det.tick.get()))
-        self.rec["p_pmax"].append(float(ev.p_pmax.get()) if ev is not None else np.nan)
-        self.rec["p_pbest"].append(float(ev.p_pbest.get()) if ev is not None else np.nan)
+        self.rec["tick"].append(int(monitored(self.det.tick)))
+        self.rec["p_pmax"].append(float(monitored(ev.p_pmax)) if ev is not None else np.nan)
+        self.rec["p_pbest"].append(float(monitored(ev.p_pbest)) if ev is not None else np.nan)
         self.rec["latency_ms"].extend(latency_ms)
         self.rec["decide_ms"].append(decide_ms)
 
@@ -364,9 +364,11 @@ def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
             done = False
             while not done:
                 done = yield from bps.wait(group=group, timeout=flush_s, error_on_timeout=False)
-                yield from bps.collect(flyer)
+                yield from bps.collect(flyer, return_payload=False)
         except FailedStatus:  # the loop ended on an exception: keep its events, then fail the run
-            yield from bps.collect(flyer)
+            yield from bps.collect(flyer, return_payload=False)
+            if not isinstance(flyer.error, SafetyStop):  # a failure, not the watchdog: its traceback
+                log.error("the control loop failed", exc_info=flyer.error)
             loop.trip(loop.stop_reason or f"error: {flyer.error!r}")
             raise SafetyStop(loop.stop_reason) from None
 
@@ -529,8 +531,11 @@ def _writer(out: Path):
     writer = JSONLinesWriter(str(out), "documents.jsonl")
 
     def write(name, doc):
-        for name, doc in ([("event", e) for e in unpack_event_page(doc)] if name == "event_page" else [(name, doc)]):
-            writer(name, sanitize_doc(doc))
+        doc = sanitize_doc(doc)
+        if name != "event_page":
+            return writer(name, doc)
+        with open(out / "documents.jsonl", "a") as f:  # a page at once: as the writer does, one open per page
+            f.writelines(json.dumps({"name": "event", "doc": e}) + "\n" for e in unpack_event_page(doc))
 
     return write
 

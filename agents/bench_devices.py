@@ -137,6 +137,12 @@ def load_mapping(path) -> dict:
         raise MappingError(f"mapping: {path} is not valid JSON ({exc})") from None
 
 
+def monitored(sig):
+    """The newest value of a monitored signal as its monitor callback left it (``get()`` without its
+    connection checks and metadata handling: a control loop reads a dozen per step)."""
+    return sig._readback
+
+
 class DelayLine(Device):
     """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
     step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a

@@ -1,11 +1,10 @@
 """A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect`` hands back its
-events in pages, ``complete`` finishes when the loop ends (fails with the loop's exception)."""
+events as event pages, ``complete`` finishes when the loop ends (fails with the loop's exception)."""
 
 from __future__ import annotations
 
 import collections
 import threading
-import time
 
 from ophyd.status import Status
 
@@ -37,7 +36,7 @@ class LoopFlyer:
             self._start()
             while not self._done():
                 data, timestamps = self._step()
-                self._events.append({"data": data, "timestamps": timestamps, "time": time.time()})
+                self._events.append({"data": data, "timestamps": timestamps})
         except Exception as exc:  # handed to the plan through the completion status
             self.error = exc
             self._complete.set_exception(exc)
@@ -55,7 +54,9 @@ class LoopFlyer:
     def describe_collect(self) -> dict:
         return {self.stream: self._data_keys}
 
-    def collect(self):
-        """The events recorded since the last call (partial events, bluesky packs them into a page)."""
-        while self._events:
-            yield self._events.popleft()
+    def collect_pages(self):
+        """The events recorded since the last call as one partial event page (none if there are none)."""
+        events = [self._events.popleft() for _ in range(len(self._events))]
+        if events:
+            yield {"data": {k: [e["data"][k] for e in events] for k in self._data_keys},
+                   "timestamps": {k: [e["timestamps"][k] for e in events] for k in self._data_keys}}

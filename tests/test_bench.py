@@ -313,7 +313,7 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
 def test_run_with_the_trim_probes_once_more_per_step(iocs, tmp_path):
     """SPGD wrapped in the extremum-seeking trim (agents.trim) over Channel Access: two probes per step."""
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
-                               "--trim", "ki=0.003", "jump=0.25", "--seconds", "3"))
+                               "--trim", "ki=0.003", "jump=0.25", "--seconds", "3", "--stale-s", "5"))
     assert rc == 0, log
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
