@@ -24,8 +24,8 @@ PVs (prefix first; lengths in wavelengths, wl):
 - ``EVAL:P_PMAX``, ``EVAL:P_PBEST``: the true P / P_max and P / P_best, for evaluation only.
 - ``TICK`` (published last in a tick: a new value means a complete new frame), ``STATUS``,
   ``OVERRUNS``, ``RATE`` (Hz; 0 in lockstep), ``ADVANCE`` (lockstep only).
-- ``RESET``: a non-zero write starts again: setpoints to 0, the lines at the optimum with a fresh reset
-  draw (the k-th reset's key folded by k); the tick count and the drift's episode go on as they were.
+- ``RESET``: a non-zero write starts again: setpoints to 0, the lines' offsets from the optimum drawn afresh
+  as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the tick count goes on.
 
 Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
 so a frame stamped after a setpoint write shows that write.
