@@ -51,6 +51,9 @@ from agents.io import write_json_atomic
 
 MAX_PROBES = 16  # probes per control step a controller may ask for
 FLUSH_S = 0.2  # the plan collects the loop's events this often (s)
+# Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
+# waits at most this long for the interpreter lock held by another thread (the RunEngine's validating a page)
+SWITCH_S = 0.0005
 EXIT_WATCHDOG = 3
 log = logging.getLogger("agents.bench")
 
@@ -501,10 +504,15 @@ def main(argv=None) -> int:
     md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
           "trim": None if args.trim is None else parse_set(args.trim),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
+    quiet = _QuietStop()
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).addFilter(quiet)
     try:
         elapsed = _run(loop, md, out)
     finally:
         disconnect(bench)
+        for name in QUIET_LOGGERS:
+            logging.getLogger(name).removeFilter(quiet)
     summary = summarize(loop, args.controller, elapsed)
     write_json_atomic(out / "summary.json", summary)
     stopped = summary["stopped_by"] not in ("time", "steps", "user")
@@ -515,10 +523,16 @@ def main(argv=None) -> int:
     return EXIT_WATCHDOG if stopped else 0
 
 
+QUIET_LOGGERS = ("bluesky", "caproto.circ", "caproto.ch")  # filtered by _QuietStop from connection to disconnection
+
+
 class _QuietStop(logging.Filter):
-    """Drops the RunEngine's "Run aborted" traceback of a watchdog stop (the runner reports it in one line)."""
+    """Drops what an expected stop prints besides the runner's line: the RunEngine's "Run aborted" traceback of
+    a watchdog stop, and caproto's notes on a closing circuit or channel (the watchdog names the lost PV)."""
 
     def filter(self, record) -> bool:
+        if record.name.startswith("caproto"):
+            return False
         return not (record.exc_info and isinstance(record.exc_info[1], SafetyStop))
 
 
@@ -531,10 +545,9 @@ def _writer(out: Path):
     writer = JSONLinesWriter(str(out), "documents.jsonl")
 
     def write(name, doc):
-        doc = sanitize_doc(doc)
         if name != "event_page":
-            return writer(name, doc)
-        with open(out / "documents.jsonl", "a") as f:  # a page at once: as the writer does, one open per page
+            return writer(name, sanitize_doc(doc))
+        with open(out / "documents.jsonl", "a") as f:  # a page (plain types already) at once, one open per page
             f.writelines(json.dumps({"name": "event", "doc": e}) + "\n" for e in unpack_event_page(doc))
 
     return write
@@ -546,8 +559,6 @@ def _run(loop: Loop, md: dict, out: Path) -> float:
 
     RE = RunEngine({}, context_managers=[])  # Ctrl-C and SIGTERM end the run after the step (below)
     RE.subscribe(_writer(out))
-    quiet = _QuietStop()
-    logging.getLogger("bluesky").addFilter(quiet)
 
     def stop(signum, frame):
         if loop.user_stop:  # a second Ctrl-C: stop now, move nothing more
@@ -555,6 +566,8 @@ def _run(loop: Loop, md: dict, out: Path) -> float:
         loop.user_stop = True
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_S)
     try:
         RE(control_plan(loop, md))
     except Exception as exc:  # the watchdog (SafetyStop) or a failure: no further move, keep what was recorded
@@ -563,7 +576,7 @@ def _run(loop: Loop, md: dict, out: Path) -> float:
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
-        logging.getLogger("bluesky").removeFilter(quiet)
+        sys.setswitchinterval(switch)
     return time.perf_counter() - loop.t0 if loop.t0 is not None else 0.0
 
 

@@ -58,5 +58,11 @@ class LoopFlyer:
         """The events recorded since the last call as one partial event page (none if there are none)."""
         events = [self._events.popleft() for _ in range(len(self._events))]
         if events:
-            yield {"data": {k: [e["data"][k] for e in events] for k in self._data_keys},
+            yield {"data": {k: [_plain(e["data"][k]) for e in events] for k in self._data_keys},
                    "timestamps": {k: [e["timestamps"][k] for e in events] for k in self._data_keys}}
+
+
+def _plain(value):
+    """``value`` as built-in Python types (numpy arrays and scalars by their ``tolist``): a page that needs no
+    ``sanitize_doc`` before JSON."""
+    return value.tolist() if hasattr(value, "tolist") else value
