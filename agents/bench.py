@@ -45,7 +45,7 @@ import ops_jax
 from agents import base, trim
 from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
                                   make_bench, monitored, signals, sim_mapping)
-from agents.bench_flyer import LoopFlyer
+from agents.bench_flyer import LoopFlyer, fly
 from agents.cli import parse_set
 from agents.io import write_json_atomic
 
@@ -352,24 +352,16 @@ def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
     """The Bluesky plan: the control loop as a flyer (``agents.bench_flyer``) in its own thread, its events
     (one per control step: the bench's readings, the action, the setpoints sent, the probe readings and the
     step's latency) collected in pages every ``flush_s`` s; ends by time, by the user or by the watchdog."""
-    import bluesky.plan_stubs as bps
     import bluesky.preprocessors as bpp
-    from bluesky.utils import FailedStatus, short_uid
+    from bluesky.utils import FailedStatus
 
     flyer = loop.flyer()
 
     @bpp.run_decorator(md=md)
     def run():
-        yield from bps.kickoff(flyer, wait=True)
-        group = short_uid("complete")
-        yield from bps.complete(flyer, group=group, wait=False)
         try:
-            done = False
-            while not done:
-                done = yield from bps.wait(group=group, timeout=flush_s, error_on_timeout=False)
-                yield from bps.collect(flyer, return_payload=False)
-        except FailedStatus:  # the loop ended on an exception: keep its events, then fail the run
-            yield from bps.collect(flyer, return_payload=False)
+            yield from fly(flyer, flush_s)
+        except FailedStatus:  # the loop ended on an exception (its events kept): fail the run
             if not isinstance(flyer.error, SafetyStop):  # a failure, not the watchdog: its traceback
                 log.error("the control loop failed", exc_info=flyer.error)
             loop.trip(loop.stop_reason or f"error: {flyer.error!r}")

@@ -1,4 +1,4 @@
-"""A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect`` hands back its
+"""A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect_pages`` hands back its
 events as event pages, ``complete`` finishes when the loop ends (fails with the loop's exception)."""
 
 from __future__ import annotations
@@ -60,6 +60,25 @@ class LoopFlyer:
         if events:
             yield {"data": {k: [_plain(e["data"][k]) for e in events] for k in self._data_keys},
                    "timestamps": {k: [e["timestamps"][k] for e in events] for k in self._data_keys}}
+
+
+def fly(flyer, flush_s: float):
+    """Plan stub: kick ``flyer`` off and collect its events every ``flush_s`` s until it completes; if it fails,
+    collect what it recorded, then re-raise (bluesky's ``FailedStatus``)."""
+    import bluesky.plan_stubs as bps
+    from bluesky.utils import FailedStatus, short_uid
+
+    yield from bps.kickoff(flyer, wait=True)
+    group = short_uid("complete")
+    yield from bps.complete(flyer, group=group, wait=False)
+    try:
+        done = False
+        while not done:
+            done = yield from bps.wait(group=group, timeout=flush_s, error_on_timeout=False)
+            yield from bps.collect(flyer, return_payload=False)
+    except FailedStatus:
+        yield from bps.collect(flyer, return_payload=False)
+        raise
 
 
 def _plain(value):

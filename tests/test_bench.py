@@ -129,6 +129,44 @@ def test_detector_wait_blocks_for_a_new_frame_and_fails_after_the_watchdog():
         det.wait(1)
 
 
+def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
+    """A RunEngine kicks the flyer off and collects while it runs: every step an event, in pages of plain
+    values; a step that raises fails the run, every step before it kept."""
+    import bluesky.preprocessors as bpp
+    from bluesky import RunEngine
+    from bluesky.utils import FailedStatus
+
+    from agents.bench_flyer import LoopFlyer, fly
+
+    keys = {"x": {"source": "loop", "dtype": "number", "shape": []},
+            "v": {"source": "loop", "dtype": "array", "shape": [2]}}
+    for fail_at in (None, 12):
+        threads = []
+
+        def step():
+            threads.append(threading.current_thread().name)
+            if len(threads) == fail_at:
+                raise SafetyStop("stop here")
+            time.sleep(0.01)
+            return {"x": np.float64(len(threads)), "v": np.arange(2.0)}, {"x": time.time(), "v": time.time()}
+
+        flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(threads) >= 40)
+        docs = []
+        RE = RunEngine({}, context_managers=[])
+        RE.subscribe(lambda name, doc: docs.append((name, doc)))
+        if fail_at is None:
+            RE(bpp.run_wrapper(fly(flyer, 0.05)))
+        else:
+            with pytest.raises(FailedStatus):
+                RE(bpp.run_wrapper(fly(flyer, 0.05)))
+        pages = [d for name, d in docs if name == "event_page"]
+        x = [v for page in pages for v in page["data"]["x"]]
+        assert set(threads) == {"loop-loop"} and len(pages) > (fail_at is None)  # several while it runs
+        assert x == list(range(1, 41) if fail_at is None else range(1, fail_at))
+        assert all(type(v) is float for v in x) and all(type(v) is list for page in pages for v in page["data"]["v"])
+        assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
+
+
 def test_length_readouts_a_controller_reads_must_be_mapped():
     """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a controller
     reading them fails before it is compiled, naming itself and the missing entries."""
