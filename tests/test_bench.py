@@ -187,7 +187,7 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
 
 def test_bench_reset_is_a_fresh_start():
     """Bench.reset: the lines back near the optimum (a new reset draw of their offsets), the tick count going on."""
-    sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor", "imperfections": "lab"}, seed=0)
+    sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
     first = sim.frame
     for _ in range(3):
         wreck = sim.tick([1.25, -1.2, 1.3])
