@@ -6,15 +6,17 @@ control loop a Bluesky plan run by a ``RunEngine``.
 ``--controller``: ``spgd``, ``physics`` or a folder written by ``agents.save``; ``--set key=value``
 overrides the controller's hyperparameters, ``--env key=value`` the ``ops_jax.make`` options the
 controller is built for (stages come from the bench). The bench is the simulated one of
-``python -m ops_jax.ioc`` under ``--prefix`` or any bench described by ``--mapping FILE``
-(``agents.bench_devices``).
+``python -m ops_jax.ioc`` under ``--prefix`` (``--no-lengths``: without its length readouts) or any bench
+described by ``--mapping FILE`` (``agents.bench_devices``). A controller that reads length readouts the
+bench lacks fails at start.
 
 One control step: wait for a detector frame that shows the last setpoints written (the newest one
 acquired ``settle_s`` or more after the write, by its time stamp), read it, build the observation
 exactly as the simulator does (power, oscilloscope samples, length readouts), decide, write the
 setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move: write the
 probed setpoints, wait for a frame that shows them, read the power; so each probe costs at least one
-frame and the step's action goes out after it. ``--rate`` caps the control steps per second.
+frame and the step's action goes out after it. ``--rate`` caps the control steps per second. The loop
+runs in its own thread as a Bluesky flyer (``agents.bench_flyer``); the plan collects its events in pages.
 
 The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
@@ -42,11 +44,16 @@ import numpy as np
 import ops_jax
 from agents import base, trim
 from agents.bench_devices import (Control, MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
-                                  make_bench, signals, sim_mapping)
+                                  make_bench, monitored, signals, sim_mapping)
+from agents.bench_flyer import LoopFlyer, fly
 from agents.cli import parse_set
 from agents.io import write_json_atomic
 
 MAX_PROBES = 16  # probes per control step a controller may ask for
+FLUSH_S = 0.2  # the plan collects the loop's events this often (s)
+# Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
+# waits at most this long for the interpreter lock held by another thread (the RunEngine's validating a page)
+SWITCH_S = 0.0005
 EXIT_WATCHDOG = 3
 log = logging.getLogger("agents.bench")
 
@@ -110,19 +117,24 @@ class Agent:
         return np.asarray(action, np.float64)
 
 
-def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed: int, trim_hyper: dict | None = None):
-    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder;
-    with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``: the default), wrapped in the trim (``agents.trim``)."""
+def load_controller(spec: str, mapping: dict, env_options: dict, hyper: dict, seed: int,
+                    trim_hyper: dict | None = None):
+    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder
+    on the bench of ``mapping``; with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``: the default), wrapped in
+    the trim (``agents.trim``). A controller that reads length readouts the mapping lacks fails (``MappingError``)."""
+    stages = len(mapping["lines"])
     if spec in ("spgd", "physics"):
         env_config = {"stages": stages, **env_options}
         module = base.algo_module(spec)
         policy, params = module.make_policy(env_config, hyper or None), None
+        algo = spec
     else:
         if hyper:
             raise ValueError("--set applies to spgd and physics only; a saved policy keeps its own settings")
         result = base.load(spec)
         env_config = {**result.env_config, **env_options}
         policy, params = result.policy(), result.params
+        algo, hyper = result.algo, result.hyper
     if trim_hyper is not None:
         policy, params = trim.trimmed((policy, params), trim_hyper, env_config)
     env, env_params = ops_jax.make(**base.check_env_config(env_config))
@@ -131,7 +143,35 @@ def load_controller(spec: str, stages: int, env_options: dict, hyper: dict, seed
     if env.config.include_noise:
         raise ValueError("controllers built with include_noise=True read the simulator's noise state, "
                          "which no bench can measure")
+    check_lengths(spec, reads_lengths(algo, hyper), env, mapping)
     return Agent(policy, params, env, seed), env_config, float(env_params.action_scale), float(env_params.window)
+
+
+def observes_lengths(env) -> bool:
+    """Whether ``env``'s observation frame holds the length readouts (power, 2^N - 1 scope samples, then N
+    lengths; frames-only observations stop after the samples)."""
+    return env.layout.lengths
+
+
+def reads_lengths(algo: str, hyper: dict | None) -> bool:
+    """Whether a controller of ``algo`` with settings ``hyper`` uses the length readouts: SPGD never,
+    the physics-informed controller with ``use_lengths`` (or ``lengths_only``), a learned policy always
+    (every input of its networks)."""
+    if algo == "spgd":
+        return False
+    if algo == "physics":
+        h = base.ALGOS["physics"].settings(hyper or {})
+        return bool(h["use_lengths"] or h["lengths_only"])
+    return True
+
+
+def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
+    """A controller that uses length readouts on a bench that lacks some fails here, naming the entries."""
+    missing = [f"lines[{i}].length" for i, line in enumerate(mapping["lines"]) if "length" not in line]
+    if reads and observes_lengths(env) and missing:
+        raise MappingError(f"the controller {controller} reads the length readouts and the mapping lacks "
+                           f"{', '.join(missing)}; map them, or run a controller that does not read them (spgd, "
+                           f"physics with use_lengths=False, a policy trained without them)")
 
 
 class Loop:
@@ -149,6 +189,8 @@ class Loop:
         self.user_stop = False
         self.rec = {k: [] for k in ("time_s", "tick", "p_pmax", "p_pbest", "latency_ms", "decide_ms")}
         self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
+        self.advance = getattr(bench, "advance", None)
+        self.reads = []  # (event key, signal) of the readings recorded at every step
 
     # -- watchdog --------------------------------------------------------------------------------
     def trip(self, reason: str):
@@ -187,17 +229,18 @@ class Loop:
     def observe(self) -> np.ndarray:
         """The controller's observation (the simulator's encoding) from the current readings."""
         d, now = self.mapping["detector"], time.time()
-        power, trace = self.det.power.get(), np.asarray(self.det.trace.get(), np.float64)
+        power, trace = monitored(self.det.power), np.asarray(monitored(self.det.trace), np.float64)
         self.check(self.det.power, power, now)
         self.check(self.det.trace, trace, now)
-        lengths = np.zeros(self.n)
-        for i in range(self.n):
-            sensor = getattr(self.bench, f"length{i + 1}", None)
-            if sensor is not None:
-                lengths[i] = sensor.value.get()
-                self.check(sensor.value, lengths[i], now)
-        lengths /= self.mapping["units_per_wl"]
         env = self.agent.env
+        lengths = np.zeros(self.n)
+        if env.layout.lengths:  # the length readouts (0 where the bench has no sensor)
+            for i in range(self.n):
+                sensor = getattr(self.bench, f"length{i + 1}", None)
+                if sensor is not None:
+                    lengths[i] = monitored(sensor.value)
+                    self.check(sensor.value, lengths[i], now)
+        lengths /= self.mapping["units_per_wl"]
         try:
             frame = env.layout.encode(power / d["power_full_scale"], trace / d["trace_peak"], lengths, self.window,
                                       xp=np)
@@ -217,16 +260,85 @@ class Loop:
             self.det.after(time.time() + self.mapping["detector"]["settle_s"])
 
     def probe_power(self) -> float:
-        value = self.det.power.get()
+        value = monitored(self.det.power)
         self.check(self.det.power, value, time.time())
         return float(value) / self.mapping["detector"]["power_full_scale"]
+
+    def readings(self) -> tuple[dict, dict]:
+        """The event's readings of the frame just used (the bench's hinted and normal signals): values and
+        IOC time stamps."""
+        return {k: monitored(sig) for k, sig in self.reads}, {k: sig.timestamp for k, sig in self.reads}
+
+    def frame(self):
+        """Wait for a frame not used before (``stale_s`` at most)."""
+        if not self.det.wait(self.mapping["safety"]["stale_s"]):
+            self.trip(self.stop_reason or self.no_frame())
+        if self.stop_reason:
+            raise SafetyStop(self.stop_reason)
+
+    def tick(self):
+        """In lockstep, advance the simulator one frame (a free-running bench needs nothing)."""
+        if self.advance is not None:
+            self.advance.set(1).wait(self.mapping["safety"]["stale_s"])
+
+    def start(self):
+        """The controller's state from the current frame; the clocks start."""
+        self.agent.start(self.observe())
+        self.frames = None
+        self.t0, self.cpu0 = time.perf_counter(), time.process_time()
+
+    def step(self) -> tuple[dict, dict]:
+        """One control step (wait for a frame, read, probe, act, write); the event's data and time stamps."""
+        next_read = time.perf_counter() + self.period
+        self.frame()
+        t_frame = self.det.tick_time
+        data, stamps = self.readings()
+        obs, base_wl = self.observe(), self.lines.position
+        results, latency, decide = np.zeros(self.agent.probes), [], 0.0
+        for i in range(self.agent.probes):  # a probe: move, wait for the next frame, read (moved back below)
+            t = time.perf_counter()
+            offsets = self.agent.offsets(obs, results, i)
+            decide += time.perf_counter() - t
+            self.lines.move(base_wl + offsets)
+            latency.append(1e3 * (time.perf_counter() - t_frame))
+            self.moved()
+            self.tick()
+            self.frame()
+            t_frame, results[i] = self.det.tick_time, self.probe_power()
+        t = time.perf_counter()
+        action = self.agent.act(obs, results)
+        decide_ms = 1e3 * (decide + time.perf_counter() - t)
+        sent = self.lines.move(base_wl + action * self.scale)
+        sent_at = time.time()
+        latency.append(1e3 * (time.perf_counter() - t_frame))
+        self.moved()
+        control = {"control_action": action, "control_setpoint_wl": sent, "control_probe_power": results,
+                   "control_latency_ms": latency[-1]}
+        data.update(control)
+        stamps.update(dict.fromkeys(control, sent_at))
+        self.record(latency, decide_ms)
+        self.tick()
+        if (wait := next_read - time.perf_counter()) > 0:
+            time.sleep(wait)
+        return data, stamps
+
+    def flyer(self) -> LoopFlyer:
+        """The loop as a Bluesky flyer: one event per step in the stream ``primary``."""
+        control = Control(name="control")
+        control.put(np.zeros(self.n), np.zeros(self.n), np.zeros(self.agent.probes), 0.0)
+        keys = {**self.bench.describe(), **control.describe()}
+        self.reads = [(k, sig) for k in self.bench.read() for sig in [self._signal(k)]]
+        return LoopFlyer("control_loop", keys, self.start, self.step, self.done)
+
+    def _signal(self, name: str):
+        return next(w.item for w in self.bench.walk_signals() if w.item.name == name)
 
     def record(self, latency_ms: list, decide_ms: float):
         ev = getattr(self.bench, "evaluation", None)
         self.rec["time_s"].append(time.perf_counter() - self.t0)
-        self.rec["tick"].append(int(self.det.tick.get()))
-        self.rec["p_pmax"].append(float(ev.p_pmax.get()) if ev is not None else np.nan)
-        self.rec["p_pbest"].append(float(ev.p_pbest.get()) if ev is not None else np.nan)
+        self.rec["tick"].append(int(monitored(self.det.tick)))
+        self.rec["p_pmax"].append(float(monitored(ev.p_pmax)) if ev is not None else np.nan)
+        self.rec["p_pbest"].append(float(monitored(ev.p_pbest)) if ev is not None else np.nan)
         self.rec["latency_ms"].extend(latency_ms)
         self.rec["decide_ms"].append(decide_ms)
 
@@ -236,67 +348,24 @@ class Loop:
                 or 0 < self.max_steps <= steps)
 
 
-def control_plan(loop: Loop, control, md: dict):
-    """The Bluesky plan: one event per control step (the bench's readings, the action, the setpoints
-    sent, the probe readings and the step's latency); ends by time, by the user or by the watchdog."""
-    import bluesky.plan_stubs as bps
+def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
+    """The Bluesky plan: the control loop as a flyer (``agents.bench_flyer``) in its own thread, its events
+    (one per control step: the bench's readings, the action, the setpoints sent, the probe readings and the
+    step's latency) collected in pages every ``flush_s`` s; ends by time, by the user or by the watchdog."""
     import bluesky.preprocessors as bpp
-    from bluesky.utils import FailedStatus, Msg
+    from bluesky.utils import FailedStatus
 
-    advance = getattr(loop.bench, "advance", None)
-
-    def tick():
-        """In lockstep, advance the simulator one frame (a free-running bench needs nothing)."""
-        if advance is not None:
-            yield from bps.abs_set(advance, 1, wait=True)
-
-    def frame():
-        """Wait for a frame not used before."""
-        try:
-            yield from bps.trigger(loop.det, wait=True)
-        except FailedStatus:
-            loop.trip(loop.stop_reason or loop.no_frame())
-            raise SafetyStop(loop.stop_reason) from None
-
-    def step():
-        next_read = time.perf_counter() + loop.period
-        yield Msg("create", name="primary")
-        yield from frame()
-        t_frame = loop.det.tick_time
-        yield from bps.read(loop.bench)
-        obs, base_wl = loop.observe(), loop.lines.position
-        results, latency, decide = np.zeros(loop.agent.probes), [], 0.0
-        for i in range(loop.agent.probes):  # a probe: move, wait for the next frame, read (moved back below)
-            t = time.perf_counter()
-            offsets = loop.agent.offsets(obs, results, i)
-            decide += time.perf_counter() - t
-            yield from bps.abs_set(loop.lines, base_wl + offsets)
-            latency.append(1e3 * (time.perf_counter() - t_frame))
-            loop.moved()
-            yield from tick()
-            yield from frame()
-            t_frame, results[i] = loop.det.tick_time, loop.probe_power()
-        t = time.perf_counter()
-        action = loop.agent.act(obs, results)
-        decide_ms = 1e3 * (decide + time.perf_counter() - t)
-        yield from bps.abs_set(loop.lines, base_wl + action * loop.scale)
-        latency.append(1e3 * (time.perf_counter() - t_frame))
-        loop.moved()
-        control.put(action, loop.lines.position, results, latency[-1])
-        yield from bps.read(control)
-        yield Msg("save")
-        loop.record(latency, decide_ms)
-        yield from tick()
-        if (wait := next_read - time.perf_counter()) > 0:
-            yield from bps.sleep(wait)
+    flyer = loop.flyer()
 
     @bpp.run_decorator(md=md)
     def run():
-        loop.agent.start(loop.observe())  # the controller's state from the current frame, compiled
-        loop.frames = None
-        loop.t0, loop.cpu0 = time.perf_counter(), time.process_time()
-        while not loop.done():
-            yield from step()
+        try:
+            yield from fly(flyer, flush_s)
+        except FailedStatus:  # the loop ended on an exception (its events kept): fail the run
+            if not isinstance(flyer.error, SafetyStop):  # a failure, not the watchdog: its traceback
+                log.error("the control loop failed", exc_info=flyer.error)
+            loop.trip(loop.stop_reason or f"error: {flyer.error!r}")
+            raise SafetyStop(loop.stop_reason) from None
 
     return run()
 
@@ -362,6 +431,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--stages", type=int, default=None, help="delay lines of the simulated bench "
                     "(default: the saved controller's, else 5)")
     ap.add_argument("--mapping", help="a mapping file (JSON) naming the bench's PVs, units and safety limits")
+    ap.add_argument("--no-lengths", action="store_true",
+                    help="the simulated bench without its length readouts (LINEi:LEN not mapped; without --mapping)")
     ap.add_argument("--controller", required=True, help="spgd, physics or a folder written by agents.save")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
@@ -390,11 +461,12 @@ def _setup(args):
     if saved and not Path(args.controller).is_dir():
         raise ValueError(f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}")
     stages = args.stages or (base.load(args.controller).env_config.get("stages", 5) if saved else 5)
-    mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep)
+    mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep,
+                                                                                 lengths=not args.no_lengths)
     if args.stale_s is not None:
         mapping["safety"] = {**(mapping.get("safety") or {}), "stale_s": args.stale_s}
     mapping = check_mapping(mapping)
-    agent, env_config, scale, window = load_controller(args.controller, len(mapping["lines"]), parse_set(args.env),
+    agent, env_config, scale, window = load_controller(args.controller, mapping, parse_set(args.env),
                                                        parse_set(args.set), args.seed,
                                                        None if args.trim is None else parse_set(args.trim))
     return mapping, agent, env_config, scale, window
@@ -424,10 +496,15 @@ def main(argv=None) -> int:
     md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
           "trim": None if args.trim is None else parse_set(args.trim),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
+    quiet = _QuietStop()
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).addFilter(quiet)
     try:
         elapsed = _run(loop, md, out)
     finally:
         disconnect(bench)
+        for name in QUIET_LOGGERS:
+            logging.getLogger(name).removeFilter(quiet)
     summary = summarize(loop, args.controller, elapsed)
     write_json_atomic(out / "summary.json", summary)
     stopped = summary["stopped_by"] not in ("time", "steps", "user")
@@ -438,15 +515,42 @@ def main(argv=None) -> int:
     return EXIT_WATCHDOG if stopped else 0
 
 
+QUIET_LOGGERS = ("bluesky", "caproto.circ", "caproto.ch")  # filtered by _QuietStop from connection to disconnection
+
+
+class _QuietStop(logging.Filter):
+    """Drops what an expected stop prints besides the runner's line: the RunEngine's "Run aborted" traceback of
+    a watchdog stop, and caproto's notes on a closing circuit or channel (the watchdog names the lost PV)."""
+
+    def filter(self, record) -> bool:
+        if record.name.startswith("caproto"):
+            return False
+        return not (record.exc_info and isinstance(record.exc_info[1], SafetyStop))
+
+
+def _writer(out: Path):
+    """The document callback: every document a line of ``out/documents.jsonl`` as it comes (bluesky's
+    ``JSONLinesWriter``), an event page as its events."""
+    from bluesky.callbacks.json_writer import JSONLinesWriter
+    from event_model import sanitize_doc, unpack_event_page
+
+    writer = JSONLinesWriter(str(out), "documents.jsonl")
+
+    def write(name, doc):
+        if name != "event_page":
+            return writer(name, sanitize_doc(doc))
+        with open(out / "documents.jsonl", "a") as f:  # a page (plain types already) at once, one open per page
+            f.writelines(json.dumps({"name": "event", "doc": e}) + "\n" for e in unpack_event_page(doc))
+
+    return write
+
+
 def _run(loop: Loop, md: dict, out: Path) -> float:
     """Run the plan, documents streamed to ``out/documents.jsonl``; returns the seconds it ran."""
     from bluesky import RunEngine
-    from bluesky.callbacks.json_writer import JSONLinesWriter
-    from event_model import sanitize_doc
 
-    writer = JSONLinesWriter(str(out), "documents.jsonl")
     RE = RunEngine({}, context_managers=[])  # Ctrl-C and SIGTERM end the run after the step (below)
-    RE.subscribe(lambda name, doc: writer(name, sanitize_doc(doc)))
+    RE.subscribe(_writer(out))
 
     def stop(signum, frame):
         if loop.user_stop:  # a second Ctrl-C: stop now, move nothing more
@@ -454,14 +558,17 @@ def _run(loop: Loop, md: dict, out: Path) -> float:
         loop.user_stop = True
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_S)
     try:
-        RE(control_plan(loop, Control(name="control"), md))
+        RE(control_plan(loop, md))
     except Exception as exc:  # the watchdog (SafetyStop) or a failure: no further move, keep what was recorded
         if loop.stop_reason is None:
             loop.trip(f"error: {exc}")
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+        sys.setswitchinterval(switch)
     return time.perf_counter() - loop.t0 if loop.t0 is not None else 0.0
 
 

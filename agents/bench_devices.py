@@ -52,13 +52,13 @@ class MappingError(ValueError):
     """A mapping file that cannot describe a bench; the message names the key."""
 
 
-def sim_mapping(prefix: str, stages: int, lockstep: bool = False) -> dict:
+def sim_mapping(prefix: str, stages: int, lockstep: bool = False, lengths: bool = True) -> dict:
     """The mapping of the simulated bench ``python -m ops_jax.ioc --prefix PREFIX --stages N``
-    (``lockstep``: started with ``--lockstep``)."""
+    (``lockstep``: started with ``--lockstep``; ``lengths=False``: without its length readouts)."""
     return {
         "advance": f"{prefix}ADVANCE" if lockstep else None,
         "lines": [{"setpoint": f"{prefix}LINE{i}:SP", "readback": f"{prefix}LINE{i}:RBV",
-                   "length": f"{prefix}LINE{i}:LEN"} for i in range(1, stages + 1)],
+                   **({"length": f"{prefix}LINE{i}:LEN"} if lengths else {})} for i in range(1, stages + 1)],
         "detector": {"power": f"{prefix}DET:POWER", "trace": f"{prefix}SCOPE:TRACE", "tick": f"{prefix}TICK"},
         "evaluation": {"p_pmax": f"{prefix}EVAL:P_PMAX", "p_pbest": f"{prefix}EVAL:P_PBEST"},
     }
@@ -137,6 +137,12 @@ def load_mapping(path) -> dict:
         raise MappingError(f"mapping: {path} is not valid JSON ({exc})") from None
 
 
+def monitored(sig):
+    """The newest value of a monitored signal as its monitor callback left it (``get()`` without its
+    connection checks and metadata handling: a control loop reads a dozen per step)."""
+    return sig._readback
+
+
 class DelayLine(Device):
     """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
     step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a
@@ -173,7 +179,8 @@ class Detector(Device):
         self.power_pv, self.trace_pv, self.tick_pv = power_pv, trace_pv, tick_pv
         self.timeout = timeout
         self._pending: Status | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()  # guards the counters; notified on every frame and on a failure
+        self._failure: Exception | None = None
         self._latest = self._used = None  # the newest counter value seen, the last one used
         self._stamp, self._not_before = 0.0, -math.inf  # the newest frame's time stamp, the earliest one usable
         self.tick_time = 0.0  # time.perf_counter() when the newest frame arrived
@@ -195,6 +202,7 @@ class Detector(Device):
             pending = None
             if self._pending is not None and self._usable():
                 pending, self._pending, self._used = self._pending, None, value
+            self._lock.notify_all()
         if pending is not None and not pending.done:
             pending.set_finished()
 
@@ -222,10 +230,28 @@ class Detector(Device):
             status.set_finished()
         return status
 
-    def fail(self, exc: Exception):
-        """Fail the acquisition being waited for (the watchdog's stop)."""
+    def wait(self, timeout: float) -> bool:
+        """Block until a usable frame has arrived and count it as used (``trigger`` without a status, for
+        a loop in its own thread); False after ``timeout`` s without one; raises the failure of ``fail``."""
+        deadline = time.monotonic() + timeout
         with self._lock:
-            pending, self._pending = self._pending, None
+            while not self._usable():
+                left = deadline - time.monotonic()
+                if self._failure is not None:
+                    raise self._failure
+                if left <= 0:
+                    return False
+                self._lock.wait(left)
+            if self._failure is not None:
+                raise self._failure
+            self._used = self._latest
+            return True
+
+    def fail(self, exc: Exception):
+        """Fail the acquisition being waited for and every later ``wait`` (the watchdog's stop)."""
+        with self._lock:
+            pending, self._pending, self._failure = self._pending, None, exc
+            self._lock.notify_all()
         if pending is not None and not pending.done:
             pending.set_exception(exc)
 
@@ -278,6 +304,13 @@ class Lines(Device):
         self.locked = reason
 
     def set(self, targets):
+        self.move(targets)
+        status = Status(obj=self)
+        status.set_finished()
+        return status
+
+    def move(self, targets) -> np.ndarray:
+        """``set`` without a status: the setpoints sent (wl)."""
         if self.locked:
             raise SafetyStop(f"no move after the watchdog's stop ({self.locked})")
         out, clipped = self.safe(targets)
@@ -288,9 +321,7 @@ class Lines(Device):
         for line, value in zip(self._lines, out):
             line.setpoint.put(float(value) * self.units_per_wl)
         self._sent = out
-        status = Status(obj=self)
-        status.set_finished()
-        return status
+        return out.copy()
 
 
 def _device_class(mapping: dict):

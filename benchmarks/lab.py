@@ -5,8 +5,8 @@ Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
     python -m benchmarks.lab --seconds 60 --rates 100 50 25 --out results/lab [--policy DIR ...]
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
-step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, mean P / P_best
-over the last 80 % of the run.
+step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
+time per step (all its threads), mean P / P_best over the last 80 % of the run.
 """
 
 from __future__ import annotations
@@ -142,11 +142,11 @@ def kill_check(out: Path, stale_s: float, controller: str = "physics", after_eve
 
 
 def table(rows: list) -> str:
-    head = ("| controller | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) | P / P_best | stopped by |\n"
-            "|---|---|---|---|---|---|---|")
+    head = ("| controller | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) | CPU ms/step | P / P_best "
+            "| stopped by |\n|---|---|---|---|---|---|---|---|")
     body = [f"| {r['controller']} | {r['rate']:g} | {r['rate_hz']:.1f} | {r['frames_per_step']:.2f} | "
-            f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['stopped_by']} |"
-            for r in rows]
+            f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['cpu_ms_per_step']:.2f} | "
+            f"{r['p_over_pbest_mean']:.4f} | {r['stopped_by']} |" for r in rows]
     return "\n".join([head, *body])
 
 

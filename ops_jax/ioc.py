@@ -18,12 +18,14 @@ PVs (prefix first; lengths in wavelengths, wl):
   the actuator's span (writes outside it or non-finite are refused).
 - ``LINE{i}:RBV``: where the line is, through the actuator model (gain, backlash, lag, DAC).
 - ``LINE{i}:LEN``: the length readout: the line's offset from the optimum as its calibrated sensor
-  reports it (the environment's observed length).
+  reports it (the environment's observed length); not served with ``--observe-lengths False``.
 - ``DET:POWER``: the detector reading in units of P_max; ``SCOPE:TRACE``: the 2^N - 1 oscilloscope
   samples in units of the ideal pulse peak (both as the detector reads them, with observation noise).
 - ``EVAL:P_PMAX``, ``EVAL:P_PBEST``: the true P / P_max and P / P_best, for evaluation only.
 - ``TICK`` (published last in a tick: a new value means a complete new frame), ``STATUS``,
   ``OVERRUNS``, ``RATE`` (Hz; 0 in lockstep), ``ADVANCE`` (lockstep only).
+- ``RESET``: a non-zero write starts again: setpoints to 0, the lines' offsets from the optimum drawn afresh
+  as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the tick count goes on.
 
 Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
 so a frame stamped after a setpoint write shows that write.
@@ -94,16 +96,24 @@ class Bench:
         self.n = self.env.num_actions
         self.scale = float(self.params.action_scale)
         self.span = float(np.max(self.params.lab.actuator_span_wl)) if self.env.config.imperfect else math.inf
-        k_reset, _, self._k_run = jax.random.split(jax.random.key(seed), 3)
-        obs, self.state = jax.jit(self.env.reset, static_argnums=2)(
-            jax.random.fold_in(k_reset, 0), self.params, drift_episode)
+        self._k_reset, _, self._k_run = jax.random.split(jax.random.key(seed), 3)
+        reset = jax.jit(self.env.reset, static_argnums=2)
+        self._reset = lambda key: reset(key, self.params, drift_episode)
         self._step = jax.jit(self._advance)
-        self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
-        self.t = 0
-        self.frame = self._decode(self.env.layout.latest(np.asarray(obs)), np.zeros(self.n),
-                                  *self._true_power(self.state), False)
+        self.t, self.resets = 0, -1
+        self.reset()
         # compile once, before serving (the result is discarded: the step is pure)
         jax.block_until_ready(self._step(self.state, np.zeros(self.n, np.float32), 1))
+
+    def reset(self) -> dict:
+        """Start again: the lines drawn afresh as at start-up (the k-th reset folds its key by k), the
+        setpoints applied back to 0; the tick count goes on. Returns the new PV values."""
+        self.resets += 1
+        obs, self.state = self._reset(jax.random.fold_in(self._k_reset, self.resets))
+        self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
+        self.frame = self._decode(self.env.layout.latest(np.asarray(obs)), np.zeros(self.n),
+                                  *self._true_power(self.state), False)
+        return self.frame
 
     def _true_power(self, state):
         """(P / P_max, P / P_best) of ``state`` as it truly is (the reset's evaluation values)."""
@@ -150,7 +160,8 @@ def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
         ns[f"sp{i}"] = pvproperty(value=0.0, name=f"LINE{i}:SP", lower_ctrl_limit=-lim, upper_ctrl_limit=lim,
                                   units="wl", precision=6, doc=f"line {i} setpoint (wl)")
         ns[f"rbv{i}"] = pvproperty(value=0.0, name=f"LINE{i}:RBV", read_only=True, units="wl", precision=6)
-        ns[f"len{i}"] = pvproperty(value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6)
+        if bench.env.layout.lengths:  # a bench without length readouts (observe_lengths=False) serves none
+            ns[f"len{i}"] = pvproperty(value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6)
     ns["power"] = pvproperty(value=0.0, name="DET:POWER", read_only=True, precision=6)
     ns["trace"] = pvproperty(value=[0.0] * m, name="SCOPE:TRACE", read_only=True, max_length=m)
     ns["p_pmax"] = pvproperty(value=0.0, name="EVAL:P_PMAX", read_only=True, precision=6)
@@ -161,6 +172,8 @@ def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
     ns["status"] = pvproperty(value="starting", name="STATUS", read_only=True, dtype=ChannelType.STRING)
     ns["advance"] = pvproperty(value=0, name="ADVANCE", dtype=ChannelType.LONG,
                                doc="lockstep: a write advances one tick").putter(_advance)
+    ns["reset"] = pvproperty(value=0, name="RESET", dtype=ChannelType.LONG,
+                             doc="a non-zero write starts the bench again").putter(_reset)
     group_type = type("OPSBench", (_group_class(),), ns)
     return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep)
 
@@ -173,7 +186,8 @@ class _BenchGroupBase:
         at = {} if stamp is None else {"timestamp": stamp}
         for i in range(1, self.bench.n + 1):
             await getattr(self, f"rbv{i}").write(values["position"][i - 1], **at)
-            await getattr(self, f"len{i}").write(values["length"][i - 1], **at)
+            if values["length"] is not None:
+                await getattr(self, f"len{i}").write(values["length"][i - 1], **at)
         await self.power.write(values["power"], **at)
         await self.trace.write(values["trace"], **at)
         await self.p_pmax.write(values["p_pmax"], **at)
@@ -214,6 +228,15 @@ async def _advance(group, instance, value):
     if group.lockstep:
         await group.step()
     return value
+
+
+async def _reset(group, instance, value):
+    """Setpoints to 0, then the bench's ``reset`` (a tick in between moves towards 0), its frame published."""
+    if value:
+        for i in range(1, group.bench.n + 1):
+            await getattr(group, f"sp{i}").write(0.0)
+        await group.publish(group.bench.reset())
+    return 0
 
 
 @functools.lru_cache(maxsize=None)

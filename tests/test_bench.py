@@ -8,6 +8,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -114,6 +115,101 @@ def test_detector_after_a_move_waits_for_a_frame_acquired_later():
     assert status.success and det._used == 3
 
 
+def test_detector_wait_blocks_for_a_new_frame_and_fails_after_the_watchdog():
+    bench, _ = fake_bench()
+    det = bench.detector
+    det.tick.sim_put(1)
+    det.arm()
+    assert det.wait(0.05) and not det.wait(0.05)  # the frame at arm(), then none new
+    threading.Timer(0.05, det.tick.sim_put, (2,)).start()
+    assert det.wait(5) and det._used == 2
+    det.fail(SafetyStop("lost connection to PV T:TICK"))
+    det.tick.sim_put(3)
+    with pytest.raises(SafetyStop, match="T:TICK"):
+        det.wait(1)
+
+
+def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
+    """A RunEngine kicks the flyer off and collects while it runs: every step an event, in pages of plain
+    values; a step that raises fails the run, every step before it kept."""
+    import bluesky.preprocessors as bpp
+    from bluesky import RunEngine
+    from bluesky.utils import FailedStatus
+
+    from agents.bench_flyer import LoopFlyer, fly
+
+    keys = {"x": {"source": "loop", "dtype": "number", "shape": []},
+            "v": {"source": "loop", "dtype": "array", "shape": [2]}}
+    for fail_at in (None, 12):
+        threads = []
+
+        def step():
+            threads.append(threading.current_thread().name)
+            if len(threads) == fail_at:
+                raise SafetyStop("stop here")
+            time.sleep(0.01)
+            return {"x": np.float64(len(threads)), "v": np.arange(2.0)}, {"x": time.time(), "v": time.time()}
+
+        flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(threads) >= 40)
+        docs = []
+        RE = RunEngine({}, context_managers=[])
+        RE.subscribe(lambda name, doc: docs.append((name, doc)))
+        if fail_at is None:
+            RE(bpp.run_wrapper(fly(flyer, 0.05)))
+        else:
+            with pytest.raises(FailedStatus):
+                RE(bpp.run_wrapper(fly(flyer, 0.05)))
+        pages = [d for name, d in docs if name == "event_page"]
+        x = [v for page in pages for v in page["data"]["x"]]
+        assert set(threads) == {"loop-loop"} and len(pages) > (fail_at is None)  # several while it runs
+        assert x == list(range(1, 41) if fail_at is None else range(1, fail_at))
+        assert all(type(v) is float for v in x) and all(type(v) is list for page in pages for v in page["data"]["v"])
+        assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
+
+
+def test_length_readouts_a_controller_reads_must_be_mapped():
+    """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a controller
+    reading them fails before it is compiled, naming itself and the missing entries."""
+    assert not runner.reads_lengths("spgd", None) and runner.reads_lengths("sac", {})
+    assert runner.reads_lengths("physics", None) and not runner.reads_lengths("physics", {"use_lengths": False})
+    env, _ = __import__("ops_jax").make(3, "hard")
+    assert runner.observes_lengths(env)
+    mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
+    assert all("length" not in line for line in mapping["lines"])
+    runner.check_lengths("spgd", False, env, mapping)
+    with pytest.raises(MappingError, match=r"controller physics .*lines\[0\].length, lines\[1\].length, lines\[2\].length"):
+        runner.load_controller("physics", mapping, {}, {}, seed=0)
+    partial = check_mapping({**sim_mapping("T:", 3), "lines": [*sim_mapping("T:", 2)["lines"],
+                                                                 {"setpoint": "T:LINE3:SP", "readback": "T:LINE3:RBV"}]})
+    with pytest.raises(MappingError, match=r"lacks lines\[2\].length;"):
+        runner.check_lengths("DIR", True, env, partial)
+
+
+def test_bench_reset_is_a_fresh_start():
+    """Bench.reset: the lines back near the optimum (a new reset draw of their offsets), the tick count going on."""
+    sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
+    first = sim.frame
+    for _ in range(3):
+        wreck = sim.tick([1.25, -1.2, 1.3])
+    assert np.all(np.abs(wreck["length"]) > 0.9) and np.allclose(sim.command, [1.25, -1.2, 1.3])
+    again = sim.reset()
+    assert sim.t == 3 and sim.resets == 1 and np.all(sim.command == 0) and np.all(again["position"] == 0)
+    assert np.all(np.abs(again["length"]) < 0.5) and not np.array_equal(again["length"], first["length"])
+
+
+def test_bench_without_length_readouts_serves_no_length_pvs():
+    """observe_lengths=False: the frame has no lengths, the PV group no LINEi:LEN, and a tick still publishes."""
+    import asyncio
+
+    sim = ioc.Bench(2, "hard", {"action_scale": 1.0, "model": "phasor", "observe_lengths": False}, seed=0)
+    values = sim.tick([0.01, -0.01])
+    assert values["length"] is None and values["trace"].shape == (3,)
+    group = ioc.pv_group(sim, "NOLEN:", 100.0, lockstep=True)
+    assert not any(name.endswith(":LEN") for name in group.pvdb) and "NOLEN:LINE1:SP" in group.pvdb
+    asyncio.run(group.publish(values))
+    assert group.tick.value == sim.t == 1
+
+
 def test_ioc_socket_sends_without_nagle_delay():
     """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle on)."""
     import asyncio
@@ -188,11 +284,12 @@ def test_light_imports_stay_light():
 
 @pytest.fixture(scope="module")
 def iocs(tmp_path_factory):
-    """Three simulated benches started together: lockstep (lab), free-running, one to kill."""
+    """Four simulated benches started together: lockstep (lab), free-running, one to kill, one to reset."""
     tmp = tmp_path_factory.mktemp("iocs")
     common = ["--stages", "3", "--mode", "hard", "--model", "phasor"]
     args = {"lockstep": ["--prefix", "LS:", "--imperfections", "lab", "--lockstep"],
-            "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"]}
+            "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"],
+            "reset": ["--prefix", "RS:", "--imperfections", "lab", "--lockstep"]}
     started = {k: Process("ops_jax.ioc", common + a, ca_env(), tmp / f"{k}.log") for k, a in args.items()}
     try:
         yield {k: p.wait_for("serving", START_S) for k, p in started.items()}
@@ -267,7 +364,7 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
 def test_run_with_the_trim_probes_once_more_per_step(iocs, tmp_path):
     """SPGD wrapped in the extremum-seeking trim (agents.trim) over Channel Access: two probes per step."""
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
-                               "--trim", "ki=0.003", "jump=0.25", "--seconds", "3"))
+                               "--trim", "ki=0.003", "jump=0.25", "--seconds", "3", "--stale-s", "5"))
     assert rc == 0, log
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
@@ -300,11 +397,15 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert rc == runner.EXIT_WATCHDOG, log
     assert summary["stopped_by"].startswith("lost connection to PV KV:"), summary
+    said = [line for line in log.splitlines() if not line.startswith(("{", "}", ' "'))]  # not the summary
+    assert len(said) <= 2 and "Traceback" not in log and "Run aborted" not in log, log
+    assert said[-1] == f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", log
     assert summary["watchdog_time"] - killed_at < 2.0, summary
     docs = documents(tmp_path)
     assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "fail"
     events = [d["doc"] for d in docs if d["name"] == "event"]
-    assert len(events) >= 20 and all(e["time"] <= summary["watchdog_time"] for e in events)
+    sent = [e["timestamps"]["control_setpoint_wl"] for e in events]  # a step's time (its event's: the page's)
+    assert len(events) >= 20 and all(t <= summary["watchdog_time"] for t in sent)
 
 
 def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
@@ -323,3 +424,101 @@ def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
     docs = documents(tmp_path)
     assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success"
     assert (tmp_path / "out" / "power.png").exists()
+
+
+RESET = """
+import json, sys
+from caproto.sync.client import read, write
+
+p = sys.argv[1]
+get = lambda pv: read(p + pv, timeout=20, repeater=False).data.tolist()
+put = lambda pv, value: write(p + pv, [value], notify=True, timeout=20, repeater=False)
+state = lambda: {"tick": get("TICK")[0], "len": [get(f"LINE{i}:LEN")[0] for i in (1, 2, 3)], "reset": get("RESET")[0],
+                 "sp": [get(f"LINE{i}:SP")[0] for i in (1, 2, 3)], "rbv": [get(f"LINE{i}:RBV")[0] for i in (1, 2, 3)]}
+for i, target in zip((1, 2, 3), (1.25, -1.2, 1.3)):
+    put(f"LINE{i}:SP", target)
+for _ in range(3):
+    put("ADVANCE", 1)
+wreck = state()
+put("RESET", 1)
+reset = state()
+put("ADVANCE", 1)
+print(json.dumps({"wreck": wreck, "reset": reset, "next": state()}))
+"""
+
+
+def test_ioc_reset_pv_starts_the_bench_again(iocs, tmp_path):
+    """A write to RESET over Channel Access: setpoints to 0, lines at the optimum, the tick count going on."""
+    bench = iocs["reset"]
+    out = subprocess.run([sys.executable, "-c", RESET, "RS:"], env=bench.env, cwd=ROOT, capture_output=True,
+                         text=True, timeout=START_S)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    wreck, reset, later = got["wreck"], got["reset"], got["next"]
+    assert wreck["tick"] == 3 and np.all(np.abs(wreck["rbv"]) > 0.9), got  # the actuators, gain errors and all
+    assert np.all(np.abs(wreck["len"]) > 0.9), got  # the lines far from the optimum
+    assert reset["sp"] == [0.0] * 3 and reset["rbv"] == [0.0] * 3 and reset["reset"] == 0, got
+    assert reset["tick"] == 3 and np.all(np.abs(reset["len"]) < 0.5), got  # a reset's draw near the optimum
+    assert later["tick"] == 4 and np.allclose(later["rbv"], 0, atol=0.1), got
+    assert np.allclose(later["len"], reset["len"], atol=0.1), got  # held there (setpoints 0), drift aside
+
+
+INTERRUPTS = """
+import json, os, random, signal, sys, threading, time
+from pathlib import Path
+from agents import bench
+from agents.bench_devices import check_mapping, connect, disconnect, make_bench, sim_mapping
+
+prefix, out, runs = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
+mapping = check_mapping({**sim_mapping(prefix, 3, lengths=False), "safety": {"stale_s": 5.0}})
+agent, _, scale, window = bench.load_controller("spgd", mapping, {}, {}, seed=0)
+device, lines = make_bench(mapping)
+connect(device, 30)
+device.detector.arm()
+rng = random.Random(0)
+for k in range(runs):
+    loop = bench.Loop(device, lines, mapping, agent, scale, window, seconds=60, rate=100)
+    loop.watch()
+    sent = []
+    def interrupt(loop=loop, delay=rng.uniform(0, 0.3), signum=(signal.SIGINT, signal.SIGTERM)[k % 2]):
+        while loop.t0 is None:
+            time.sleep(0.001)
+        time.sleep(delay)
+        sent.append(time.perf_counter())
+        os.kill(os.getpid(), signum)
+    threading.Thread(target=interrupt, daemon=True).start()
+    (out / str(k)).mkdir(parents=True)
+    elapsed = bench._run(loop, {"plan_name": "interrupts"}, out / str(k))
+    s = bench.summarize(loop, "spgd", elapsed)
+    print(json.dumps({"stopped_by": s["stopped_by"], "steps": s["steps"], "after_s": time.perf_counter() - sent[0]}),
+          flush=True)
+disconnect(device)
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def test_one_interrupt_ends_the_run_after_the_step_20_times_in_a_row(iocs, tmp_path):
+    """20 runs in one process on a bench without length readouts (SPGD), each ended by one SIGINT or
+    SIGTERM at a random moment of the run: each stops by the user within a step and a flush, its
+    documents complete."""
+    runs = 20
+    out = subprocess.run([sys.executable, "-c", INTERRUPTS, "FR:", str(tmp_path), str(runs)], env=iocs["free"].env,
+                         cwd=ROOT, capture_output=True, text=True, timeout=START_S)
+    assert out.returncode == 0, out.stderr
+    results = [json.loads(line) for line in out.stdout.splitlines()]
+    assert len(results) == runs, out.stdout + out.stderr
+    for k, r in enumerate(results):
+        assert r["stopped_by"] == "user" and r["steps"] >= 1 and r["after_s"] < 2.0, (k, r)
+        docs = [json.loads(line) for line in (tmp_path / str(k) / "documents.jsonl").read_text().splitlines()]
+        events = [d["doc"] for d in docs if d["name"] == "event"]
+        assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success", (k, docs[-1])
+        assert len(events) == r["steps"] and [e["seq_num"] for e in events] == list(range(1, r["steps"] + 1))
+        assert not any(key.startswith("bench_length") for key in events[0]["data"]), events[0]["data"]
+
+
+def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--no-lengths",
+                               "--controller", "physics", "--set", "starts=2"))
+    said = [line for line in log.splitlines() if line.startswith("agents.bench:")]
+    assert rc == 2 and len(said) == 1 and "physics" in said[0] and "lines[2].length" in said[0], log
