@@ -150,7 +150,8 @@ class Sweep:
         units = []
         for group in groups:
             cells = [self.train_cell(f"{prefix}-s{s}", algo, env, s, extra, steps) for s in group]
-            cost = len(group) * algo_entry(algo).sweep.cell_seconds(cells[0][1]["steps"], env["stages"]) * factor
+            config = cells[0][1]
+            cost = len(group) * algo_entry(algo).train_s(config["hyper"], config["steps"], env["stages"]) * factor
             units.append(dict(key=prefix if len(groups) == 1 else cells[0][0], algo=algo, kind="train", env=env,
                               seeds=group, prefix=prefix, cells=cells, deps=[], cost=round(cost, 1),
                               hyper=extra or {}, steps=steps))
@@ -163,7 +164,7 @@ class Sweep:
         cells = [(label, self._eval_config(ckpt, env, seed)) for label, env, seed in evals]
         factor = IMPERFECT_COST if any("imperfections" in env for _, env, _ in evals) else 1.0
         return dict(key=key, algo=algo, kind="eval", train=train, evals=evals, cells=cells, deps=[],
-                    cost=len(cells) * algo_entry(algo).sweep.eval_s * factor)
+                    cost=len(cells) * algo_entry(algo).cost.eval_s * factor)
 
     def units(self, sections) -> list:
         """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once:
