@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import DroQConfig, TD3Config, droq, offpolicy
+from agents import DroQConfig, TD3Config, droq, offpolicy, replay
 from agents.base import Policy
 from benchmarks import budget
 
@@ -130,8 +130,8 @@ def test_training_reward_is_the_learners_choice():
 def test_td3_update_to_data_ratio():
     """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep updates_per_iter."""
     c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)
-    assert offpolicy.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
-    assert offpolicy.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
+    assert replay.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
+    assert replay.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
     budget_cfg = TD3Config.preset("budget")
     assert budget_cfg.num_envs == 1 and budget_cfg.utd_ratio >= 1 and budget_cfg.total_steps <= 20_000
 
