@@ -3,13 +3,12 @@ learning on a small budget, determinism, vmapped seeds, checkpoints, bad hyperpa
 snapshots standing for shorter runs, and the report of tiny records."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import agents
 from agents import DroQConfig, TD3Config, droq, offpolicy, replay
-from agents.base import Policy
+from idle import learned_and_idle
 from benchmarks import budget
 
 ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
@@ -24,9 +23,8 @@ def trained():
 
 
 def test_droq_learns_a_small_configuration(trained):
-    zero = Policy(lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], 3)), c))
-    baseline = agents.evaluate(zero, ENV, episodes=16, seed=1).summary["final_mean"]
-    learned = agents.evaluate(trained, ENV, episodes=16, seed=1).summary["final_mean"]
+    summary, baseline = learned_and_idle(trained, ENV, 16)
+    learned = summary["final_mean"]
     assert learned >= max(0.8, baseline + 0.25), (learned, baseline)
     assert trained.curve["step"].tolist() == [256 + 512 * k for k in range(6)]
     assert trained.hyper["config"] == "budget" and trained.hyper["utd_ratio"] == 2.0
