@@ -16,6 +16,11 @@ EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: 
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
 
 
+def seed_label(prefix: str, seed: int) -> str:
+    """The label of the training cell of seed ``seed`` among a section's cells ``prefix`` (one controller)."""
+    return f"{prefix}-s{seed}"
+
+
 class Section:
     """One part of the sweep. ``default``: part of a run without ``--only``."""
 
