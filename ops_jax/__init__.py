@@ -14,7 +14,7 @@ from ops_jax.env import (
     OPSEnv,
     make,
 )
-from ops_jax.rollout import Rollout, rollout
+from ops_jax.trajectories import Rollout, rollout
 from ops_jax.spec import EnvSpec
 
 __version__ = "0.1.0"
