@@ -319,9 +319,9 @@ class ReplayConfig(AlgoConfig):
     ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two)."""
 
     def updates_per_step(self) -> float:
-        per_iter = self.updates_per_iter if self.updates_per_iter is not None else round(
-            self.utd_ratio * self.num_envs * self.unroll)
-        return per_iter / (self.num_envs * self.unroll)
+        from agents.replay import updates_per_iter
+
+        return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
 
     def check(self):
         """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration, the buffer
