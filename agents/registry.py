@@ -104,8 +104,19 @@ class Algo:
         """``cost.train_s`` of a run of ``steps`` env steps with ``hyper`` (its gradient steps from the config)."""
         return self.cost.train_s(steps, steps * self.config.from_hyper(hyper).updates_per_step(), stages)
 
+    def members(self) -> tuple:
+        """The names its module must provide: ``AlgoModule``'s, and ``SeedsModule``'s / ``OffPolicyModule``'s where
+        declared."""
+        return ("train", "make_policy", "params_template", *("train_seeds",) * (self.vmaps_seeds or self.off_policy),
+                *("LEARNER",) * self.off_policy)
+
     def load(self) -> AlgoModule:
-        return importlib.import_module(self.module)
+        """Its module (TypeError naming what the module lacks of ``members``)."""
+        module = importlib.import_module(self.module)
+        missing = [m for m in self.members() if not hasattr(module, m)]
+        if missing:
+            raise TypeError(f"algo {self.name!r}: module {self.module} lacks {missing}, which its entry declares")
+        return module
 
 
 class Registry(dict):

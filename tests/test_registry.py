@@ -127,3 +127,11 @@ def test_registered_learner_in_the_budget_section(tiny):
     rec = budget.compute(cell)
     assert set(rec["scores"]) == {str(k) for k in cell["checkpoints"]} and not rec["errors"]
     assert all(0.5 < v <= 1.0 for v in rec["scores"].values())
+
+
+def test_an_entry_declares_what_its_module_provides(tiny):
+    """The tiny module trains one seed per call: an entry declaring more is refused when it is loaded."""
+    assert tiny.load() is base.algo_module("tiny")
+    for declared in ({"vmaps_seeds": True}, {"off_policy": True}):
+        with pytest.raises(TypeError, match="lacks .*train_seeds"):
+            dataclasses.replace(tiny, **declared).load()
