@@ -6,7 +6,9 @@ curve and the wall-time split (simulation estimated by timing the wrapped env al
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import time
+from typing import Callable
 import warnings
 
 import jax
@@ -35,6 +37,40 @@ def obs_spec(size: int):
     from brax.training.acme import specs
 
     return specs.Array((size,), jnp.dtype("float32"))
+
+
+def networks(env_config: dict, factory, normalize_observations: bool):
+    """(brax's networks of ``factory`` for the training environment of ``env_config``, observation size)."""
+    from brax.training.acme import running_statistics
+
+    from agents.envs import built
+
+    env, _ = built(train_env_config(env_config))
+    normalize = running_statistics.normalize if normalize_observations else (lambda x, y: x)
+    net = factory(observation_size=env.observation_size, action_size=env.num_actions,
+                  preprocess_observations_fn=normalize)
+    return net, env.observation_size
+
+
+def normalizer_template(size: int):
+    """brax's running observation statistics of ``size`` entries, freshly initialised."""
+    from brax.training.acme import running_statistics
+
+    return running_statistics.init_state(obs_spec(size))
+
+
+def trained(algo: str, train_fn, env_config: dict, c, seed: int, progress_fn, num_timesteps: int, num_evals: int,
+            **options) -> base.TrainResult:
+    """The TrainResult of brax's ``train_fn`` (its own ``options``) with config ``c`` on the Brax adapter of
+    ``env_config``, evaluated deterministically from ``EVAL_FIRST_EPISODE``, its curve recorded."""
+    env = make_brax_env(env_config)
+    eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
+    rec = Recorder(progress_fn)
+    t0 = time.perf_counter()
+    _, params, _ = train_fn(environment=env, eval_env=eval_env, num_timesteps=num_timesteps,
+                            episode_length=env.max_steps, num_envs=c.num_envs, seed=int(seed), num_evals=num_evals,
+                            num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec, **options)
+    return rec.result(algo, env, env_config, c, params, time.perf_counter() - t0, seed)
 
 
 _SIM_SECONDS: dict = {}
@@ -145,6 +181,17 @@ def training_config(config_type, env_config: dict, config, total_steps: int | No
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
     return base.check_env_config(env_config), c
+
+
+def policy_maker(networks_module: str, networks_of: Callable, config_type) -> Callable:
+    """A brax trainer's ``make_policy(env_config, hyper)``: ``make_inference_fn`` of the module
+    ``networks_module`` at the networks ``networks_of(env_config, config)``, with deterministic actions."""
+    def make_policy(env_config: dict, hyper: dict) -> base.Policy:
+        module = importlib.import_module(networks_module)
+        net, _ = networks_of(env_config, config_type.from_hyper(hyper))
+        return deterministic_policy(module.make_inference_fn, net)
+
+    return make_policy
 
 
 def deterministic_policy(make_inference_fn, net) -> base.Policy:

@@ -79,6 +79,10 @@ class AlgoConfig:
     def check(self) -> None:
         """Constraints between fields (ValueError naming them)."""
 
+    def updates_per_step(self) -> float:
+        """Gradient steps per env step of training (0 for a controller that trains no network)."""
+        return 0.0
+
     @classmethod
     def names(cls) -> list:
         """The fields that can be set (``config``, the preset's name, is not one of them)."""
@@ -248,6 +252,11 @@ class PPOConfig(AlgoConfig):
     num_evals: int = field(COUNT)
     num_eval_envs: int = field(COUNT)
 
+    def updates_per_step(self) -> float:
+        """Per training step brax collects ``batch_size * num_minibatches * unroll_length`` env steps and
+        takes ``num_updates_per_batch * num_minibatches`` gradient steps."""
+        return self.num_updates_per_batch / (self.batch_size * self.unroll_length)
+
     def check(self):
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise ValueError(f"batch_size * num_minibatches must be divisible by num_envs, got "
@@ -295,6 +304,9 @@ class SACConfig(AlgoConfig):
     num_evals: int = field(COUNT)
     num_eval_envs: int = field(COUNT)
 
+    def updates_per_step(self) -> float:
+        return self.grad_updates_per_step / self.num_envs
+
     def check(self):
         if self.min_replay_size > self.max_replay_size:
             raise ValueError(f"min_replay_size must be <= max_replay_size, got {self.min_replay_size} > "
@@ -302,7 +314,37 @@ class SACConfig(AlgoConfig):
 
 
 @dataclasses.dataclass(frozen=True)
-class TD3Config(AlgoConfig):
+class ReplayConfig(AlgoConfig):
+    """Base of the off-policy learners' configs (``agents.offpolicy``): gradient steps per iteration are
+    ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two)."""
+
+    def updates_per_step(self) -> float:
+        from agents.replay import updates_per_iter
+
+        return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
+
+    def check(self):
+        """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration, the buffer
+        and batch sizes."""
+        c = self
+        if (c.updates_per_iter is None) == (c.utd_ratio is None):
+            raise ValueError(f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
+                             f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}")
+        if c.utd_ratio is not None:
+            per_iter = c.utd_ratio * c.num_envs * c.unroll
+            if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
+                raise ValueError(f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
+                                 f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}")
+        if c.buffer_size < c.num_envs * c.unroll:
+            raise ValueError(f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}")
+        if c.learning_starts < c.batch_size:
+            raise ValueError(f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}")
+        if c.batch_size > c.buffer_size:
+            raise ValueError(f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}")
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config(ReplayConfig):
     """TD3 (``agents.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
     steps). Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio`` per env step (one of the two)."""
 
@@ -351,31 +393,9 @@ class TD3Config(AlgoConfig):
     utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
     train_reward: str | None = field(TRAIN_REWARD)
 
-    def check(self):
-        check_replay(self)
-
-
-def check_replay(c) -> None:
-    """The constraints of an off-policy config ``c``: one of updates_per_iter and utd_ratio, a whole
-    number of gradient steps per iteration, the buffer and batch sizes."""
-    if (c.updates_per_iter is None) == (c.utd_ratio is None):
-        raise ValueError(f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
-                         f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}")
-    if c.utd_ratio is not None:
-        per_iter = c.utd_ratio * c.num_envs * c.unroll
-        if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
-            raise ValueError(f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
-                             f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}")
-    if c.buffer_size < c.num_envs * c.unroll:
-        raise ValueError(f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}")
-    if c.learning_starts < c.batch_size:
-        raise ValueError(f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}")
-    if c.batch_size > c.buffer_size:
-        raise ValueError(f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}")
-
 
 @dataclasses.dataclass(frozen=True)
-class DroQConfig(AlgoConfig):
+class DroQConfig(ReplayConfig):
     """DroQ (``agents.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
     ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
 
@@ -413,6 +433,3 @@ class DroQConfig(AlgoConfig):
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
     train_reward: str | None = field(TRAIN_REWARD)
-
-    def check(self):
-        check_replay(self)

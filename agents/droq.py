@@ -23,9 +23,8 @@ from typing import Any, Callable, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 
-from agents import base, brax_compat, offpolicy  # noqa: F401  (brax_compat: quiet brax import)
+from agents import base, brax_compat, offpolicy, replay  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import DroQConfig
-from agents.envs import built, train_env_config
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
@@ -33,7 +32,7 @@ LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 def _networks(h: dict, num_actions: int):
     import flax.linen as nn
 
-    MLP = offpolicy.mlp_module()
+    MLP = replay.mlp_module()
 
     class Actor(nn.Module):
         """(mean, log std) of the pre-tanh Gaussian."""
@@ -54,43 +53,14 @@ def _networks(h: dict, num_actions: int):
     return Actor(), Critic()
 
 
-def _stored_config(hyper: dict) -> DroQConfig:
-    return DroQConfig.from_hyper({k: v for k, v in hyper.items() if k in DroQConfig.names() or k == "config"})
+def _greedy(actor, params, obs):
+    """The deterministic action a = tanh(mean) at standardised ``obs``."""
+    return jnp.tanh(actor.apply(params, obs)[0])
 
 
-def params_template(env_config: dict, hyper: dict):
-    """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-    env, _ = built(train_env_config(env_config))
-    actor, _ = _networks(_stored_config(hyper).to_hyper(), env.num_actions)
-    d = env.observation_size
-    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": offpolicy.identity_norm(d)}
-
-
-def make_policy(env_config: dict, hyper: dict) -> base.Policy:
-    """The deterministic actor: a = tanh(mean((obs - mean_obs) / std_obs)); ignores key, carry and probe."""
-    env, _ = built(train_env_config(env_config))
-    actor, _ = _networks(_stored_config(hyper).to_hyper(), env.num_actions)
-
-    def act(params, carry, obs, key, probe):
-        del key, probe
-        mean, _ = actor.apply(params["actor"], offpolicy.normalise(params["obs_norm"], obs))
-        return jnp.tanh(mean), carry
-
-    return base.Policy(lambda key, obs: (), act)
-
-
-class DroQState(NamedTuple):
-    actor: Any  # flax TrainState
-    critic: Any  # flax TrainState
-    critic_target: Any  # params
-    log_alpha: Any  # flax TrainState of {"log_alpha": the log temperature}
-    obs_norm: Any
-    buffer: Any
-    env_state: Any
-    obs: jax.Array
-    key: jax.Array
-    updates: jax.Array  # gradient steps so far
-    env_params: Any
+DroQState = NamedTuple("DroQState", [("actor", Any), ("critic", Any), ("critic_target", Any),
+                                     ("log_alpha", Any),  # flax TrainState of {"log_alpha": the log temperature}
+                                     *replay.STATE])
 
 
 def _sample(actor, params, obs, key):
@@ -107,20 +77,20 @@ def _build(env, h):
 
     actor, critic = _networks(h, env.num_actions)
     d, n = env.observation_size, env.num_actions
-    buffer = offpolicy.replay_buffer(env, h)
+    buffer = replay.replay_buffer(env, h)
     gamma, tau, target_entropy = h["gamma"], h["tau"], h["target_entropy"] * n
     actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
     alpha_tx = optax.adam(h["alpha_lr"]) if h["alpha_lr"] > 0 else optax.set_to_zero()
 
     def explore(ts, key, obs, random):
         k1, k2 = jax.random.split(key)
-        sampled, _ = _sample(actor, ts.actor.params, offpolicy.normalise(ts.obs_norm, obs), k1)
+        sampled, _ = _sample(actor, ts.actor.params, replay.normalise(ts.obs_norm, obs), k1)
         uniform = jax.random.uniform(k2, sampled.shape, minval=-1, maxval=1)
         return jnp.where(random, uniform, sampled)
 
     def critic_loss(cp, ts, obs, batch, key):
         k_pi, k_drop_t, k_drop = jax.random.split(key, 3)
-        nobs = offpolicy.normalise(ts.obs_norm, batch["next_obs"])
+        nobs = replay.normalise(ts.obs_norm, batch["next_obs"])
         a2, logp2 = _sample(actor, ts.actor.params, nobs, k_pi)
         q_t = critic.apply(ts.critic_target, nobs, a2, True, rngs={"dropout": k_drop_t}).min(0)
         alpha = jnp.exp(ts.log_alpha.params["log_alpha"])
@@ -137,7 +107,7 @@ def _build(env, h):
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
         key, k_critic, k_actor = jax.random.split(ts.key, 3)
-        obs = offpolicy.normalise(ts.obs_norm, batch["obs"])
+        obs = replay.normalise(ts.obs_norm, batch["obs"])
         closs, grads = jax.value_and_grad(critic_loss)(ts.critic.params, ts, obs, batch, k_critic)
         new_critic = ts.critic.apply_gradients(grads=grads)
         ts = ts._replace(critic=new_critic, buffer=buf, key=key,
@@ -149,20 +119,21 @@ def _build(env, h):
             return ts._replace(actor=ts.actor.apply_gradients(grads=g),
                                log_alpha=ts.log_alpha.apply_gradients(grads={"log_alpha": alpha_grad})), aloss
 
-        ts, aloss = offpolicy.delayed(ts, h, actor_step)
+        ts, aloss = replay.delayed(ts, h, actor_step)
         return ts, (closs, aloss)
 
     def init(key, env_params):
-        ap, cp, buf, env_state, obs, k_run = offpolicy.start(env, h, buffer, actor, critic, key, env_params)
+        ap, cp, buf, env_state, obs, k_run = replay.start(env, h, buffer, actor, critic, key, env_params)
         log_alpha = {"log_alpha": jnp.log(jnp.float32(h["init_alpha"]))}
-        return DroQState(offpolicy.train_state(ap, actor_tx), offpolicy.train_state(cp, critic_tx), cp,
-                         offpolicy.train_state(log_alpha, alpha_tx), offpolicy.identity_norm(d), buf, env_state, obs,
+        return DroQState(replay.train_state(ap, actor_tx), replay.train_state(cp, critic_tx), cp,
+                         replay.train_state(log_alpha, alpha_tx), replay.identity_norm(d), buf, env_state, obs,
                          k_run, jnp.int32(0), env_params)
 
-    return dict(init=init, **offpolicy.replay_loop(env, h, buffer, explore, update))
+    return dict(init=init, **replay.replay_loop(env, h, buffer, explore, update))
 
 
-LEARNER = offpolicy.Learner("droq", DroQConfig, _build, make_policy)
+LEARNER = offpolicy.Learner("droq", DroQConfig, _build, _networks, _greedy)
+make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,

@@ -1,10 +1,10 @@
-"""The shared machinery of the off-policy learners (``agents.td3``, ``agents.droq``): replay buffer,
-exploration / update loop as jitted ``lax.scan`` chunks, seeds vmapped, the training driver.
+"""The training driver of the off-policy learners (``agents.td3``, ``agents.droq``): seeds vmapped, the
+warm-up and the training chunks (their building blocks: ``agents.replay``), the curve, snapshots and continued runs.
 
 A learner is a ``Learner``: its name, config type, ``build(env, h)`` (its networks, exploration
-and update, wired through ``replay_loop``) and ``make_policy``. Its training state is a NamedTuple
-with at least the fields ``actor`` (a flax TrainState), ``obs_norm``, ``buffer``, ``env_state``,
-``obs``, ``key``, ``updates`` and ``env_params``; the stored policy params are
+and update, wired through ``agents.replay.replay_loop``), ``networks`` and ``greedy`` (its policy and params
+template). Its training state is a NamedTuple with at least the fields ``actor`` (a flax TrainState) and
+``agents.replay.STATE``'s (``obs_norm``, ``buffer``, ...); the stored policy params are
 ``{"actor": actor params, "obs_norm": {mean, std}}``.
 
 One training *iteration* = ``unroll`` batched env steps of ``num_envs`` instances (exploration
@@ -45,121 +45,45 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import base
+from agents import base, replay
 from agents.envs import built, train_env_config
 
 
 class Learner(NamedTuple):
-    """An off-policy learner: ``build(env, h) -> dict(init, warmup, fit_norm, train_chunk)``,
-    ``make_policy(env_config, hyper) -> base.Policy``."""
+    """An off-policy learner: ``build(env, h) -> dict(init, warmup, fit_norm, train_chunk)``, its
+    ``networks(h, num_actions) -> (actor, critic)`` (flax modules) and ``greedy(actor, params, obs) -> action``
+    (its deterministic action at standardised observations)."""
 
     name: str
     config_type: type
     build: Callable
-    make_policy: Callable
+    networks: Callable
+    greedy: Callable
 
+    def stored_config(self, hyper: dict):
+        """The config of a stored ``hyper`` dict (keys that are not fields are left out)."""
+        names = {*self.config_type.names(), "config"}
+        return self.config_type.from_hyper({k: v for k, v in hyper.items() if k in names})
 
-def normalise(norm, obs):
-    return (obs - norm["mean"]) / norm["std"]
+    def _actor(self, env_config: dict, hyper: dict):
+        env, _ = built(train_env_config(env_config))
+        return self.networks(self.stored_config(hyper).to_hyper(), env.num_actions)[0], env.observation_size
 
+    def params_template(self, env_config: dict, hyper: dict):
+        """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
+        actor, d = self._actor(env_config, hyper)
+        return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": replay.identity_norm(d)}
 
-def updates_per_iter(h: dict) -> int:
-    """Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio * num_envs * unroll``."""
-    if h["updates_per_iter"] is not None:
-        return h["updates_per_iter"]
-    return round(h["utd_ratio"] * h["num_envs"] * h["unroll"])
+    def make_policy(self, env_config: dict, hyper: dict) -> base.Policy:
+        """The deterministic actor at observations standardised by the params' ``obs_norm``; ignores key, carry
+        and probe."""
+        actor, _ = self._actor(env_config, hyper)
 
+        def act(params, carry, obs, key, probe):
+            del key, probe
+            return self.greedy(actor, params["actor"], replay.normalise(params["obs_norm"], obs)), carry
 
-def identity_norm(d: int) -> dict:
-    """Observation statistics that leave ``d``-dimensional observations unchanged."""
-    return {"mean": jnp.zeros(d), "std": jnp.ones(d)}
-
-
-def train_state(params, tx):
-    """A flax TrainState with an array step count (vmapped over seeds like every leaf)."""
-    from flax.training.train_state import TrainState
-
-    return TrainState.create(apply_fn=None, params=params, tx=tx).replace(step=jnp.int32(0))
-
-
-def replay_buffer(env, h):
-    """brax's uniform replay queue of (obs, action, reward, discount, next_obs) transitions."""
-    from brax.training.replay_buffers import UniformSamplingQueue
-
-    d, n = env.observation_size, env.num_actions
-    dummy = dict(obs=jnp.zeros(d), action=jnp.zeros(n), reward=jnp.zeros(()), discount=jnp.zeros(()),
-                 next_obs=jnp.zeros(d))
-    return UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
-
-
-def start(env, h, buffer, actor, critic, key, env_params):
-    """(actor params, critic params, buffer state, env state, first observations, run key) of a fresh run."""
-    k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
-    dummy_obs, dummy_act = jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.num_actions))
-    obs, env_state = env.reset_batch(jax.random.split(k_env, h["num_envs"]), env_params)
-    return (actor.init(k_a, dummy_obs), critic.init(k_c, dummy_obs, dummy_act), buffer.init(k_buf), env_state, obs,
-            k_run)
-
-
-def delayed(ts, h, actor_step):
-    """``actor_step(ts) -> (ts, actor loss)`` every ``policy_delay`` gradient steps (NaN loss
-    otherwise), then the gradient step count advanced."""
-    ts, aloss = jax.lax.cond(ts.updates % h["policy_delay"] == 0, actor_step, lambda ts: (ts, jnp.float32(jnp.nan)), ts)
-    return ts._replace(updates=ts.updates + 1), aloss
-
-
-def replay_loop(env, h, buffer, explore, update) -> dict:
-    """The jitted-scan pieces of training around ``explore(ts, key, obs, random) -> actions`` and
-    ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
-    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's exploration
-    with ``random=False``; returns their observations (T, D)),
-    ``fit_norm(ts, obs)`` and ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics)."""
-    b, d = h["num_envs"], env.observation_size
-
-    def env_step(ts, key, random):
-        k_act, k_env = jax.random.split(key)
-        action = explore(ts, k_act, ts.obs, random)
-        obs2, env_state, reward, term, _, info = env.step_batch(jax.random.split(k_env, b), ts.env_state,
-                                                               action, ts.env_params)
-        tr = dict(obs=ts.obs, action=action, reward=reward, discount=1.0 - term.astype(jnp.float32),
-                  next_obs=info["final_observation"])
-        return ts._replace(env_state=env_state, obs=obs2), tr
-
-    def collect(ts, random):
-        def body(ts, _):
-            key, k = jax.random.split(ts.key)
-            ts, tr = env_step(ts._replace(key=key), k, random)
-            return ts._replace(buffer=buffer.insert(ts.buffer, tr)), (tr["reward"], tr["obs"])
-        return jax.lax.scan(body, ts, None, length=h["unroll"])
-
-    def iteration(ts, _):
-        ts, (reward, _) = collect(ts, False)
-        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=updates_per_iter(h))
-        return ts, dict(reward=reward.mean(), critic_loss=closs.mean(), actor_loss=jnp.nanmean(aloss))
-
-    def train_chunk(ts, length):
-        ts, m = jax.lax.scan(iteration, ts, None, length=length)
-        return ts, jax.tree.map(jnp.mean, m)
-
-    def warmup(ts, length, random=True):
-        def body(ts, _):
-            ts, (_, obs) = collect(ts, random)
-            return ts, obs
-
-        ts, obs = jax.lax.scan(body, ts, None, length=length)
-        return ts, obs.reshape(-1, d)
-
-    def fit_norm(ts, obs):
-        """Freeze the observation statistics from the warm-up's observations ``obs`` (T, D) that
-        the buffer holds (the last ``buffer_size``); std floored at 1e-2."""
-        if not h["normalize_obs"]:
-            return ts
-        kept = obs[-h["buffer_size"]:]
-        mean = kept.mean(0)
-        std = jnp.sqrt(((kept - mean) ** 2).mean(0))
-        return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(std, 1e-2)})
-
-    return dict(warmup=warmup, fit_norm=fit_norm, train_chunk=train_chunk)
+        return base.Policy(lambda key, obs: (), act)
 
 
 def seed_axes(ts):
@@ -334,13 +258,7 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up).
     ``start_from`` (optional): one TrainResult of this learner per seed, continued (module docstring)."""
     env_config = base.check_env_config(env_config)
-    seeds = [check_seed(s) for s in seeds]
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
-    c = learner.config_type.make(config, **hyper)
-    if total_steps is not None:
-        c = dataclasses.replace(c, total_steps=total_steps)
-    h = c.to_hyper()
+    seeds, h = _run_settings(learner, seeds, total_steps, config, hyper)
     warm_iters, n_chunks, chunk = schedule(h)
     per_iter = h["num_envs"] * h["unroll"]
     fns, env_params = _cached_build(learner, env_config, h, len(seeds))
@@ -357,30 +275,24 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
         ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
     ts, sim_per_iter = _warm_up(fns, ts, warm_iters, timing, random=start_from is None)
 
-    def params_of(ts):
-        return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
-
     t0 = time.perf_counter()
-    evaluate_fn = fns["compiled"]("evaluate", params_of(ts), env_params, k_eval, eval_ids)
+    evaluate_fn = fns["compiled"]("evaluate", _policy_params(ts), env_params, k_eval, eval_ids)
     timing["compile"] += time.perf_counter() - t0
 
     def run_eval(ts):
         t0 = time.perf_counter()
-        npow, _ = evaluate_fn(params_of(ts), env_params, k_eval, eval_ids)
+        npow, _ = evaluate_fn(_policy_params(ts), env_params, k_eval, eval_ids)
         npow = np.asarray(npow)  # (seeds, steps, episodes)
         timing["evaluation"] += time.perf_counter() - t0
         return npow[:, -10:].mean((1, 2)), npow[:, -1].mean(1)
 
     def report(step, npow, m=None):
         if snapshot_fn is not None:
-            params = jax.device_get(params_of(ts))
+            params = jax.device_get(_policy_params(ts))
             snapshot_fn(step, [jax.tree.map(lambda x: x[i], params) for i in range(len(seeds))])
         if progress_fn is not None:
-            extra = {} if m is None else dict(critic_loss=float(m["critic_loss"].mean()),
-                                              actor_loss=float(np.nanmean(m["actor_loss"])),
-                                              reward=float(m["reward"].mean()))
             progress_fn(step, dict(normalized_power=float(npow.mean()), elapsed_s=time.perf_counter() - t_start,
-                                   update_ratio=updates_per_iter(h) / per_iter, **extra))
+                                   update_ratio=replay.updates_per_iter(h) / per_iter, **_chunk_metrics(m)))
 
     nan = np.full(len(seeds), np.nan)
     step = warm_iters * per_iter
@@ -405,39 +317,45 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
         closses.append(np.asarray(m["critic_loss"])), alosses.append(np.asarray(m["actor_loss"]))
         report(step, npow, m)
     timing["total"] = time.perf_counter() - t_start
-    timing = {k: v / len(seeds) for k, v in timing.items()}
-    timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(params_of(ts))
-    kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
     curves = dict(normalized_power=np.stack(npows, 1), final_normalized_power=np.stack(finals, 1),
                   critic_loss=np.stack(closses, 1), actor_loss=np.stack(alosses, 1))
+    return _results(learner, env_config, h, seeds, ts, np.asarray(steps), curves, timing)
+
+
+def _policy_params(ts) -> dict:
+    """The stored policy params of a training state: ``{"actor", "obs_norm"}``."""
+    return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
+
+
+def _chunk_metrics(m) -> dict:
+    """The progress metrics of a training chunk's metrics ``m`` (none before the first chunk)."""
+    if m is None:
+        return {}
+    return dict(critic_loss=float(m["critic_loss"].mean()), actor_loss=float(np.nanmean(m["actor_loss"])),
+                reward=float(m["reward"].mean()))
+
+
+def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> tuple[list, dict]:
+    """(the checked seeds, the run's stored hyperparameters: ``config`` and ``hyper`` resolved, ``total_steps``
+    over the preset's)."""
+    seeds = [check_seed(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
+    c = learner.config_type.make(config, **hyper)
+    if total_steps is not None:
+        c = dataclasses.replace(c, total_steps=total_steps)
+    return seeds, c.to_hyper()
+
+
+def _results(learner: Learner, env_config: dict, h: dict, seeds: list, ts, steps: np.ndarray, curves: dict,
+             timing: dict) -> list[base.TrainResult]:
+    """One TrainResult per seed of the seed-batched final state ``ts``, ``curves`` (name -> (seeds, points)) at
+    env ``steps`` and the call's ``timing`` (s, shared out over the seeds)."""
+    timing = {k: v / len(seeds) for k, v in timing.items()}
+    timing["seeds_in_call"] = len(seeds)
+    params = jax.device_get(_policy_params(ts))
+    kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
     return [base.TrainResult(learner.name, env_config, dict(h), jax.tree.map(lambda x: x[i], params),
-                             dict(step=np.asarray(steps), **{k: v[i] for k, v in curves.items()}),
+                             dict(step=steps, **{k: v[i] for k, v in curves.items()}),
                              dict(timing), seed, jax.tree.map(lambda x: x[i], kept))
             for i, seed in enumerate(seeds)]
-
-
-def mlp_module():
-    """The flax MLP of the off-policy learners: ``MLP(hidden, out, layer_norm, dropout)``; each hidden
-    layer is Dense, then Dropout (rate ``dropout``, active when called with ``train=True``), then
-    LayerNorm (if ``layer_norm``), then ReLU (DroQ's critic order)."""
-    import flax.linen as nn
-
-    class MLP(nn.Module):
-        hidden: tuple
-        out: int
-        layer_norm: bool = False
-        dropout: float = 0.0
-
-        @nn.compact
-        def __call__(self, x, train: bool = False):
-            for h in self.hidden:
-                x = nn.Dense(h)(x)
-                if self.dropout > 0:
-                    x = nn.Dropout(self.dropout, deterministic=not train)(x)
-                if self.layer_norm:
-                    x = nn.LayerNorm()(x)
-                x = nn.relu(x)
-            return nn.Dense(self.out)(x)
-
-    return MLP

@@ -30,83 +30,51 @@ gradient steps, compilation, host overhead).
 from __future__ import annotations
 
 import functools
-import time
 
 import jax
 
-from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
-from agents.brax_training import (
-    EVAL_FIRST_EPISODE,
-    Recorder,
-    activation,
-    deterministic_policy,
-    fit_budget,
-    make_brax_env,
-    obs_spec,
-    training_config,
-)
+from agents import base, brax_compat, brax_training  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import PPOConfig
-from agents.envs import built, train_env_config
+
 
 def _network_factory(c: PPOConfig):
     from brax.training.agents.ppo import networks as ppo_networks
 
     return functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=c.hidden,
-                             value_hidden_layer_sizes=c.hidden, activation=activation(c.activation),
+                             value_hidden_layer_sizes=c.hidden, activation=brax_training.activation(c.activation),
                              init_noise_std=c.init_noise_std)
 
 
 def _networks(env_config: dict, c: PPOConfig):
-    from brax.training.acme import running_statistics
-
-    env, _ = built(train_env_config(env_config))
-    normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
-    net = _network_factory(c)(env.observation_size, env.num_actions, preprocess_observations_fn=normalize)
-    return net, env.observation_size
+    return brax_training.networks(env_config, _network_factory(c), c.normalize_observations)
 
 
 def params_template(env_config: dict, hyper: dict):
     """brax's PPO params tuple (normalizer state, policy params, value params), freshly initialised."""
-    from brax.training.acme import running_statistics
-
     net, d = _networks(env_config, PPOConfig.from_hyper(hyper))
     key = jax.random.PRNGKey(0)
-    return (running_statistics.init_state(obs_spec(d)), net.policy_network.init(key), net.value_network.init(key))
+    return (brax_training.normalizer_template(d), net.policy_network.init(key), net.value_network.init(key))
 
 
-def make_policy(env_config: dict, hyper: dict) -> base.Policy:
-    """brax's ``make_inference_fn`` with deterministic actions (the mode of the tanh-Gaussian);
-    ignores carry and probe."""
-    from brax.training.agents.ppo import networks as ppo_networks
-
-    net, _ = _networks(env_config, PPOConfig.from_hyper(hyper))
-    return deterministic_policy(ppo_networks.make_inference_fn, net)
+# brax's inference function; deterministic actions: the mode of the tanh-Gaussian; carry and probe ignored
+make_policy = brax_training.policy_maker("brax.training.agents.ppo.networks", _networks, PPOConfig)
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
           config: PPOConfig | str | None = None, **hyper) -> base.TrainResult:
-    """Train PPO with ``brax.training.agents.ppo.train``; ``config``: a preset name or a
-    ``PPOConfig``, ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` (optional)
-    is called after each evaluation (metrics normalized_power, reward, elapsed_s)."""
-    env_config, c = training_config(PPOConfig, env_config, config, total_steps, hyper)
+    """Train PPO with ``brax.training.agents.ppo.train`` (arguments and progress metrics: ``agents.train``)."""
+    env_config, c = brax_training.training_config(PPOConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.ppo import train as ppo_train
 
-    env = make_brax_env(env_config)
-    eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
-    num_timesteps, num_evals = fit_budget("ppo", c.total_steps, 0, c.batch_size * c.unroll_length * c.num_minibatches,
-                                          c.num_evals)
-    rec = Recorder(progress_fn)
-    t0 = time.perf_counter()
-    _, params, _ = ppo_train.train(
-        environment=env, eval_env=eval_env, num_timesteps=num_timesteps, episode_length=env.max_steps,
-        num_envs=c.num_envs, unroll_length=c.unroll_length, batch_size=c.batch_size,
+    per_iteration = c.batch_size * c.unroll_length * c.num_minibatches  # env steps
+    num_timesteps, num_evals = brax_training.fit_budget("ppo", c.total_steps, 0, per_iteration, c.num_evals)
+    return brax_training.trained(
+        "ppo", ppo_train.train, env_config, c, seed, progress_fn, num_timesteps, num_evals,
+        unroll_length=c.unroll_length, batch_size=c.batch_size,
         num_minibatches=c.num_minibatches, num_updates_per_batch=c.num_updates_per_batch,
         learning_rate=c.learning_rate, entropy_cost=c.entropy_cost, discounting=c.discounting,
         gae_lambda=c.gae_lambda, clipping_epsilon=c.clipping_epsilon,
         vf_loss_coefficient=c.vf_loss_coefficient, max_grad_norm=c.max_grad_norm,
         reward_scaling=c.reward_scaling, normalize_observations=c.normalize_observations,
-        bootstrap_on_timeout=c.bootstrap_on_timeout, network_factory=_network_factory(c), seed=int(seed),
-        num_evals=num_evals, num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
-        use_pmap_on_reset=False,
+        bootstrap_on_timeout=c.bootstrap_on_timeout, network_factory=_network_factory(c), use_pmap_on_reset=False,
     )
-    return rec.result("ppo", env, env_config, c, params, time.perf_counter() - t0, seed)

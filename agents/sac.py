@@ -21,82 +21,49 @@ treated as terminations.
 from __future__ import annotations
 
 import functools
-import time
 
 import jax
 
-from agents import base, brax_compat  # noqa: F401  (brax_compat: quiet brax import)
-from agents.brax_training import (
-    EVAL_FIRST_EPISODE,
-    Recorder,
-    activation,
-    deterministic_policy,
-    fit_budget,
-    make_brax_env,
-    obs_spec,
-    training_config,
-)
+from agents import base, brax_compat, brax_training  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import SACConfig
-from agents.envs import built, train_env_config
 
 
 def _network_factory(c: SACConfig):
     from brax.training.agents.sac import networks as sac_networks
 
     return functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=c.hidden,
-                             activation=activation(c.activation))
+                             activation=brax_training.activation(c.activation))
 
 
 def _networks(env_config: dict, c: SACConfig):
-    from brax.training.acme import running_statistics
-
-    env, _ = built(train_env_config(env_config))
-    normalize = running_statistics.normalize if c.normalize_observations else (lambda x, y: x)
-    net = _network_factory(c)(observation_size=env.observation_size, action_size=env.num_actions,
-                              preprocess_observations_fn=normalize)
-    return net, env.observation_size
+    return brax_training.networks(env_config, _network_factory(c), c.normalize_observations)
 
 
 def params_template(env_config: dict, hyper: dict):
     """brax's SAC policy params tuple (normalizer state, policy params), freshly initialised."""
-    from brax.training.acme import running_statistics
-
     net, d = _networks(env_config, SACConfig.from_hyper(hyper))
-    return (running_statistics.init_state(obs_spec(d)), net.policy_network.init(jax.random.PRNGKey(0)))
+    return (brax_training.normalizer_template(d), net.policy_network.init(jax.random.PRNGKey(0)))
 
 
-def make_policy(env_config: dict, hyper: dict) -> base.Policy:
-    """brax's ``make_inference_fn`` with deterministic actions (tanh of the Gaussian mean);
-    ignores carry and probe."""
-    from brax.training.agents.sac import networks as sac_networks
-
-    net, _ = _networks(env_config, SACConfig.from_hyper(hyper))
-    return deterministic_policy(sac_networks.make_inference_fn, net)
+# brax's inference function; deterministic actions: tanh of the Gaussian mean; carry and probe ignored
+make_policy = brax_training.policy_maker("brax.training.agents.sac.networks", _networks, SACConfig)
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,
           config: SACConfig | str | None = None, **hyper) -> base.TrainResult:
-    """Train SAC with ``brax.training.agents.sac.train``; ``config``: a preset name or a
-    ``SACConfig``, ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` (optional)
-    is called after each evaluation (metrics normalized_power, reward, elapsed_s)."""
-    env_config, c = training_config(SACConfig, env_config, config, total_steps, hyper)
+    """Train SAC with ``brax.training.agents.sac.train`` (arguments and progress metrics: ``agents.train``)."""
+    env_config, c = brax_training.training_config(SACConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.sac import train as sac_train
 
     if c.min_replay_size >= c.total_steps:
         raise ValueError(f"total_steps must exceed min_replay_size = {c.min_replay_size}, got {c.total_steps}")
-    env = make_brax_env(env_config)
-    eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
     prefill = -(-c.min_replay_size // c.num_envs) * c.num_envs
-    num_timesteps, num_evals = fit_budget("sac", c.total_steps, prefill, c.num_envs, c.num_evals)
-    rec = Recorder(progress_fn)
-    t0 = time.perf_counter()
-    _, params, _ = sac_train.train(
-        environment=env, eval_env=eval_env, num_timesteps=num_timesteps, episode_length=env.max_steps,
-        num_envs=c.num_envs, batch_size=c.batch_size, grad_updates_per_step=c.grad_updates_per_step,
+    num_timesteps, num_evals = brax_training.fit_budget("sac", c.total_steps, prefill, c.num_envs, c.num_evals)
+    return brax_training.trained(
+        "sac", sac_train.train, env_config, c, seed, progress_fn, num_timesteps, num_evals,
+        batch_size=c.batch_size, grad_updates_per_step=c.grad_updates_per_step,
         learning_rate=c.learning_rate, discounting=c.discounting, tau=c.tau,
         max_replay_size=c.max_replay_size, min_replay_size=c.min_replay_size,
         reward_scaling=c.reward_scaling, normalize_observations=c.normalize_observations,
-        network_factory=_network_factory(c), seed=int(seed), num_evals=num_evals,
-        num_eval_envs=c.num_eval_envs, deterministic_eval=True, progress_fn=rec,
+        network_factory=_network_factory(c),
     )
-    return rec.result("sac", env, env_config, c, params, time.perf_counter() - t0, seed)

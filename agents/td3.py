@@ -24,17 +24,17 @@ from typing import Any, Callable, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 
-from agents import base, brax_compat, offpolicy  # noqa: F401  (brax_compat: quiet brax import)
+from agents import base, brax_compat, offpolicy, replay  # noqa: F401  (brax_compat: quiet brax import)
 from agents.config import TD3Config
-from agents.envs import built, train_env_config
 
 
 # -- networks -----------------------------------------------------------------------------------
 
-def _networks(hidden: Sequence[int], num_actions: int):
+def _networks(h: dict, num_actions: int):
+    hidden = h["hidden"]
     import flax.linen as nn
 
-    MLP = offpolicy.mlp_module()
+    MLP = replay.mlp_module()
 
     class Actor(nn.Module):
         @nn.compact
@@ -50,66 +50,36 @@ def _networks(hidden: Sequence[int], num_actions: int):
     return Actor(), Critic()
 
 
-def _stored_config(hyper: dict) -> TD3Config:
-    """The config of a stored ``hyper`` dict (keys that are not fields are left out)."""
-    return TD3Config.from_hyper({k: v for k, v in hyper.items() if k in TD3Config.names() or k == "config"})
-
-
-def params_template(env_config: dict, hyper: dict):
-    """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-    env, _ = built(train_env_config(env_config))
-    actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
-    d = env.observation_size
-    return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": offpolicy.identity_norm(d)}
-
-
-def make_policy(env_config: dict, hyper: dict) -> base.Policy:
-    """The deterministic actor: a = tanh(MLP((obs - mean) / std)); ignores key, carry and probe."""
-    env, _ = built(train_env_config(env_config))
-    actor, _ = _networks(_stored_config(hyper).hidden, env.num_actions)
-
-    def act(params, carry, obs, key, probe):
-        del key, probe
-        return actor.apply(params["actor"], offpolicy.normalise(params["obs_norm"], obs)), carry
-
-    return base.Policy(lambda key, obs: (), act)
+def _greedy(actor, params, obs):
+    """The deterministic action a = tanh(MLP(obs)) at standardised ``obs``."""
+    return actor.apply(params, obs)
 
 
 # -- training -----------------------------------------------------------------------------------
 
-class TD3State(NamedTuple):
-    actor: Any  # flax TrainState: params, optimiser state
-    critic: Any  # flax TrainState
-    actor_target: Any  # params
-    critic_target: Any  # params
-    obs_norm: Any
-    buffer: Any
-    env_state: Any
-    obs: jax.Array
-    key: jax.Array
-    updates: jax.Array  # gradient steps so far
-    env_params: Any  # an argument, not a constant: one program serves every mode
+TD3State = NamedTuple("TD3State", [("actor", Any),  # flax TrainState: params, optimiser state
+                                   ("critic", Any), ("actor_target", Any), ("critic_target", Any), *replay.STATE])
 
 
 def _build(env, h):
     import optax
 
-    actor, critic = _networks(h["hidden"], env.num_actions)
+    actor, critic = _networks(h, env.num_actions)
     d = env.observation_size
-    buffer = offpolicy.replay_buffer(env, h)
+    buffer = replay.replay_buffer(env, h)
     actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
     gamma, tau = h["gamma"], h["tau"]
 
     def explore(ts, key, obs, random):
         k1, k2 = jax.random.split(key)
-        greedy = actor.apply(ts.actor.params, offpolicy.normalise(ts.obs_norm, obs))
+        greedy = actor.apply(ts.actor.params, replay.normalise(ts.obs_norm, obs))
         noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
         uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
         return jnp.where(random, uniform, noisy)
 
     def critic_loss(cp, ts, batch, key):
-        nobs = offpolicy.normalise(ts.obs_norm, batch["next_obs"])
-        obs = offpolicy.normalise(ts.obs_norm, batch["obs"])
+        nobs = replay.normalise(ts.obs_norm, batch["next_obs"])
+        obs = replay.normalise(ts.obs_norm, batch["obs"])
         a2 = actor.apply(ts.actor_target, nobs)
         eps = jnp.clip(h["target_noise"] * jax.random.normal(key, a2.shape), -h["noise_clip"], h["noise_clip"])
         a2 = jnp.clip(a2 + eps, -1, 1)
@@ -119,7 +89,7 @@ def _build(env, h):
         return jnp.mean((q1 - y) ** 2 + (q2 - y) ** 2)
 
     def actor_loss(ap, ts, batch):
-        obs = offpolicy.normalise(ts.obs_norm, batch["obs"])
+        obs = replay.normalise(ts.obs_norm, batch["obs"])
         q1, _ = critic.apply(ts.critic.params, obs, actor.apply(ap, obs))
         return -jnp.mean(q1)
 
@@ -136,18 +106,19 @@ def _build(env, h):
                                actor_target=optax.incremental_update(new_actor.params, ts.actor_target, tau),
                                critic_target=optax.incremental_update(ts.critic.params, ts.critic_target, tau)), aloss
 
-        ts, aloss = offpolicy.delayed(ts, h, actor_step)
+        ts, aloss = replay.delayed(ts, h, actor_step)
         return ts, (closs, aloss)
 
     def init(key, env_params):
-        ap, cp, buf, env_state, obs, k_run = offpolicy.start(env, h, buffer, actor, critic, key, env_params)
-        return TD3State(offpolicy.train_state(ap, actor_tx), offpolicy.train_state(cp, critic_tx), ap, cp,
-                        offpolicy.identity_norm(d), buf, env_state, obs, k_run, jnp.int32(0), env_params)
+        ap, cp, buf, env_state, obs, k_run = replay.start(env, h, buffer, actor, critic, key, env_params)
+        return TD3State(replay.train_state(ap, actor_tx), replay.train_state(cp, critic_tx), ap, cp,
+                        replay.identity_norm(d), buf, env_state, obs, k_run, jnp.int32(0), env_params)
 
-    return dict(init=init, **offpolicy.replay_loop(env, h, buffer, explore, update))
+    return dict(init=init, **replay.replay_loop(env, h, buffer, explore, update))
 
 
-LEARNER = offpolicy.Learner("td3", TD3Config, _build, make_policy)
+LEARNER = offpolicy.Learner("td3", TD3Config, _build, _networks, _greedy)
+make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None,

@@ -49,21 +49,14 @@ CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
 HARD = dict(stages=5, mode="hard", model="phasor")
 ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
 BENCH = "unseen bench"  # protocol (b)'s environment name
-OFF_POLICY = ("droq", "td3")  # trained once, evaluated at every checkpoint it passes
-REFERENCES = ("spgd", "physics")
 REFERENCE_KINDS = ("reference", "bench reference")  # one evaluation: on a protocol (a) env / on a protocol (b) bench
 TARGET = 0.9
 
 PRESETS = {
     "quick": dict(envs={"easy 3": dict(stages=3, mode="easy", model="phasor")}, seeds=(0,), checkpoints=(600, 1200),
-                  episodes=4, eval_seed=4242,
-                  learners={"droq": {"config": "budget", "learning_starts": 200, "eval_every": 200, "utd_ratio": 2.0,
-                                     "hidden": [32, 32], "critic_hidden": [32, 32], "batch_size": 64}},
-                  references={"spgd": {}, "physics": {"config": "frames", "starts": 4, "iters": 4}}),
+                  episodes=4, eval_seed=4242),
     # the sweep's default run: the best budget learner, the references and protocol (b) (15 min on 2 cores)
     "default": dict(envs=ENVS, seeds=(11, 12, 13, 14, 15), checkpoints=CHECKPOINTS, episodes=32, eval_seed=4242,
-                    learners={"droq": {"config": "budget"}},
-                    references={"spgd": {}, "physics": {}},
                     adapt=dict(algo="droq",
                                pretrain_env=dict(HARD, imperfections="lab", randomize=1.0, randomize_layout=1.0),
                                pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
@@ -76,48 +69,44 @@ PRESETS = {
                                trim={})),  # agents.trim's default TrimConfig
 }
 # every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
-PRESETS["full"] = dict(PRESETS["default"], learners={
-    "droq": {"config": "budget"}, "td3": {"config": "budget"}, "sac": {"config": "budget"},
-    "ppo": {"config": "paper", "unroll_length": 25, "batch_size": 5, "num_evals": 2}})  # PPO: 1,000 env steps per iteration
+PRESETS["full"] = dict(PRESETS["default"])
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),
-    pretrain_steps=600, pretrain_hyper=PRESETS["quick"]["learners"]["droq"],
-    hyper=dict(PRESETS["quick"]["learners"]["droq"], learning_starts=100, eval_every=100),
+    pretrain_steps=600, pretrain_hyper=get("droq").sweep.lab_budget["quick"],
+    hyper=dict(get("droq").sweep.lab_budget["quick"], learning_starts=100, eval_every=100),
     bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600), trim={})
 
 
-# Cost model of a cell on a 2-core CPU (seconds): per gradient step of the off-policy learners, per env
-# step of brax's (their budget presets), a fixed part per training run (compilation, evaluations), a
-# reference's one evaluation; an adapt cell's pretraining, scoring and adapting besides its gradient steps.
-# Fitted to the sweep's budget section of 2026-11-26 (idle 2-core host, one core per cell: DroQ cells 114-161 s,
-# adapt cells 83-133 s, physics-informed 58-62 s, SPGD 4-8 s) and to its full plan's other learners (training to
-# the last checkpoint: TD3 58-102 s, SAC 240-384 s for its five runs, PPO 20-153 s).
-S_PER_UPDATE = {"droq": 4.5e-4, "td3": 2e-4}
-S_PER_STEP = {"sac": 4.5e-3, "ppo": 2e-4}
-FIXED_S = {"droq": 30.0, "td3": 20.0, "sac": 20.0, "ppo": 5.0, "spgd": 6.0, "physics": 60.0}
-ADAPT_FIXED_S = 35.0
+# The order of the controllers in the plan (its cells' labels in the sweep, budget-<index>) and the tables; any
+# other registered algorithm follows, in the order registered.
+ORDER = ("droq", "td3", "sac", "ppo", "spgd", "physics")
 
 
-def _updates(algo: str, hyper: dict, steps: int) -> float:
-    """Gradient steps of an off-policy run of ``steps`` env steps (its config's update-to-data ratio)."""
-    from agents import base, offpolicy
+def controllers(preset: str) -> tuple[dict, dict]:
+    """({learner: hyper}, {reference: hyper}) of ``preset``: the registered algorithms with a part in it
+    (``SweepPresets.lab_budget``), in ``ORDER``."""
+    from agents.registry import REGISTRY
 
-    h = base.algo_module(algo).LEARNER.config_type.make(**hyper).to_hyper()
-    return steps * offpolicy.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+    rank = {name: i for i, name in enumerate(dict.fromkeys([*ORDER, *REGISTRY]))}
+    chosen = sorted((a for a in REGISTRY.values() if a.sweep is not None and preset in a.sweep.lab_budget),
+                    key=lambda a: rank[a.name])
+    return tuple({a.name: a.sweep.lab_budget[preset] for a in chosen if a.learner == learner} for learner in (True, False))
 
 
 def cost(cell: dict) -> float:
-    """Estimated seconds of ``cell`` (``S_PER_UPDATE``, ``S_PER_STEP``, ``FIXED_S``, ``ADAPT_FIXED_S``)."""
-    algo, last = cell["algo"], max(cell["checkpoints"])
+    """Estimated seconds of ``cell`` (the algorithm's ``agents.registry.CostModel``): its training runs and
+    evaluations."""
+    entry = get(cell["algo"])
+    ks, evals = cell["checkpoints"], entry.cost.eval_s
     if cell["kind"] in REFERENCE_KINDS:
-        return FIXED_S[algo]
-    if cell["kind"] == "adapt":
-        updates = _updates(algo, cell["pretrain_hyper"], cell["pretrain_steps"]) + _updates(algo, cell["hyper"], last)
-        return ADAPT_FIXED_S + S_PER_UPDATE[algo] * updates
-    if algo in OFF_POLICY:
-        return FIXED_S[algo] + S_PER_UPDATE[algo] * _updates(algo, cell["hyper"], last)
-    return len(cell["checkpoints"]) * FIXED_S[algo] + S_PER_STEP[algo] * sum(cell["checkpoints"])
+        return entry.train_s(cell["hyper"], 0) + evals
+    if cell["kind"] == "adapt":  # pretraining, adapting; scores before, at each checkpoint and trimmed
+        return (entry.train_s(cell["pretrain_hyper"], cell["pretrain_steps"]) + entry.train_s(cell["hyper"], max(ks))
+                + (2 + 2 * len(ks)) * evals)
+    if entry.off_policy:  # one run, evaluated at each checkpoint
+        return entry.train_s(cell["hyper"], max(ks)) + len(ks) * evals
+    return sum(entry.train_s(cell["hyper"], k) + evals for k in ks)  # a run per checkpoint
 
 
 def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
@@ -140,16 +129,17 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     p = PRESETS[preset]
+    learners, references = controllers(preset)
     adapt = p.get("adapt")
     known_envs = [*p["envs"], *([BENCH] if adapt else [])]
-    for name, chosen, known in (("only", only, [*p["learners"], *p["references"]]), ("envs", envs, known_envs)):
+    for name, chosen, known in (("only", only, [*learners, *references]), ("envs", envs, known_envs)):
         if chosen is not None and not set(chosen) <= set(known):
             raise ValueError(f"{name} must name some of {sorted(known)}, got {sorted(chosen)}")
     out = []
     for env_name, env_config in p["envs"].items():
         if envs is not None and env_name not in envs:
             continue
-        for kind, algos in (("learner", p["learners"]), ("reference", p["references"])):
+        for kind, algos in (("learner", learners), ("reference", references)):
             for algo, hyper in algos.items():
                 if only is not None and algo not in only:
                     continue
@@ -170,7 +160,7 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
                                 pretrain_hyper=dict(adapt["pretrain_hyper"]), trim=dict(adapt["trim"]),
                                 settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
             out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **bench, settings=get(algo).settings(hyper))
-                    for algo, hyper in p["references"].items() if only is None or algo in only]
+                    for algo, hyper in references.items() if only is None or algo in only]
     return out
 
 
@@ -280,7 +270,7 @@ def compute(cell: dict) -> dict:
         return {"scores": {str(k): score for k in cell["checkpoints"]}, "train_s": time.perf_counter() - t0}
     if cell["kind"] == "adapt":
         return _adapt(cell)
-    if cell["algo"] in OFF_POLICY:
+    if get(cell["algo"]).off_policy:
         return _off_policy(cell)
     return _per_budget(cell)
 

@@ -13,7 +13,7 @@ from agents.registry import Registry
 from benchmarks import budget, reality
 from benchmarks import sweep_report as report
 from benchmarks.paper import MODES
-from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section
+from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section, seed_label
 
 # Seeds, episodes and section settings per preset; each algorithm's budgets, hyperparameters and cost
 # come from its entry in agents.registry (``preset``).
@@ -49,14 +49,15 @@ def preset(name: str) -> dict:
     return {**out, **({"hyper": hyper} if hyper else {}), **({"reality_budgets": budgets} if budgets else {})}
 
 
-def _table1_label(mode: str, algo: str, seed: int) -> str:
-    return f"table1-{mode}-{algo}-s{seed}"
+def _table1_cells(mode: str, algo: str) -> str:
+    """The label prefix of the table-1 cells of ``algo`` trained in ``mode``."""
+    return f"table1-{mode}-{algo}"
 
 
 def table1_units(sweep) -> list:
     """The table-1 trainings: every algorithm on the 5-stage system in each mode, each seed."""
     return [u for mode in MODES for algo in sweep.algos
-            for u in sweep.train_units(f"table1-{mode}-{algo}", algo, {"stages": 5, "mode": mode},
+            for u in sweep.train_units(_table1_cells(mode, algo), algo, {"stages": 5, "mode": mode},
                                        range(sweep.p["seeds"]))]
 
 
@@ -67,7 +68,7 @@ def table1_runs(sweep) -> dict:
         for mode in MODES:
             for algo in sweep.algos:
                 records = sweep.trained_seeds(algo, {"stages": 5, "mode": mode}, range(sweep.p["seeds"]),
-                                              lambda s: _table1_label(mode, algo, s))
+                                              lambda s: seed_label(_table1_cells(mode, algo), s))
                 runs.update({(mode, algo, seed): r for seed, r in records.items()})
         sweep.memo["table1"] = runs
     return sweep.memo["table1"]
@@ -106,20 +107,21 @@ class Stages(Section):
 
     @staticmethod
     def _runs(sweep):
+        """(N, mode, algo, label prefix of its cells) of each trained controller."""
         lo, hi = sweep.p["stage_range"]
         algos = [a for a in sweep.p["stage_algos"] if a in sweep.algos]
-        return [(n, mode, algo) for n in range(lo, hi + 1) for mode in sweep.p["stage_modes"] for algo in algos]
+        return [(n, mode, algo, f"stages-N{n}-{mode}-{algo}") for n in range(lo, hi + 1)
+                for mode in sweep.p["stage_modes"] for algo in algos]
 
     def units(self, sweep):
-        return [u for n, mode, algo in self._runs(sweep)
-                for u in sweep.train_units(f"stages-N{n}-{mode}-{algo}", algo, {"stages": n, "mode": mode},
-                                           range(sweep.p["stage_seeds"]))]
+        return [u for n, mode, algo, prefix in self._runs(sweep)
+                for u in sweep.train_units(prefix, algo, {"stages": n, "mode": mode}, range(sweep.p["stage_seeds"]))]
 
     def results(self, sweep):
         res = {}
-        for n, mode, algo in self._runs(sweep):
+        for n, mode, algo, prefix in self._runs(sweep):
             records = sweep.trained_seeds(algo, {"stages": n, "mode": mode}, range(sweep.p["stage_seeds"]),
-                                          lambda s: f"stages-N{n}-{mode}-{algo}-s{s}")
+                                          lambda s: seed_label(prefix, s))
             res.update({(n, mode, algo, seed): r for seed, r in records.items()})
         return res
 
@@ -141,9 +143,10 @@ class TableOneEvaluations(Section):
     def units(self, sweep):
         units = table1_units(sweep)
         for mode, algo, seed in self._controllers(sweep):
-            evals = [(f"{label}-{algo}-s{seed}", env, seed + TEST_SEED_OFFSET) for _, label, env in self.evals(sweep, mode)]
+            evals = [(seed_label(f"{label}-{algo}", seed), env, seed + TEST_SEED_OFFSET)
+                     for _, label, env in self.evals(sweep, mode)]
             units.append(sweep.eval_unit(f"{self.name}-evals-{mode}-{algo}-s{seed}", algo,
-                                         sweep.train_cell(_table1_label(mode, algo, seed), algo,
+                                         sweep.train_cell(seed_label(_table1_cells(mode, algo), seed), algo,
                                                           {"stages": 5, "mode": mode}, seed), evals))
         return units
 
@@ -151,7 +154,7 @@ class TableOneEvaluations(Section):
         runs, res = table1_runs(sweep), {}
         for mode, algo, seed in self._controllers(sweep):
             for key, label, env in self.evals(sweep, mode):
-                res[(*key, algo, seed)] = sweep.evaluated(f"{label}-{algo}-s{seed}", runs[mode, algo, seed], env,
+                res[(*key, algo, seed)] = sweep.evaluated(seed_label(f"{label}-{algo}", seed), runs[mode, algo, seed], env,
                                                           seed + TEST_SEED_OFFSET)
         return res
 

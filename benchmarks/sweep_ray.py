@@ -257,6 +257,25 @@ def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
     return env
 
 
+def _submit(sweep: Sweep, out: Path, actor, unit: dict):
+    """Start ``unit`` on the worker ``actor``; an eval unit takes its controller's training record and checkpoint
+    files along. Returns the task's reference."""
+    record = checkpoint = None
+    if unit["kind"] == "eval":
+        record = sweep.cells.load(*unit["train"])
+        checkpoint = checkpoint_files(out, record)
+    return actor.run.remote(unit, record, checkpoint)
+
+
+def _returned(ray, ref, unit: dict, out: Path) -> dict:
+    """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it failed."""
+    try:
+        return ray.get(ref)
+    except (ray.exceptions.RayError, OSError) as exc:
+        raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
+                         f"stored in {out}/cells (re-run the command to resume)") from exc
+
+
 def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, worker_gpus: float, out: Path,
              preset: dict, reused: int = 0, local: bool = False):
     """The scheduling loop: units to idle workers, returned files into the store (``reused``: the plan's
@@ -288,11 +307,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
                 if unit is None:
                     break
                 del todo[unit["key"]]
-                record = checkpoint = None
-                if unit["kind"] == "eval":
-                    record = sweep.cells.load(*unit["train"])
-                    checkpoint = checkpoint_files(out, record)
-                running[actors[i].run.remote(unit, record, checkpoint)] = (i, unit, time.monotonic())
+                running[_submit(sweep, out, actors[i], unit)] = (i, unit, time.monotonic())
                 idle.remove(i)
                 last_algo[i] = unit["algo"]
                 running_algos[unit["algo"]] += 1
@@ -309,11 +324,7 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             ref = finished[0]
             i, unit, t = running.pop(ref)
             in_flight -= min(time.monotonic() - t, 0.9 * unit["cost"] * cost_ratio(_kind(unit), est_done, spent))
-            try:
-                result = ray.get(ref)
-            except (ray.exceptions.RayError, OSError) as exc:
-                raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
-                                 f"stored in {out}/cells (re-run the command to resume)") from exc
+            result = _returned(ray, ref, unit, out)
             store_files(out, result["files"])
             done.add(unit["key"])
             idle.append(i)

@@ -12,8 +12,13 @@ from __future__ import annotations
 from typing import Callable
 
 TEST_SEED_OFFSET = 10_000  # the testing environment's seed: the training seed + this
-EVAL_S = 1.0  # seconds of one evaluation cell (the progress bar's weights; training cells: agents.registry)
+EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: agents.registry.CostModel)
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
+
+
+def seed_label(prefix: str, seed: int) -> str:
+    """The label of the training cell of seed ``seed`` among a section's cells ``prefix`` (one controller)."""
+    return f"{prefix}-s{seed}"
 
 
 class Section:

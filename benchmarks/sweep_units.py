@@ -15,7 +15,7 @@ import numpy as np
 from benchmarks import sweep_plan
 from ops_jax import EnvSpec
 from benchmarks.cells import CellStore, config_hash
-from benchmarks.sweep_section import IMPERFECT_COST, TEST_SEED_OFFSET
+from benchmarks.sweep_section import IMPERFECT_COST, TEST_SEED_OFFSET, seed_label
 
 
 def algo_entry(name: str):
@@ -149,8 +149,9 @@ class Sweep:
         factor = IMPERFECT_COST if "imperfections" in env else 1.0
         units = []
         for group in groups:
-            cells = [self.train_cell(f"{prefix}-s{s}", algo, env, s, extra, steps) for s in group]
-            cost = len(group) * algo_entry(algo).sweep.cell_seconds(cells[0][1]["steps"], env["stages"]) * factor
+            cells = [self.train_cell(seed_label(prefix, s), algo, env, s, extra, steps) for s in group]
+            config = cells[0][1]
+            cost = len(group) * algo_entry(algo).train_s(config["hyper"], config["steps"], env["stages"]) * factor
             units.append(dict(key=prefix if len(groups) == 1 else cells[0][0], algo=algo, kind="train", env=env,
                               seeds=group, prefix=prefix, cells=cells, deps=[], cost=round(cost, 1),
                               hyper=extra or {}, steps=steps))
@@ -163,7 +164,7 @@ class Sweep:
         cells = [(label, self._eval_config(ckpt, env, seed)) for label, env, seed in evals]
         factor = IMPERFECT_COST if any("imperfections" in env for _, env, _ in evals) else 1.0
         return dict(key=key, algo=algo, kind="eval", train=train, evals=evals, cells=cells, deps=[],
-                    cost=len(cells) * algo_entry(algo).sweep.eval_s * factor)
+                    cost=len(cells) * algo_entry(algo).cost.eval_s * factor)
 
     def units(self, sections) -> list:
         """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once:
@@ -197,7 +198,7 @@ class Sweep:
         """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's
         training ``record`` (and checkpoint in this folder)."""
         if unit["kind"] == "train":
-            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: f"{unit['prefix']}-s{s}",
+            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: seed_label(unit["prefix"], s),
                                unit.get("hyper"), unit.get("steps"))
         elif unit["kind"] == "eval":
             for label, env, seed in unit["evals"]:

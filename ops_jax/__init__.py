@@ -12,10 +12,9 @@ from ops_jax.env import (
     EnvParams,
     EnvState,
     OPSEnv,
-    Rollout,
     make,
-    rollout,
 )
+from ops_jax.trajectories import Rollout, rollout
 from ops_jax.spec import EnvSpec
 
 __version__ = "0.1.0"

@@ -36,13 +36,10 @@ Semantics (both adapters):
 
 from __future__ import annotations
 
-import dataclasses
-import os
 from typing import Any
 
 import gymnasium
 import jax
-import jax.numpy as jnp
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -50,6 +47,11 @@ from gymnasium.vector.utils import batch_space
 
 from ops_jax import imperfections, noise
 from ops_jax.env import make
+from ops_jax.gym_codec import Unpacked
+from ops_jax.gym_devices import FORK_ERROR, check_device, picklable_device, refuse_after_fork, resolve_device
+from ops_jax.gym_programs import single_fns, vector_fns
+
+__all__ = ["ENV_ID", "FORK_ERROR", "OPSGymEnv", "OPSVectorEnv", "register"]
 
 ENV_ID = "ops_jax/OPS-v0"
 RENDER_FPS = 10
@@ -65,75 +67,6 @@ def register() -> None:
         vector_entry_point="ops_jax.gym_env:OPSVectorEnv",
         max_episode_steps=None,  # the environment truncates itself after its own max_steps
     )
-
-
-FORK_ERROR = (
-    "ops_jax/OPS-v0 cannot run in a process forked after JAX started in its parent (JAX is multithreaded; "
-    "the child would deadlock). Fixes: gymnasium.make_vec(..., vectorization_mode=\"vector_entry_point\") "
-    "(one process, all instances in one jitted call), or keep \"async\" with "
-    "vector_kwargs={\"context\": \"forkserver\"} (or \"spawn\"); plain \"async\" with the default fork "
-    "works when the parent has not run JAX yet.")
-
-
-def _jax_running() -> bool:
-    """Whether JAX's backends (and their threads) have started in this process; no lock taken."""
-    try:
-        from jax._src import xla_bridge
-    except ImportError:
-        return True
-    backends = getattr(xla_bridge, "_backends", None)
-    if isinstance(backends, dict):
-        return bool(backends)
-    check = getattr(xla_bridge, "backends_are_initialized", None)
-    return bool(check()) if check is not None else True
-
-
-_FORKED_AFTER_JAX = False
-
-
-def _after_fork_in_child() -> None:
-    global _FORKED_AFTER_JAX
-    _FORKED_AFTER_JAX = _FORKED_AFTER_JAX or _jax_running()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork_in_child)
-
-
-def _refuse_after_fork() -> None:
-    """Raise ``RuntimeError(FORK_ERROR)`` in a process forked after JAX started (instead of deadlocking)."""
-    if _FORKED_AFTER_JAX:
-        raise RuntimeError(FORK_ERROR)
-
-
-def _check_device(device):
-    """Validate ``device`` (None, a platform name or a jax.Device) without starting JAX; resolve it
-    now (availability checked) only where JAX already runs."""
-    if device is not None and not isinstance(device, (str, jax.Device)):
-        raise TypeError(f"device must be None, a platform name such as 'cpu' or a jax.Device, got {device!r}")
-    if _jax_running() and not _FORKED_AFTER_JAX:
-        _device(device)
-    return device
-
-
-def _device(device):
-    if device is None:
-        return None
-    if isinstance(device, jax.Device):
-        return device
-    platform, index = device if isinstance(device, tuple) else (device, None)  # tuple: a pickled jax.Device
-    try:
-        found = [d for d in jax.devices(platform) if index is None or d.id == index]
-    except RuntimeError as exc:
-        raise ValueError(f"device {device!r} is not available: {exc}") from exc
-    if not found:
-        raise ValueError(f"device {device!r} is not available: no {platform} device with id {index}")
-    return found[0]
-
-
-def _picklable_device(device):
-    """A jax.Device as (platform, id) (devices do not pickle); other values unchanged."""
-    return (device.platform, device.id) if isinstance(device, jax.Device) else device
 
 
 def _observation_bounds(env, params) -> np.ndarray:
@@ -155,148 +88,6 @@ def _observation_bounds(env, params) -> np.ndarray:
     if layout.noise:
         bound[layout.noise_slice] = mu_max / noise.REFERENCE_SIGMA_WL + margin
     return np.tile(bound, layout.frame_stack).astype(np.float32)
-
-
-def _split_step_keys(key, num_envs: int):
-    """The vector env's key schedule: (next carried key, one key per instance for this step)."""
-    key, sub = jax.random.split(key)
-    return key, jax.random.split(sub, num_envs)
-
-
-SCALARS = 7  # per step: reward, terminated, truncated, power, P / P_max, P / P_best, action_nonfinite
-
-
-def _pack(obs, reward, terminated, truncated, info, extra=()):
-    """One float32 array (..., D + SCALARS + N [+ extra]) so that one device->host copy returns a step."""
-    scal = [reward, terminated, truncated, info["power"], info["normalized_power"], info["normalized_power_best"],
-            info["action_nonfinite"]]
-    cols = [obs] + [jnp.asarray(s, jnp.float32)[..., None] for s in scal] + [info["deltas_wl"]] + list(extra)
-    return jnp.concatenate([jnp.asarray(c, jnp.float32) for c in cols], axis=-1)
-
-
-
-def _options_key(stages, mode, options):
-    try:
-        key = (stages, mode, tuple(sorted(options.items())))
-        hash(key)
-        return key
-    except TypeError:  # unhashable option values: build without caching
-        return None
-
-
-_FN_CACHE: dict = {}
-
-
-def _cached(kind, stages, mode, options, build):
-    """Jitted functions shared by all adapters of one configuration (gymnasium.make, check_env and
-    make_vec re-create environments; sharing avoids recompiling each time)."""
-    key = _options_key(stages, mode, options)
-    if key is None:
-        return build()
-    key = (kind,) + key
-    if key not in _FN_CACHE:
-        _FN_CACHE[key] = build()
-    return _FN_CACHE[key]
-
-
-def _single_fns(stages, mode, options):
-    """(step, reset, codec, head) of the single-instance adapter. The whole carry (key, state)
-    travels as one float32 vector behind the packed step output, so a step is one jitted call with
-    two inputs and one output (the adapter is dispatch-bound otherwise)."""
-
-    def build():
-        env, params = make(stages, mode, **options)
-        n, d = env.num_actions, env.observation_size
-        key0 = jax.random.key(0)
-        template = jax.eval_shape(lambda k: (jax.random.key_data(k), env.reset(k, params)[1]), key0)
-        codec = _FlatCodec(template)
-        head = d + SCALARS + n
-
-        def step(buf, action):
-            key_data, state = codec.unflatten(buf[head:])
-            key, sub = jax.random.split(jax.random.wrap_key_data(key_data))
-            obs, state, reward, term, trunc, info = env.step_env(sub, state, action, params)
-            packed = _pack(obs, reward, term, trunc, info)
-            return jnp.concatenate([packed, codec.flatten((jax.random.key_data(key), state))])
-
-        def reset(key, episode, buf, fresh):
-            # fresh (a seeded start): p_init measured now; else carried from buf (the "reference"
-            # reward's P at the first reset of the run).
-            key, k_reset = jax.random.split(key)
-            obs, state = env.reset(k_reset, params, episode)
-            p_init = jnp.where(fresh, state.p_init, codec.unflatten(buf[head:])[1].p_init)
-            state = dataclasses.replace(state, p_init=p_init)
-            packed = jnp.zeros(head, jnp.float32).at[:d].set(obs).at[d + SCALARS:].set(state.deltas)
-            return jnp.concatenate([packed, codec.flatten((jax.random.key_data(key), state))])
-
-        return jax.jit(step), jax.jit(reset), codec, head
-
-    return _cached("single", stages, mode, options, build)
-
-
-def _vector_fns(num_envs, stages, mode, options):
-    """(reset, step) of the vector adapter: one jitted call over the batch each."""
-
-    def build():
-        env, params = make(stages, mode, **options)
-        b = num_envs
-
-        def reset(key, episodes):
-            key, sub = jax.random.split(key)
-            keys = jax.random.split(sub, b)
-            obs, states = jax.vmap(env.reset, in_axes=(0, None, 0))(keys, params, episodes)
-            return (key, states), obs
-
-        def step(carry, actions):
-            key, states = carry
-            key, keys = _split_step_keys(key, b)
-            obs, states, reward, term, trunc, info = env.step_batch(keys, states, actions, params)
-            return (key, states), _pack(obs, reward, term, trunc, info, (info["final_observation"],))
-
-        return jax.jit(reset), jax.jit(step)
-
-    return _cached(f"vector{num_envs}", stages, mode, options, build)
-
-
-class _FlatCodec:
-    """Bit-exact round trip between a pytree of 32-bit arrays and one float32 vector."""
-
-    def __init__(self, template):
-        leaves, self.treedef = jax.tree.flatten(template)
-        self.specs = [(tuple(x.shape), jnp.dtype(x.dtype)) for x in leaves]
-        for _, dtype in self.specs:
-            if jnp.dtype(dtype).itemsize != 4:
-                raise TypeError(f"_FlatCodec handles 32-bit leaves only, got {dtype}")
-        self.sizes = [int(np.prod(shape)) for shape, _ in self.specs]
-        self.size = sum(self.sizes)
-
-    def flatten(self, tree):
-        leaves = jax.tree.leaves(tree)
-        cast = lambda x, dt: jax.lax.bitcast_convert_type(jnp.asarray(x, dt), jnp.float32).reshape(-1)
-        return jnp.concatenate([cast(x, dt) for x, (_, dt) in zip(leaves, self.specs)])
-
-    def unflatten(self, vec):
-        out, i = [], 0
-        for (shape, dtype), size in zip(self.specs, self.sizes):
-            out.append(jax.lax.bitcast_convert_type(vec[i:i + size], dtype).reshape(shape))
-            i += size
-        return jax.tree.unflatten(self.treedef, out)
-
-
-class _Unpacked:
-    """Views of a packed step (see ``_pack``)."""
-
-    def __init__(self, packed: np.ndarray, d: int, n: int):
-        self.obs = packed[..., :d]
-        self.reward = packed[..., d]
-        self.terminated = packed[..., d + 1] != 0
-        self.truncated = packed[..., d + 2] != 0
-        self.power = packed[..., d + 3]
-        self.normalized_power = packed[..., d + 4]
-        self.normalized_power_best = packed[..., d + 5]
-        self.action_nonfinite = packed[..., d + 6] != 0
-        self.deltas_wl = packed[..., d + SCALARS:d + SCALARS + n]
-        self.extra = packed[..., d + SCALARS + n:]
 
 
 def _reset_key(env, seed, options):
@@ -326,7 +117,7 @@ def _setup(adapter, stages: int, mode: str, render_mode, device, options: dict):
     adapter.env, adapter.params = make(stages, mode, **options)
     adapter.options = dict(stages=stages, mode=mode, **options)
     adapter.render_mode = render_mode
-    adapter._device_spec = _check_device(device)
+    adapter._device_spec = check_device(device)
     adapter.device = None  # resolved when JAX starts (first reset)
     adapter._n, adapter._d = adapter.env.num_actions, adapter.env.observation_size
     adapter.max_episode_steps = adapter.env.config.max_steps
@@ -335,7 +126,7 @@ def _setup(adapter, stages: int, mode: str, render_mode, device, options: dict):
 
 def _jax_options(adapter) -> dict:
     """The ``make`` options of a starting adapter's jitted functions (refused in a forked child)."""
-    _refuse_after_fork()
+    refuse_after_fork()
     return {k: v for k, v in adapter.options.items() if k not in ("stages", "mode")}
 
 
@@ -363,7 +154,7 @@ class OPSGymEnv(gymnasium.Env):
 
     def __init__(self, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
                  device: Any = "cpu", **options):
-        _refuse_after_fork()
+        refuse_after_fork()
         bound = _setup(self, stages, mode, render_mode, device, options)
         n, d = self._n, self._d
         self.observation_space = spaces.Box(-bound, bound, (d,), np.float32)
@@ -379,8 +170,8 @@ class OPSGymEnv(gymnasium.Env):
         """Start JAX for this instance: device, jitted functions (shared cache), carry on the device."""
         if self._step is not None:
             return
-        fns = _single_fns(self.options["stages"], self.options["mode"], _jax_options(self))
-        self.device = _device(self._device_spec)
+        fns = single_fns(self.options["stages"], self.options["mode"], _jax_options(self))
+        self.device = resolve_device(self._device_spec)
         buf = self._buf if self._buf is not None else np.zeros(fns[3] + fns[2].size, np.float32)
         self._buf = jax.device_put(buf, self.device)
         self._step, self._reset, self._codec, self._head = fns
@@ -389,7 +180,7 @@ class OPSGymEnv(gymnasium.Env):
         """Picklable state: the carry as a host array; jitted functions, device and render scope left out."""
         state = dict(self.__dict__)
         state.update(_step=None, _reset=None, _codec=None, _head=None, _scope=None, device=None,
-                     _device_spec=_picklable_device(self._device_spec))
+                     _device_spec=picklable_device(self._device_spec))
         if self._buf is not None:
             state["_buf"] = np.array(self._buf)
         return state
@@ -403,7 +194,7 @@ class OPSGymEnv(gymnasium.Env):
         self._buf = self._reset(key, np.int32(self._episode), self._buf, fresh)
         self._started = True
         self._episode += 1
-        u = _Unpacked(np.asarray(self._buf)[:self._head], self._d, self._n)
+        u = Unpacked(np.asarray(self._buf)[:self._head], self._d, self._n)
         obs, deltas = u.obs.copy(), u.deltas_wl.copy()
         self._last = dict(step=0, deltas_wl=deltas)
         if self.render_mode == "human":
@@ -419,7 +210,7 @@ class OPSGymEnv(gymnasium.Env):
             raise ValueError(f"action must have shape ({self._n},) for stages={self._n}, got {action.shape}")
         self._start()
         self._buf = self._step(self._buf, action)
-        u = _Unpacked(np.asarray(self._buf)[:self._head], self._d, self._n)
+        u = Unpacked(np.asarray(self._buf)[:self._head], self._d, self._n)
         info = {
             "power": float(u.power),
             "normalized_power": float(u.normalized_power),
@@ -465,7 +256,7 @@ class OPSVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, stages: int = 5, mode: str = "hard", render_mode: str | None = None,
                  device: Any = None, **options):
-        _refuse_after_fork()
+        refuse_after_fork()
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         options.pop("max_episode_steps", None)  # make_vec forwards the spec's (None); truncation is max_steps
@@ -485,8 +276,8 @@ class OPSVectorEnv(VectorEnv):
         """Start JAX for this batch: device, jitted functions (shared cache), carry on the device."""
         if self._step is not None:
             return
-        fns = _vector_fns(self.num_envs, self.options["stages"], self.options["mode"], _jax_options(self))
-        self.device = _device(self._device_spec)
+        fns = vector_fns(self.num_envs, self.options["stages"], self.options["mode"], _jax_options(self))
+        self.device = resolve_device(self._device_spec)
         if self._carry is not None:
             key_data, states = self._carry
             self._carry = jax.device_put((jax.random.wrap_key_data(key_data), states), self.device)
@@ -496,7 +287,7 @@ class OPSVectorEnv(VectorEnv):
         """Picklable state: the carry as host arrays; jitted functions, device and render scopes left out."""
         state = dict(self.__dict__)
         state.update(_reset=None, _step=None, _scopes=None, device=None,
-                     _device_spec=_picklable_device(self._device_spec))
+                     _device_spec=picklable_device(self._device_spec))
         if self._carry is not None:
             key, states = self._carry
             key_data = key if isinstance(key, np.ndarray) else jax.random.key_data(key)
@@ -523,7 +314,7 @@ class OPSVectorEnv(VectorEnv):
             raise ValueError(f"actions must have shape ({self.num_envs}, {self._n}), got {actions.shape}")
         self._start()
         self._carry, packed = self._step(self._carry, actions)
-        u = _Unpacked(np.asarray(packed), self._d, self._n)
+        u = Unpacked(np.asarray(packed), self._d, self._n)
         ones = np.ones(self.num_envs, bool)
         infos = {
             "power": u.power.copy(), "_power": ones,

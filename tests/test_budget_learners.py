@@ -3,13 +3,12 @@ learning on a small budget, determinism, vmapped seeds, checkpoints, bad hyperpa
 snapshots standing for shorter runs, and the report of tiny records."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import agents
-from agents import DroQConfig, TD3Config, droq, offpolicy
-from agents.base import Policy
+from agents import DroQConfig, TD3Config, droq, offpolicy, replay
+from idle import learned_and_idle
 from benchmarks import budget
 
 ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
@@ -24,9 +23,8 @@ def trained():
 
 
 def test_droq_learns_a_small_configuration(trained):
-    zero = Policy(lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], 3)), c))
-    baseline = agents.evaluate(zero, ENV, episodes=16, seed=1).summary["final_mean"]
-    learned = agents.evaluate(trained, ENV, episodes=16, seed=1).summary["final_mean"]
+    summary, baseline = learned_and_idle(trained, ENV, 16)
+    learned = summary["final_mean"]
     assert learned >= max(0.8, baseline + 0.25), (learned, baseline)
     assert trained.curve["step"].tolist() == [256 + 512 * k for k in range(6)]
     assert trained.hyper["config"] == "budget" and trained.hyper["utd_ratio"] == 2.0
@@ -130,8 +128,8 @@ def test_training_reward_is_the_learners_choice():
 def test_td3_update_to_data_ratio():
     """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep updates_per_iter."""
     c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)
-    assert offpolicy.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
-    assert offpolicy.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
+    assert replay.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
+    assert replay.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
     budget_cfg = TD3Config.preset("budget")
     assert budget_cfg.num_envs == 1 and budget_cfg.utd_ratio >= 1 and budget_cfg.total_steps <= 20_000
 

@@ -17,7 +17,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 import ops_jax
 from ops_jax import gym_env
-from ops_jax.gym_env import OPSGymEnv, OPSVectorEnv, _split_step_keys
+from ops_jax.gym_env import OPSGymEnv, OPSVectorEnv
+from ops_jax.gym_programs import split_step_keys
 
 
 def test_registered_on_import_and_idempotent():
@@ -129,7 +130,7 @@ def test_vector_env_equals_instances_one_by_one():
     saw_done = saw_term = False
     for _ in range(steps):
         key, states = venv._carry
-        _, keys = _split_step_keys(key, b)
+        _, keys = split_step_keys(key, b)
         actions = rng.uniform(-1, 1, (b, 3)).astype(np.float32)
         obs, rew, term, trunc, infos = venv.step(actions)
         for i in range(b):
@@ -207,9 +208,9 @@ def test_vector_env_copy_and_pickle(how):
 
 def test_unstarted_env_pickles_without_starting_jax():
     """Construction does not start JAX (so async workers may fork after it); a pickled fresh env works."""
-    code = ("import pickle, ops_jax; from ops_jax.gym_env import OPSGymEnv, _jax_running; "
+    code = ("import pickle, ops_jax; from ops_jax.gym_env import OPSGymEnv; from ops_jax.gym_devices import jax_running; "
             "e = pickle.loads(pickle.dumps(OPSGymEnv(stages=2, mode='easy', model='phasor'))); "
-            "print(_jax_running()); e.reset(seed=0); print(_jax_running())")
+            "print(jax_running()); e.reset(seed=0); print(jax_running())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert out.stdout.split() == ["False", "True"]
 

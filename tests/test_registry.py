@@ -1,6 +1,7 @@
 """A new learner is its module plus one registry entry: this test module is one (a proportional
 controller on the length readout whose "training" picks its gain), registered from inside the test
-and run through agents.train / evaluate, the command line's choices and a one-cell sweep plan."""
+and run through agents.train / evaluate, the command line's choices, a one-cell sweep plan and the lab-budget
+section."""
 
 import dataclasses
 import json
@@ -66,7 +67,9 @@ def train(env_config, *, seed=0, total_steps=None, progress_fn=None, config=None
 def tiny():
     entry = registry.register(registry.Algo(
         "tiny", __name__, TinyConfig, "Tiny",
-        sweep=registry.SweepPresets(budgets={"quick": 120}, hyper={"quick": {"max_gain": 0.8}})))
+        sweep=registry.SweepPresets(budgets={"quick": 120}, hyper={"quick": {"max_gain": 0.8}},
+                                    lab_budget={"quick": {"max_gain": 0.6}}),
+        cost=registry.CostModel(fixed_s=1.0, s_per_step=1e-3)))
     yield entry
     registry.unregister("tiny")
 
@@ -110,3 +113,25 @@ def test_registered_learner_in_a_sweep_plan(tiny, tmp_path):
     record = plan.cells.load(label, config)
     assert 0.5 < np.mean(record["test_env"]["final"]) <= 1.0
     assert agents.load(tmp_path / record["checkpoint"]).algo == "tiny"
+
+
+def test_registered_learner_in_the_budget_section(tiny):
+    from benchmarks import budget
+
+    cells = budget.cells("quick", only=["tiny"], seeds=[0])
+    assert [(c["kind"], c["algo"]) for c in cells] == [("learner", "tiny")] * len(budget.PRESETS["quick"]["envs"])
+    cell = cells[0]
+    assert cell["hyper"] == {"max_gain": 0.6} and cell["settings"]["max_gain"] == 0.6
+    # a run per checkpoint (not off-policy): (fixed + per env step) + one evaluation each
+    assert budget.cost(cell) == pytest.approx(sum(1.0 + 1e-3 * k + 1.0 for k in cell["checkpoints"]))
+    rec = budget.compute(cell)
+    assert set(rec["scores"]) == {str(k) for k in cell["checkpoints"]} and not rec["errors"]
+    assert all(0.5 < v <= 1.0 for v in rec["scores"].values())
+
+
+def test_an_entry_declares_what_its_module_provides(tiny):
+    """The tiny module trains one seed per call: an entry declaring more is refused when it is loaded."""
+    assert tiny.load() is base.algo_module("tiny")
+    for declared in ({"vmaps_seeds": True}, {"off_policy": True}):
+        with pytest.raises(TypeError, match="lacks .*train_seeds"):
+            dataclasses.replace(tiny, **declared).load()

@@ -9,13 +9,12 @@ import sys
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import agents
 from agents import TD3Config, offpolicy, td3
-from agents.base import Policy
+from idle import learned_and_idle
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
@@ -29,9 +28,7 @@ def trained():
 
 
 def test_td3_beats_doing_nothing(trained):
-    zero = Policy(lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], 3)), c))
-    baseline = agents.evaluate(zero, ENV, episodes=32, seed=1).summary["final_mean"]
-    learned = agents.evaluate(trained, ENV, episodes=32, seed=1).summary
+    learned, baseline = learned_and_idle(trained, ENV, 32)
     assert learned["final_mean"] >= max(0.8, baseline + 0.25), (learned, baseline)
     assert trained.curve["step"][-1] >= STEPS
     assert np.all(np.diff(trained.curve["step"]) > 0)
