@@ -128,6 +128,15 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
     return lines
 
 
+def _cells(rs: list, checkpoints, fmt) -> list:
+    """One table cell per checkpoint: ``fmt`` of the seeds' scores there, "-" where none has one."""
+    cells = []
+    for k in checkpoints:
+        v = [r["result"]["scores"][str(k)] for r in rs if str(k) in r["result"]["scores"]]
+        cells.append(fmt(v) if v else "-")
+    return cells
+
+
 def _robust_lines(groups: dict, checkpoints) -> list:
     """IQM [95 % CI] over seeds per row and checkpoint, and per environment the probability of improvement
     between its controllers at the last checkpoint all of them reached."""
@@ -138,10 +147,7 @@ def _robust_lines(groups: dict, checkpoints) -> list:
              "| environment | controller | " + " | ".join(f"{k:,}" for k in checkpoints) + " |",
              "|---|---|" + "---|" * len(checkpoints)]
     for (env, algo), rs in groups.items():
-        row = []
-        for k in checkpoints:
-            v = [r["result"]["scores"][str(k)] for r in rs if str(k) in r["result"]["scores"]]
-            row.append("{:.3f} [{:.3f}, {:.3f}]".format(*robust.bootstrap_ci(v)) if v else "-")
+        row = _cells(rs, checkpoints, lambda v: "{:.3f} [{:.3f}, {:.3f}]".format(*robust.bootstrap_ci(v)))
         lines.append(f"| {env} | {NAMES.get(algo, algo)} | " + " | ".join(row) + " |")
     lines += ["", robust.NOTE]
     for env in dict.fromkeys(e for e, _ in groups):
@@ -175,10 +181,7 @@ def report(records: list[dict], out_dir) -> str:
              "| environment | controller | median steps to 0.9 | " + " | ".join(f"{k:,}" for k in checkpoints) + " |",
              "|---|---|---|" + "---|" * len(checkpoints)]
     for (env, algo), rs in groups.items():
-        row = []
-        for k in checkpoints:
-            v = [r["result"]["scores"][str(k)] for r in rs if str(k) in r["result"]["scores"]]
-            row.append(f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else "-")
+        row = _cells(rs, checkpoints, lambda v: f"{np.mean(v):.3f} ± {np.std(v):.3f}")
         if rs[0]["cell"]["kind"] == "reference":
             who, steps = f"{NAMES.get(algo, algo)} (reference)", "no training"
         else:

@@ -22,3 +22,19 @@ def load_reference_timing() -> dict:
     if not path.exists():
         return {}
     return json.loads(path.read_text())["timing"]
+
+
+def count_compiles() -> list:
+    """[XLA compile seconds, compiles] of this process from this call on, kept current by a listener on JAX's
+    monitoring events."""
+    import jax
+
+    counts = [0.0, 0]
+
+    def listen(name, secs, **_):
+        if name == "/jax/core/compile/backend_compile_duration":
+            counts[0] += secs
+            counts[1] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    return counts

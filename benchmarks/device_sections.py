@@ -187,18 +187,10 @@ class OutOfTime(Exception):
 def train_rate(algo: str, steps: int, hyper: dict, deadline: float, record, out: dict) -> dict:
     """Train ``algo`` once from a cold start: env steps, wall seconds, XLA compile seconds and count,
     env-steps/s with and without compilation; stops at ``deadline`` (raising ``OutOfTime``)."""
-    import jax
-
     import agents
+    from benchmarks.common import count_compiles
 
-    compile_s = [0.0, 0]
-
-    def listen(name, secs, **_):
-        if name == "/jax/core/compile/backend_compile_duration":
-            compile_s[0] += secs
-            compile_s[1] += 1
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
+    compile_s = count_compiles()
     out.update(algo=algo, env=ENV, total_steps=steps, hyper=hyper, progress=[])
     t0 = time.perf_counter()
 

@@ -41,14 +41,9 @@ def measure_one(algo: str, steps: int) -> dict:
     seconds and count."""
     import jax
 
-    compile_s = [0.0, 0]
+    from benchmarks.common import count_compiles
 
-    def listen(name, secs, **_):
-        if name == "/jax/core/compile/backend_compile_duration":
-            compile_s[0] += secs
-            compile_s[1] += 1
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
+    compile_s = count_compiles()
     import agents
 
     t0, c0 = time.perf_counter(), time.process_time()
