@@ -41,3 +41,12 @@ def stop_groups(procs, grace_s: float = 5.0) -> None:
             os.kill(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def default_sigint() -> None:
+    """A ``preexec_fn``: SIGINT at its default disposition and unblocked in the child, as a shell starts a
+    program, whatever this test process holds (an ignored or blocked SIGINT survives exec)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from processes import default_sigint
+
 REPO = Path(__file__).resolve().parents[1]
 WATCHDOG_S = 150
 
@@ -19,7 +21,7 @@ def _interrupt_after(args, ready: str, cwd: Path) -> subprocess.CompletedProcess
     log = cwd / "output.log"
     with open(log, "w") as out:
         proc = subprocess.Popen([sys.executable, *args], stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd,
-                                start_new_session=True)
+                                start_new_session=True, preexec_fn=default_sigint)
     deadline = time.monotonic() + WATCHDOG_S
     try:
         while ready not in log.read_text():

@@ -18,7 +18,7 @@ from benchmarks import sweep
 from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
 from benchmarks.sweep_report import _steps_cell, bold_mask, bold_rule, convergence_step
-from processes import descendants
+from processes import default_sigint, descendants
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -294,7 +294,7 @@ def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
     """SIGINT (Ctrl-C) during a sweep: one line saying what was kept and how to resume, no traceback, exit
     status 130, the local Ray instance's workers gone within seconds."""
     out = tmp_path / "run"
-    proc = _run_sweep(["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)])
+    proc = _run_sweep(["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)], preexec_fn=default_sigint)
     try:
         deadline = time.time() + 240
         while time.time() < deadline and not list((out / "cells").glob("*.json")) and proc.poll() is None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import TD3Config, offpolicy, td3
+from agents import TD3Config, offpolicy, replay, td3
 from idle import learned_and_idle
 
 REPO = Path(__file__).resolve().parents[1]
@@ -113,7 +113,7 @@ def test_cli_logdir_writes_the_curve_to_tensorboard(tmp_path):
     assert steps == [int(r["step"]) for r in rows]
     np.testing.assert_allclose(values, [float(r["normalized_power"]) for r in rows], rtol=1e-6)
     h = summary["hyper"]
-    ratio = offpolicy.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+    ratio = replay.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
     np.testing.assert_allclose(scalars["train/update_ratio"][1], ratio, rtol=1e-6)
     assert scalars["loss/critic_loss"][0] == steps[1:]  # losses from the first training chunk on
     assert np.all(np.isfinite(scalars["loss/critic_loss"][1]))
