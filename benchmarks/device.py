@@ -44,7 +44,7 @@ MEASURED = ROOT / "benchmarks" / "measured"
 # Sections in the order they run, with their weights in the split of the time budget.
 WEIGHTS = {"step_batch": 0.30, "rollout": 0.17, "droq": 0.18, "td3": 0.07, "sac": 0.10, "sweep": 0.18}
 SECTIONS = tuple(WEIGHTS)
-TARGET_PHASOR_N5 = 1e8  # env-steps/s, phasor N = 5, one GPU (issue 43)
+TARGET_PHASOR_N5 = 1e8  # env-steps/s, phasor N = 5, one GPU
 GRACE_S = 15.0  # seconds a section's process gets past its deadline before it is stopped
 CHILD_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false", "XLA_PYTHON_CLIENT_MEM_FRACTION": "0.9"}
 
@@ -180,12 +180,22 @@ def _train_cell(section: dict) -> str:
     return f"{section.get('status', 'not run')}" + (f" ({section['error'][:60]})" if section.get("error") else "")
 
 
+def _as_list(value) -> list:
+    """A JSON field that holds one value, or a list of them for a device measured in several calls."""
+    return list(value) if isinstance(value, list) else [value]
+
+
+def _listed(value) -> str:
+    """The first of a field's values, as text."""
+    return str(_as_list(value)[0])
+
+
 def compare_table(docs: list) -> str:
     """A markdown table of device JSON files side by side (one column each)."""
     head = [f"{(d.get('device') or {}).get('kind', '?')} ({(d.get('device') or {}).get('platform', '?')})" for d in docs]
-    rows = [("host, date", [f"{d.get('host')}, {str(d.get('date'))[:10]}" for d in docs]),
+    rows = [("host, date", [f"{d.get('host')}, {_listed(d.get('date'))[:10]}" for d in docs]),
             ("JAX", [str(d.get("jax")) for d in docs]),
-            ("command", [f"`{d.get('command')}`" for d in docs])]
+            ("command", [" then ".join(f"`{c}`" for c in _as_list(d.get("command"))) for d in docs])]
     sec = [d.get("sections", {}) for d in docs]
     for name, label in (("step_batch", "step_batch"), ("rollout", "ops_jax.rollout")):
         planned = [c for s in sec for c in s.get(name, {}).get("planned") or s.get(name, {}).get("configs", [])]
