@@ -24,6 +24,7 @@ from collections import Counter
 from pathlib import Path
 
 from agents.io import temp_dir, write_bytes_atomic
+from benchmarks.sweep_records import EvalUnit, Unit
 from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
@@ -55,7 +56,7 @@ class SweepWorker:
         self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
         self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
 
-    def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
+    def run(self, unit: Unit, record: dict | None = None, checkpoint: dict | None = None) -> dict:
         """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
         files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
         "node_id", "hostname"}."""
@@ -66,10 +67,10 @@ class SweepWorker:
         computed = self.sweep.cells.computed
         self.sweep.compute_unit(unit, record)
         files = {}
-        for label, config in unit["cells"]:
-            path = self.sweep.cells.path(label, config)
+        for cell in unit.cells:
+            path = self.sweep.cells.path(cell.label, cell.config)
             files[path.relative_to(self.scratch).as_posix()] = blob = path.read_bytes()
-            if unit["kind"] == "train":
+            if unit.kind == "train":
                 ckpt = self.scratch / json.loads(blob)["result"]["checkpoint"]
                 files.update({f.relative_to(self.scratch).as_posix(): f.read_bytes() for f in ckpt.iterdir()})
         for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
@@ -131,10 +132,10 @@ def store_files(out: Path, files: dict) -> None:
             write_bytes_atomic(out / rel, blob)
 
 
-def _kind(unit: dict) -> str:
+def _kind(unit: Unit) -> str:
     """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
     or a section's own cells."""
-    return {"train": f"train {unit['algo']}", "eval": "eval"}.get(unit["kind"], f"cell {unit['algo']}")
+    return {"train": f"train {unit.algo}", "eval": "eval"}.get(unit.kind, f"cell {unit.algo}")
 
 
 def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
@@ -189,11 +190,11 @@ def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
     else of the one with the most remaining cost."""
     if not ready:
         return None
-    same = [u for u in ready if u["algo"] == last_algo]
+    same = [u for u in ready if u.algo == last_algo]
     if same:
         return same[0]
-    free = [u for u in ready if not running_algos[u["algo"]]] or ready
-    return max(free, key=lambda u: remaining[u["algo"]])  # max keeps the first of equals: plan order
+    free = [u for u in ready if not running_algos[u.algo]] or ready
+    return max(free, key=lambda u: remaining[u.algo])  # max keeps the first of equals: plan order
 
 
 def connect(address: str | None, jobs: int | None):
@@ -225,9 +226,9 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     started = time.time()
     sweep = Sweep(preset, out, _stderr)
     units = sweep.units(sections)
-    todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
-    done = {u["key"] for u in units} - set(todo)
-    reused = sum(len(u["cells"]) for u in units) - sum(len(u["cells"]) for u in todo.values())
+    todo = {u.key: t for u in units if (t := sweep.todo(u)) is not None}
+    done = {u.key for u in units} - set(todo)
+    reused = sum(len(u.cells) for u in units) - sum(len(u.cells) for u in todo.values())
     workers, computed = [], 0
     if todo:
         import ray
@@ -257,22 +258,22 @@ def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
     return env
 
 
-def _submit(sweep: Sweep, out: Path, actor, unit: dict):
+def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
     """Start ``unit`` on the worker ``actor``; an eval unit takes its controller's training record and checkpoint
     files along. Returns the task's reference."""
     record = checkpoint = None
-    if unit["kind"] == "eval":
-        record = sweep.cells.load(*unit["train"])
+    if isinstance(unit, EvalUnit):
+        record = sweep.cells.load(unit.train.label, unit.train.config)
         checkpoint = checkpoint_files(out, record)
     return actor.run.remote(unit, record, checkpoint)
 
 
-def _returned(ray, ref, unit: dict, out: Path) -> dict:
+def _returned(ray, ref, unit: Unit, out: Path) -> dict:
     """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it failed."""
     try:
         return ray.get(ref)
     except (ray.exceptions.RayError, OSError) as exc:
-        raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
+        raise SystemExit(f"unit {unit.key} failed ({type(exc).__name__}: {exc}); the finished cells are "
                          f"stored in {out}/cells (re-run the command to resume)") from exc
 
 
@@ -288,9 +289,9 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     actors = [actor.remote(preset, env, cpus) for cpus in shares]
     remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
     for u in todo.values():
-        remaining[u["algo"]] += u["cost"]
-        est_left[_kind(u)] += u["cost"]
-    cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
+        remaining[u.algo] += u.cost
+        est_left[_kind(u)] += u.cost
+    cells_total, cells_done = sum(len(u.cells) for u in todo.values()), 0
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"
     bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
                    unit="worker-s", smoothing=0)
@@ -302,42 +303,42 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     try:
         while todo or running:
             for i in list(idle):
-                ready = [u for u in todo.values() if all(d in done for d in u["deps"])]
+                ready = [u for u in todo.values() if all(d in done for d in u.deps)]
                 unit = pick(ready, last_algo[i], running_algos, remaining)
                 if unit is None:
                     break
-                del todo[unit["key"]]
+                del todo[unit.key]
                 running[_submit(sweep, out, actors[i], unit)] = (i, unit, time.monotonic())
                 idle.remove(i)
-                last_algo[i] = unit["algo"]
-                running_algos[unit["algo"]] += 1
-            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u, _ in running.values()))
+                last_algo[i] = unit.algo
+                running_algos[unit.algo] += 1
+            bar.set_description(f"{on}: " + ", ".join(u.key for _, u, _ in running.values()))
             finished, _ = ray.wait(list(running), num_returns=1, timeout=PROGRESS_EVERY_S)
             # Work in flight counts as done for as long as it has run, up to 90% of its projected cost (a
             # unit running over its estimate holds the line back instead of showing nothing left): the rate
             # is then the number of busy workers from the start, not only what finished units show.
-            in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
+            in_flight = sum(min(time.monotonic() - t, 0.9 * u.cost * cost_ratio(_kind(u), est_done, spent))
                             for _, u, t in running.values())
             if not finished:
                 _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
                 continue
             ref = finished[0]
             i, unit, t = running.pop(ref)
-            in_flight -= min(time.monotonic() - t, 0.9 * unit["cost"] * cost_ratio(_kind(unit), est_done, spent))
+            in_flight -= min(time.monotonic() - t, 0.9 * unit.cost * cost_ratio(_kind(unit), est_done, spent))
             result = _returned(ray, ref, unit, out)
             store_files(out, result["files"])
-            done.add(unit["key"])
+            done.add(unit.key)
             idle.append(i)
-            running_algos[unit["algo"]] -= 1
-            remaining[unit["algo"]] -= unit["cost"]
-            est_left[_kind(unit)] -= unit["cost"]
-            est_done[_kind(unit)] += unit["cost"]
+            running_algos[unit.algo] -= 1
+            remaining[unit.algo] -= unit.cost
+            est_left[_kind(unit)] -= unit.cost
+            est_done[_kind(unit)] += unit.cost
             spent[_kind(unit)] += result["seconds"]
             busy[i] += result["seconds"]
-            algos[i].add(unit["algo"])
-            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
+            algos[i].add(unit.algo)
+            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit.cells)
             computed += result["computed"]
-            cells_done += len(unit["cells"])
+            cells_done += len(unit.cells)
             bar.set_postfix_str(cells(cells_done))
             _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
     finally:
