@@ -65,12 +65,12 @@ class Reality(Section):
 
         learners = [a for a in sweep.algos if REGISTRY[a].learner]
         return [(training, Controller(prefix=f"reality-{training}-{algo}", algo=algo, env=env, hyper=hyper,
-                                      steps=sweep.p.get("reality_budgets", {}).get(algo)))
+                                      steps=sweep.preset.get("reality_budgets", {}).get(algo)))
                 for algo, training, env, hyper in trainings(sweep.algos, learners)]
 
     @staticmethod
     def _seeds(sweep) -> range:
-        return range(sweep.p.get("reality_seeds", sweep.p["seeds"]))
+        return range(sweep.preset.get("reality_seeds", sweep.preset["seeds"]))
 
     @staticmethod
     def _tests(controller: Controller, seed: int) -> list:
@@ -100,7 +100,7 @@ class Reality(Section):
         return res
 
     def report(self, sweep, results) -> None:
-        report(sweep.out, results, sweep.p, sweep.p.get("command", "python -m benchmarks.sweep --only reality"))
+        report(sweep.out, results, sweep.preset, sweep.preset.get("command", "python -m benchmarks.sweep --only reality"))
 
 
 def best_ratios() -> dict:

@@ -17,21 +17,22 @@ from benchmarks.sweep_records import Controller, Evaluation, seed_label
 from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section
 from ops_jax import EnvSpec
 
-# Seeds, episodes and section settings per preset; each algorithm's budgets, hyperparameters and cost
+# Seeds, episodes, the learners' hyperparameter preset (``algo_config``: the ``config`` of their
+# ``agents.config`` classes) and section settings per preset; each algorithm's budgets, hyperparameters and cost
 # come from its entry in agents.registry (``preset``).
 PRESETS = {
     "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
-        seeds=2, config="fast", episodes=8,
+        seeds=2, algo_config="fast", episodes=8,
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
     "default": dict(  # its wall time: docs/results.md
-        seeds=5, config="fast", episodes=32,
+        seeds=5, algo_config="fast", episodes=32,
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
     ),
     "paper": dict(
-        seeds=20, config="paper", episodes=100,
+        seeds=20, algo_config="paper", episodes=100,
         stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
         feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
     ),
@@ -59,7 +60,7 @@ def table1_controller(mode: str, algo: str) -> Controller:
 def table1_units(sweep) -> list:
     """The table-1 trainings: every algorithm on the 5-stage system in each mode, each seed."""
     return [u for mode in MODES for algo in sweep.algos
-            for u in sweep.train_units(table1_controller(mode, algo), range(sweep.p["seeds"]))]
+            for u in sweep.train_units(table1_controller(mode, algo), range(sweep.preset["seeds"]))]
 
 
 def table1_runs(sweep) -> dict:
@@ -68,7 +69,7 @@ def table1_runs(sweep) -> dict:
         runs = {}
         for mode in MODES:
             for algo in sweep.algos:
-                records = sweep.trained_seeds(table1_controller(mode, algo), range(sweep.p["seeds"]))
+                records = sweep.trained_seeds(table1_controller(mode, algo), range(sweep.preset["seeds"]))
                 runs.update({(mode, algo, seed): r for seed, r in records.items()})
         sweep.memo["table1"] = runs
     return sweep.memo["table1"]
@@ -86,9 +87,9 @@ class Table1(Section):
         return table1_runs(sweep)
 
     def report(self, sweep, runs):
-        report.table1(sweep.out, runs, sweep.p)
-        report.training_curves(sweep.out, runs, sweep.p)
-        report.testing_curves(sweep.out, runs, sweep.p)
+        report.table1(sweep.out, runs, sweep.preset)
+        report.training_curves(sweep.out, runs, sweep.preset)
+        report.testing_curves(sweep.out, runs, sweep.preset)
 
 
 class Table2(Table1):
@@ -97,7 +98,7 @@ class Table2(Table1):
     name = "table2"
 
     def report(self, sweep, runs):
-        report.table2(sweep.out, runs, sweep.p)
+        report.table2(sweep.out, runs, sweep.preset)
 
 
 class Stages(Section):
@@ -108,24 +109,24 @@ class Stages(Section):
     @staticmethod
     def _controllers(sweep) -> list:
         """(N, mode, controller) of each trained controller."""
-        lo, hi = sweep.p["stage_range"]
-        algos = [a for a in sweep.p["stage_algos"] if a in sweep.algos]
+        lo, hi = sweep.preset["stage_range"]
+        algos = [a for a in sweep.preset["stage_algos"] if a in sweep.algos]
         return [(n, mode, Controller(prefix=f"stages-N{n}-{mode}-{algo}", algo=algo, env=EnvSpec(stages=n, mode=mode)))
-                for n in range(lo, hi + 1) for mode in sweep.p["stage_modes"] for algo in algos]
+                for n in range(lo, hi + 1) for mode in sweep.preset["stage_modes"] for algo in algos]
 
     def units(self, sweep):
         return [u for _, _, controller in self._controllers(sweep)
-                for u in sweep.train_units(controller, range(sweep.p["stage_seeds"]))]
+                for u in sweep.train_units(controller, range(sweep.preset["stage_seeds"]))]
 
     def results(self, sweep):
         res = {}
         for n, mode, controller in self._controllers(sweep):
-            records = sweep.trained_seeds(controller, range(sweep.p["stage_seeds"]))
+            records = sweep.trained_seeds(controller, range(sweep.preset["stage_seeds"]))
             res.update({(n, mode, controller.algo, seed): r for seed, r in records.items()})
         return res
 
     def report(self, sweep, res):
-        report.stages(sweep.out, res, sweep.p)
+        report.stages(sweep.out, res, sweep.preset)
 
 
 class TableOneEvaluations(Section):
@@ -169,7 +170,7 @@ class Transfer(TableOneEvaluations):
         return [((mode, test), f"transfer-{mode}-{test}", {"stages": 5, "mode": test}) for test in MODES]
 
     def report(self, sweep, res):
-        report.transfer(sweep.out, res, sweep.p)
+        report.transfer(sweep.out, res, sweep.preset)
 
 
 class Feedback(TableOneEvaluations):
@@ -179,10 +180,10 @@ class Feedback(TableOneEvaluations):
 
     def evals(self, sweep, mode):
         return [((k,), f"feedback-k{k}", {"stages": 5, "mode": "hard", "feedback_k": k})
-                for k in sweep.p["feedback_ks"] if mode == "hard"]
+                for k in sweep.preset["feedback_ks"] if mode == "hard"]
 
     def report(self, sweep, res):
-        report.feedback(sweep.out, res, sweep.p)
+        report.feedback(sweep.out, res, sweep.preset)
 
 
 PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them

@@ -64,19 +64,19 @@ class SweepWorker:
         for rel, blob in (checkpoint or {}).items():
             (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
             (self.scratch / rel).write_bytes(blob)
-        computed = self.sweep.cells.computed
+        computed = self.sweep.store.computed
         self.sweep.compute_unit(unit, record)
         files = {}
         for cell in unit.cells:
-            path = self.sweep.cells.path(cell.label, cell.config)
+            path = self.sweep.store.path(cell.label, cell.config)
             files[path.relative_to(self.scratch).as_posix()] = blob = path.read_bytes()
             if unit.kind == "train":
                 ckpt = self.scratch / json.loads(blob)["result"]["checkpoint"]
                 files.update({f.relative_to(self.scratch).as_posix(): f.read_bytes() for f in ckpt.iterdir()})
         for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
             shutil.rmtree(child)
-        self.sweep.cells.folder.mkdir()
-        return dict(files=files, computed=self.sweep.cells.computed - computed, seconds=time.perf_counter() - t0,
+        self.sweep.store.folder.mkdir()
+        return dict(files=files, computed=self.sweep.store.computed - computed, seconds=time.perf_counter() - t0,
                     **self.where)
 
     def close(self) -> None:
@@ -263,7 +263,7 @@ def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
     files along. Returns the task's reference."""
     record = checkpoint = None
     if isinstance(unit, EvalUnit):
-        record = sweep.cells.load(unit.train.label, unit.train.config)
+        record = sweep.store.load(unit.train.label, unit.train.config)
         checkpoint = checkpoint_files(out, record)
     return actor.run.remote(unit, record, checkpoint)
 

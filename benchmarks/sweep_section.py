@@ -61,15 +61,15 @@ class CellSection(Section):
 
     def units(self, sweep) -> list:
         return [SectionUnit(key=cell.label, algo=self.name, section=self.name, cells=(cell,),
-                            cost=float(self._cost(cell.config))) for cell in self.labelled(sweep.p)]
+                            cost=float(self._cost(cell.config))) for cell in self.labelled(sweep.preset)]
 
     def compute(self, config: dict) -> dict:
         return self._compute({k: v for k, v in config.items() if k != "section"})
 
     def results(self, sweep) -> list:
         return [({k: v for k, v in cell.config.items() if k != "section"},
-                 sweep.cells.get(cell.label, cell.config, lambda c=cell.config: self.compute(c)))
-                for cell in self.labelled(sweep.p)]
+                 sweep.store.get(cell.label, cell.config, lambda c=cell.config: self.compute(c)))
+                for cell in self.labelled(sweep.preset)]
 
     def report(self, sweep, results) -> None:
         self._report(results, sweep.out)

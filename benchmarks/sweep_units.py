@@ -30,13 +30,16 @@ def is_learner(algo: str) -> bool:
 
 
 class Sweep:
+    """The sweep of ``preset`` into the folder ``out``: the store of its cells (``store``), the plan's units, their
+    computation and the report pass."""
+
     def __init__(self, preset: dict, out: Path, log, meta: dict | None = None):
         """``meta``: keys stored in each cell computed here (``CellStore``)."""
-        self.p = preset
+        self.preset = preset
         self.out = out
         self.log = log
         self.algos = list(preset["algos"])
-        self.cells = CellStore(out / "cells", log, meta)
+        self.store = CellStore(out / "cells", log, meta)
         self.ckpt_dir = out / "checkpoints"
         self.timing = {}
         self.memo = {}  # results read once and shared by sections (the table-1 runs)
@@ -48,17 +51,17 @@ class Sweep:
         form of ``ops_jax.EnvSpec``, the preset's hyperparameters under the controller's and every setting they
         resolve to (a changed preset is another cell)."""
         algo = controller.algo
-        hyper = {"config": self.p["config"]} if is_learner(algo) else {}
-        hyper.update(self.p.get("hyper", {}).get(algo, {}))
+        hyper = {"config": self.preset["algo_config"]} if is_learner(algo) else {}
+        hyper.update(self.preset.get("hyper", {}).get(algo, {}))
         hyper.update(controller.hyper)
-        steps = self.p["budgets"][algo] if controller.steps is None else controller.steps
+        steps = self.preset["budgets"][algo] if controller.steps is None else controller.steps
         return Cell(label=controller.label(seed), config=dict(
             kind="train", algo=algo, env=controller.env.as_dict(), seed=seed, steps=steps, hyper=hyper,
-            episodes=self.p["episodes"], settings=algo_entry(algo).settings(hyper)))
+            episodes=self.preset["episodes"], settings=algo_entry(algo).settings(hyper)))
 
     def _finished(self, cell: Cell, quiet: bool = True) -> bool:
         """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
-        record = self.cells.load(cell.label, cell.config, quiet=quiet)
+        record = self.store.load(cell.label, cell.config, quiet=quiet)
         return record is not None and self._loads(record, quiet=quiet)
 
     def _loads(self, record: dict, quiet: bool = False) -> bool:
@@ -100,11 +103,11 @@ class Sweep:
                 test_env=_eval_record(ev_test),
             )
 
-        computed = self.cells.computed
-        record = self.cells.get(cell.label, config, compute)
-        if self.cells.computed == computed and not self._loads(record):  # stored cell, checkpoint lost or unusable
-            self.cells.path(cell.label, config).unlink()
-            record = self.cells.get(cell.label, config, compute)
+        computed = self.store.computed
+        record = self.store.get(cell.label, config, compute)
+        if self.store.computed == computed and not self._loads(record):  # stored cell, checkpoint lost or unusable
+            self.store.path(cell.label, config).unlink()
+            record = self.store.get(cell.label, config, compute)
         return record
 
     def trained_seeds(self, controller: Controller, seeds) -> dict:
@@ -129,14 +132,14 @@ class Sweep:
     def eval_cell(self, checkpoint: str, evaluation: Evaluation) -> Cell:
         """The cell of ``evaluation`` of the controller stored at ``checkpoint`` (relative to the output folder)."""
         return Cell(label=evaluation.label, config=dict(kind="eval", checkpoint=checkpoint, env=evaluation.env.as_dict(),
-                                                        seed=evaluation.seed, episodes=self.p["episodes"]))
+                                                        seed=evaluation.seed, episodes=self.preset["episodes"]))
 
     def evaluated(self, evaluation: Evaluation, record: dict) -> dict:
         """The cell of ``evaluation`` of the controller of training ``record`` (computed unless stored)."""
         import agents
 
         cell = self.eval_cell(record["checkpoint"], evaluation)
-        return self.cells.get(cell.label, cell.config, lambda: _eval_record(agents.evaluate(
+        return self.store.get(cell.label, cell.config, lambda: _eval_record(agents.evaluate(
             self.policy(record), evaluation.env, episodes=cell.config["episodes"], seed=evaluation.seed)))
 
     # -- the plan's work units ---------------------------------------------------------------------
@@ -179,7 +182,7 @@ class Sweep:
     def todo(self, unit: Unit):
         """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
         if not isinstance(unit, TrainUnit):
-            return unit if any(self.cells.load(c.label, c.config) is None for c in unit.cells) else None
+            return unit if any(self.store.load(c.label, c.config) is None for c in unit.cells) else None
         left = [cell for cell in unit.cells if not self._finished(cell, quiet=False)]
         if not left:
             return None
@@ -197,7 +200,7 @@ class Sweep:
         else:
             section = sweep_plan.PLAN[unit.section]
             for cell in unit.cells:
-                self.cells.get(cell.label, cell.config, lambda c=cell.config: section.compute(c))
+                self.store.get(cell.label, cell.config, lambda c=cell.config: section.compute(c))
 
     def run(self, sections, workers=(), computed=0, started=float("nan")):
         """Load every cell of ``sections`` (computing any not stored), then write each section's report
@@ -218,8 +221,8 @@ class Sweep:
             section.report(self, results[section.name])
         self.timing["tables and figures"] = time.perf_counter() - t
         self.timing["total"] = time.perf_counter() - t0
-        counts = (self.cells.computed + computed, self.cells.reused - computed)
-        sweep_report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
+        counts = (self.store.computed + computed, self.store.reused - computed)
+        sweep_report.summary(self.out, self.preset, sections, self.timing, counts, workers, time.time() - started)
         return counts
 
 

@@ -110,7 +110,7 @@ def test_registered_learner_in_a_sweep_plan(tiny, tmp_path):
     cell = units[0].cells[0]
     assert cell.config["hyper"] == {"config": "fast", "max_gain": 0.8} and cell.config["steps"] == 120
     plan.compute_unit(units[0])
-    record = plan.cells.load(cell.label, cell.config)
+    record = plan.store.load(cell.label, cell.config)
     assert 0.5 < np.mean(record["test_env"]["final"]) <= 1.0
     assert agents.load(tmp_path / record["checkpoint"]).algo == "tiny"
 
