@@ -21,7 +21,7 @@ from ops_jax import EnvSpec
 # ``agents.config`` classes) and section settings per preset; each algorithm's budgets, hyperparameters and cost
 # come from its entry in agents.registry (``preset``).
 PRESETS = {
-    "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
+    "quick": dict(  # a first look: tiny budgets, a cheaper physics-informed fit, few episodes
         seeds=2, algo_config="fast", episodes=8,
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
