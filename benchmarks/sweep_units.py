@@ -1,6 +1,7 @@
-"""The sweep's work: the cells of the plan's sections (benchmarks/sweep_plan.py) as work units, their
-computation into the cell store, the report pass; compilation-cache setup of a worker process. The
-command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py (docs/sweep.md).
+"""The sweep's work: the cells of the plan's sections (benchmarks/sweep_plan.py) as work units (records of
+benchmarks/sweep_records.py), their computation into the cell store, the report pass; compilation-cache setup
+of a worker process. The command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py
+(docs/sweep.md).
 """
 
 from __future__ import annotations
@@ -40,7 +41,6 @@ class Sweep:
         self.log = log
         self.algos = list(preset["algos"])
         self.store = CellStore(out / "cells", log, meta)
-        self.ckpt_dir = out / "checkpoints"
         self.timing = {}
         self.memo = {}  # results read once and shared by sections (the table-1 runs)
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
@@ -58,6 +58,11 @@ class Sweep:
         return Cell(label=controller.label(seed), config=dict(
             kind="train", algo=algo, env=controller.env.as_dict(), seed=seed, steps=steps, hyper=hyper,
             episodes=self.preset["episodes"], settings=algo_entry(algo).settings(hyper)))
+
+    @staticmethod
+    def checkpoint(cell: Cell) -> str:
+        """The folder of training cell ``cell``'s checkpoint, relative to the output folder."""
+        return f"checkpoints/{cell.label}-{cell.key}"
 
     def _finished(self, cell: Cell, quiet: bool = True) -> bool:
         """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
@@ -82,8 +87,7 @@ class Sweep:
         import agents
 
         cell, env = self.train_cell(controller, seed), controller.env
-        config = cell.config
-        ckpt = self.ckpt_dir / f"{cell.label}-{cell.key}"
+        config, checkpoint = cell.config, self.checkpoint(cell)
 
         # A controller with nothing to train records an evaluation as its curve: the same draws as
         # the training-environment evaluation below (which computes them again, with the compiled program kept).
@@ -92,11 +96,11 @@ class Sweep:
         def compute():
             trained = result if result is not None else agents.train(
                 controller.algo, env, seed=seed, total_steps=config["steps"], **config["hyper"], **curve)
-            agents.save(ckpt, trained)
+            agents.save(self.out / checkpoint, trained)
             ev_train = agents.evaluate(trained, env, episodes=config["episodes"], seed=seed)
             ev_test = agents.evaluate(trained, env, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
             return dict(
-                checkpoint=str(ckpt.relative_to(self.out)),
+                checkpoint=checkpoint,
                 curve={k: np.asarray(v).tolist() for k, v in trained.curve.items()},
                 wall_time=trained.wall_time,
                 train_env=_eval_record(ev_train),
@@ -162,7 +166,7 @@ class Sweep:
         """The unit of ``evals`` (``Evaluation``s) of ``controller``'s seed ``seed``; it needs that training cell's
         unit (``deps``, resolved by ``units``)."""
         train = self.train_cell(controller, seed)
-        cells = [self.eval_cell(f"checkpoints/{train.label}-{train.key}", e) for e in evals]
+        cells = [self.eval_cell(self.checkpoint(train), e) for e in evals]
         factor = IMPERFECT_COST if any(e.env.imperfections is not None for e in evals) else 1.0
         return EvalUnit(key=key, algo=controller.algo, train=train, evals=evals, cells=cells,
                         cost=len(cells) * algo_entry(controller.algo).cost.eval_s * factor)
