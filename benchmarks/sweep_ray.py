@@ -11,6 +11,7 @@ unit (``--restarts``).
 
 from __future__ import annotations
 
+import dataclasses
 import faulthandler
 import json
 import logging
@@ -39,6 +40,19 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Computed:
+    """What a worker returns for a unit: the ``files`` it wrote ({path relative to the output folder: bytes}), the
+    number of cells it ``computed`` (not found stored), its wall ``seconds`` and where it ran (Ray ``node_id``,
+    ``hostname``)."""
+
+    files: dict
+    computed: int
+    seconds: float
+    node_id: str
+    hostname: str
+
+
 class SweepWorker:
     """A Ray actor: computes units in a scratch folder and returns the files they wrote."""
 
@@ -56,10 +70,9 @@ class SweepWorker:
         self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
         self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
 
-    def run(self, unit: Unit, record: dict | None = None, checkpoint: dict | None = None) -> dict:
+    def run(self, unit: Unit, record: dict | None = None, checkpoint: dict | None = None) -> Computed:
         """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
-        files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
-        "node_id", "hostname"}."""
+        files, {relative path: bytes})."""
         t0 = time.perf_counter()
         for rel, blob in (checkpoint or {}).items():
             (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -76,8 +89,8 @@ class SweepWorker:
         for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
             shutil.rmtree(child)
         self.sweep.store.folder.mkdir()
-        return dict(files=files, computed=self.sweep.store.computed - computed, seconds=time.perf_counter() - t0,
-                    **self.where)
+        return Computed(files=files, computed=self.sweep.store.computed - computed, seconds=time.perf_counter() - t0,
+                        **self.where)
 
     def close(self) -> None:
         shutil.rmtree(self.scratch, ignore_errors=True)
@@ -268,7 +281,7 @@ def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
     return actor.run.remote(unit, record, checkpoint)
 
 
-def _returned(ray, ref, unit: Unit, out: Path) -> dict:
+def _returned(ray, ref, unit: Unit, out: Path) -> Computed:
     """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it failed."""
     try:
         return ray.get(ref)
@@ -326,18 +339,18 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
             i, unit, t = running.pop(ref)
             in_flight -= min(time.monotonic() - t, 0.9 * unit.cost * cost_ratio(_kind(unit), est_done, spent))
             result = _returned(ray, ref, unit, out)
-            store_files(out, result["files"])
+            store_files(out, result.files)
             done.add(unit.key)
             idle.append(i)
             running_algos[unit.algo] -= 1
             remaining[unit.algo] -= unit.cost
             est_left[_kind(unit)] -= unit.cost
             est_done[_kind(unit)] += unit.cost
-            spent[_kind(unit)] += result["seconds"]
-            busy[i] += result["seconds"]
+            spent[_kind(unit)] += result.seconds
+            busy[i] += result.seconds
             algos[i].add(unit.algo)
-            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit.cells)
-            computed += result["computed"]
+            where[f"{result.hostname} (node {result.node_id[:8]})"] += len(unit.cells)
+            computed += result.computed
             cells_done += len(unit.cells)
             bar.set_postfix_str(cells(cells_done))
             _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
