@@ -166,12 +166,10 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
 def _score(result_or_policy, env_config: dict, cell: dict) -> float:
     """Final-step P / P_best, mean over the cell's test episodes (seed ``eval_seed``)."""
     import agents
-    import ops_jax
+    from agents.envs import best_ratio
 
     ev = agents.evaluate(result_or_policy, env_config, episodes=cell["episodes"], seed=cell["eval_seed"])
-    env, params = ops_jax.make(**env_config)
-    ratio = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
-    return float(ev.summary["final_mean"] * ratio)
+    return float(ev.summary["final_mean"] * best_ratio(env_config))
 
 
 def _snapshot_run(cell: dict, start_from=None):

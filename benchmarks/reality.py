@@ -105,13 +105,9 @@ class Reality(Section):
 
 def best_ratios() -> dict:
     """P_max / P_best of each level (1 for the ideal level)."""
-    from agents.envs import built
+    from agents.envs import best_ratio
 
-    ratios = {}
-    for name, scale in LEVELS:
-        env, params = built(env_config(scale))
-        ratios[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
-    return ratios
+    return {name: best_ratio(env_config(scale)) for name, scale in LEVELS}
 
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
