@@ -30,7 +30,7 @@ BASE_ENV = dict(stages=5, mode="hard", model="phasor")
 RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners' randomised training
 
 
-def env_config(scale: float) -> dict:
+def level_env(scale: float) -> dict:
     """The ``ops_jax.make`` options of an imperfection level (``scale`` x the lab preset; 0: ideal)."""
     return dict(BASE_ENV, imperfections="lab", imperfection_scale=scale) if scale > 0 else dict(BASE_ENV)
 
@@ -42,12 +42,12 @@ def trainings(algos, learners) -> list:
     and, its default, with it reading the calibrated length readout ("readout")."""
     out = []
     for algo in algos:
-        out.append((algo, "ideal", env_config(0.0), {"config": "frames"} if algo == "physics" else {}))
+        out.append((algo, "ideal", level_env(0.0), {"config": "frames"} if algo == "physics" else {}))
         if algo in learners:
             out.append((algo, "randomised", dict(RANDOMISED), {}))
         if algo == "physics":
-            out.append((algo, "identify", env_config(0.0), {"config": "frames", "identify": True}))
-            out.append((algo, "readout", env_config(0.0), {}))
+            out.append((algo, "identify", level_env(0.0), {"config": "frames", "identify": True}))
+            out.append((algo, "readout", level_env(0.0), {}))
     return out
 
 
@@ -76,7 +76,7 @@ class Reality(Section):
     def _tests(controller: Controller, seed: int) -> list:
         """(level, Evaluation) of seed ``seed`` of ``controller`` at each level."""
         return [(level, Evaluation(label=seed_label(f"{controller.prefix}-{level.replace(' ', '')}", seed),
-                                   env=env_config(scale), seed=seed + TEST_SEED_OFFSET)) for level, scale in LEVELS]
+                                   env=level_env(scale), seed=seed + TEST_SEED_OFFSET)) for level, scale in LEVELS]
 
     def units(self, sweep) -> list:
         units = []
@@ -107,7 +107,7 @@ def best_ratios() -> dict:
     """P_max / P_best of each level (1 for the ideal level)."""
     from agents.envs import best_ratio
 
-    return {name: best_ratio(env_config(scale)) for name, scale in LEVELS}
+    return {name: best_ratio(level_env(scale)) for name, scale in LEVELS}
 
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:
