@@ -38,6 +38,12 @@ def built(env_config: EnvSpec | dict) -> tuple:
     return _BUILT[key]
 
 
+def best_ratio(env_config: EnvSpec | dict) -> float:
+    """P_max / P_best of the environment of ``env_config`` (1 for the ideal system): a P/Pmax times it is P/P_best."""
+    env, params = built(env_config)
+    return env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
+
+
 def train_env_config(env_config: dict, reward: str | None = None) -> dict:
     """The env_config the learners train on: ``model="phasor"`` unless one is given, and the
     learner's own training ``reward`` (``ops_jax.REWARDS``) if it has one."""

@@ -18,8 +18,8 @@ seed) is drawn at every checkpoint, as references. That is protocol (a), from sc
 Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the randomised simulator
 (``randomize=1``: each episode's imperfections 0-2x the lab preset; ``randomize_layout=1``: its signed
 per-stage error patterns permuted over the stages, signs flipped; any budget, the preset's ``pretrain_steps``),
-then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``unseen_bench``: the lab preset
-at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
+then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``unseen_bench`` of ``bench_env``: the
+lab preset at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
 continuing from the pretrained networks (``start_from``, agents.offpolicy); P / P_best on that bench before
 adapting and at each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
 controller that needs no training holds there); and the same policies with the preset's extremum-seeking trim
@@ -63,7 +63,7 @@ PRESETS = {
                                # adapting: 250 steps of the pretrained policy, then 2 gentler gradient steps per step
                                hyper={"config": "budget", "learning_starts": 250, "eval_every": 250, "utd_ratio": 2.0,
                                       "actor_lr": 1e-4, "critic_lr": 1e-4},
-                               bench=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000),
+                               bench_env=HARD, scale=2.0, bench_seed_offset=1000, checkpoints=(1000, 2000, 5000),
                                trim={})),  # agents.trim's default TrimConfig
 }
 # every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
@@ -73,7 +73,7 @@ PRESETS["quick"]["adapt"] = dict(
                                    randomize_layout=1.0),
     pretrain_steps=600, pretrain_hyper=get("droq").sweep.lab_budget["quick"],
     hyper=dict(get("droq").sweep.lab_budget["quick"], learning_starts=100, eval_every=100),
-    bench=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600), trim={})
+    bench_env=PRESETS["quick"]["envs"]["easy 3"], scale=2.0, bench_seed_offset=1000, checkpoints=(300, 600), trim={})
 
 
 # The order of the controllers in the plan (its cells' labels in the sweep, budget-<index>) and the tables; any
@@ -149,28 +149,27 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
     if adapt and (envs is None or BENCH in envs):
         for seed in (p["seeds"] if seeds is None else seeds):
             bench_seed = int(seed) + adapt["bench_seed_offset"]
-            bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench"], bench_seed, adapt["scale"]),
-                         bench_seed=bench_seed, seed=int(seed), checkpoints=list(adapt["checkpoints"]),
-                         episodes=p["episodes"], eval_seed=p["eval_seed"])
+            on_bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench_env"], bench_seed, adapt["scale"]),
+                            bench_seed=bench_seed, seed=int(seed), checkpoints=list(adapt["checkpoints"]),
+                            episodes=p["episodes"], eval_seed=p["eval_seed"])
             if only is None or adapt["algo"] in only:
-                out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), **bench,
+                out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), **on_bench,
                                 pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
                                 pretrain_hyper=dict(adapt["pretrain_hyper"]), trim=dict(adapt["trim"]),
                                 settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
-            out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **bench, settings=get(algo).settings(hyper))
-                    for algo, hyper in references.items() if only is None or algo in only]
+            out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **on_bench,
+                         settings=get(algo).settings(hyper)) for algo, hyper in references.items()
+                    if only is None or algo in only]
     return out
 
 
 def _score(result_or_policy, env_config: dict, cell: dict) -> float:
     """Final-step P / P_best, mean over the cell's test episodes (seed ``eval_seed``)."""
     import agents
-    import ops_jax
+    from agents.envs import best_ratio
 
     ev = agents.evaluate(result_or_policy, env_config, episodes=cell["episodes"], seed=cell["eval_seed"])
-    env, params = ops_jax.make(**env_config)
-    ratio = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
-    return float(ev.summary["final_mean"] * ratio)
+    return float(ev.summary["final_mean"] * best_ratio(env_config))
 
 
 def _snapshot_run(cell: dict, start_from=None):

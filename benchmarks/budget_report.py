@@ -99,7 +99,7 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
     ks = c["checkpoints"]
     trimmed = all("trimmed" in r["result"] for r in adapted)
     refs = {NAMES.get(a, a): scores for a, scores in on_bench.items()}
-    ref = lambda scores, bench: f" {scores[bench]:.3f} |" if bench in scores else " - |"
+    ref = lambda scores, bench_seed: f" {scores[bench_seed]:.3f} |" if bench_seed in scores else " - |"
     # the columns: (title, score of a record)
     cols = [("before", lambda r: r["result"]["before"])]
     cols += [(f"after {k:,}", lambda r, k=k: r["result"]["scores"][str(k)]) for k in ks]
@@ -116,12 +116,12 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
              + "".join(f" | {name} on the bench" for name in refs) + " | pretraining s | adapting s |",
              "|---|---|" + "---|" * (len(cols) + len(refs)) + "---|---|"]
     for r in adapted:
-        res, bench = r["result"], r["cell"]["bench_seed"]
-        lines.append(f"| {r['cell']['seed']} | {bench} | " + " | ".join(f"{f(r):.3f}" for _, f in cols) + " |"
-                     + "".join(ref(scores, bench) for scores in refs.values())
+        res, bench_seed = r["result"], r["cell"]["bench_seed"]
+        lines.append(f"| {r['cell']['seed']} | {bench_seed} | " + " | ".join(f"{f(r):.3f}" for _, f in cols) + " |"
+                     + "".join(ref(scores, bench_seed) for scores in refs.values())
                      + f" {res['pretrain_s']:.0f} | {res['train_s']:.0f} |")
-    benches = [r["cell"]["bench_seed"] for r in adapted]
-    held = [[scores[b] for b in benches if b in scores] for scores in refs.values()]  # each reference's, these benches
+    bench_seeds = [r["cell"]["bench_seed"] for r in adapted]
+    held = [[scores[b] for b in bench_seeds if b in scores] for scores in refs.values()]  # each reference's, these benches
     for name, agg in (("mean", np.mean), ("worst", np.min)):
         lines.append(f"| {name} | | " + " | ".join(f"{agg([f(r) for r in adapted]):.3f}" for _, f in cols) + " |"
                      + "".join(f" {agg(v):.3f} |" if v else " - |" for v in held) + " | |")

@@ -33,7 +33,7 @@ def _sweep_hyper(algo: str) -> dict:
     from benchmarks.sweep_plan import preset
 
     default = preset("default")
-    return {"config": default["config"], **default.get("hyper", {}).get(algo, {})}
+    return {"config": default["algo_config"], **default.get("hyper", {}).get(algo, {})}
 
 
 def measure_one(algo: str, steps: int) -> dict:

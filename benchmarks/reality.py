@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.sweep_records import Controller, Evaluation, seed_label
 from benchmarks.sweep_section import TEST_SEED_OFFSET, Section
 
 LEVELS = (("none", 0.0), ("lab", 1.0), ("2x lab", 2.0))
@@ -29,24 +30,24 @@ BASE_ENV = dict(stages=5, mode="hard", model="phasor")
 RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners' randomised training
 
 
-def env_config(scale: float) -> dict:
+def level_env(scale: float) -> dict:
     """The ``ops_jax.make`` options of an imperfection level (``scale`` x the lab preset; 0: ideal)."""
     return dict(BASE_ENV, imperfections="lab", imperfection_scale=scale) if scale > 0 else dict(BASE_ENV)
 
 
 def trainings(algos, learners) -> list:
-    """(algo, training, env config, hyperparameter overrides) of each controller of the section:
+    """(algo, training, env options, hyperparameter overrides) of each controller of the section:
     every algorithm on the ideal system; the ``learners`` also randomised; the physics-informed
     controller as the ideal model ("ideal": the "frames" preset), with online identification ("identify")
     and, its default, with it reading the calibrated length readout ("readout")."""
     out = []
     for algo in algos:
-        out.append((algo, "ideal", env_config(0.0), {"config": "frames"} if algo == "physics" else {}))
+        out.append((algo, "ideal", level_env(0.0), {"config": "frames"} if algo == "physics" else {}))
         if algo in learners:
             out.append((algo, "randomised", dict(RANDOMISED), {}))
         if algo == "physics":
-            out.append((algo, "identify", env_config(0.0), {"config": "frames", "identify": True}))
-            out.append((algo, "readout", env_config(0.0), {}))
+            out.append((algo, "identify", level_env(0.0), {"config": "frames", "identify": True}))
+            out.append((algo, "readout", level_env(0.0), {}))
     return out
 
 
@@ -59,58 +60,54 @@ class Reality(Section):
 
     @staticmethod
     def _trainings(sweep) -> list:
-        """(label prefix, algo, env config, hyperparameter overrides, budget or None) of each controller."""
+        """(training, controller) of each controller of the section."""
         from agents.registry import REGISTRY
 
         learners = [a for a in sweep.algos if REGISTRY[a].learner]
-        return [(f"reality-{training}-{algo}", algo, env, extra, sweep.p.get("reality_budgets", {}).get(algo))
-                for algo, training, env, extra in trainings(sweep.algos, learners)]
+        return [(training, Controller(prefix=f"reality-{training}-{algo}", algo=algo, env=env, hyper=hyper,
+                                      steps=sweep.preset.get("reality_budgets", {}).get(algo)))
+                for algo, training, env, hyper in trainings(sweep.algos, learners)]
 
     @staticmethod
     def _seeds(sweep) -> range:
-        return range(sweep.p.get("reality_seeds", sweep.p["seeds"]))
+        return range(sweep.preset.get("reality_seeds", sweep.preset["seeds"]))
 
     @staticmethod
-    def _tests(prefix: str, seed: int) -> list:
-        """(level, cell label, test env config) of one trained controller."""
-        return [(level, f"{prefix}-{level.replace(' ', '')}-s{seed}", env_config(scale)) for level, scale in LEVELS]
+    def _tests(controller: Controller, seed: int) -> list:
+        """(level, Evaluation) of seed ``seed`` of ``controller`` at each level."""
+        return [(level, Evaluation(label=seed_label(f"{controller.prefix}-{level.replace(' ', '')}", seed),
+                                   env=level_env(scale), seed=seed + TEST_SEED_OFFSET)) for level, scale in LEVELS]
 
     def units(self, sweep) -> list:
         units = []
-        for prefix, algo, env, extra, steps in self._trainings(sweep):
-            units += sweep.train_units(prefix, algo, env, self._seeds(sweep), extra, steps)
-            for seed in self._seeds(sweep):
-                evals = [(label, test_env, seed + TEST_SEED_OFFSET) for _, label, test_env in self._tests(prefix, seed)]
-                units.append(sweep.eval_unit(f"evals-{prefix}-s{seed}", algo,
-                                             sweep.train_cell(f"{prefix}-s{seed}", algo, env, seed, extra, steps), evals))
+        for _, controller in self._trainings(sweep):
+            units += sweep.train_units(controller, self._seeds(sweep))
+            units += [sweep.eval_unit(f"evals-{controller.label(seed)}", controller, seed,
+                                      [evaluation for _, evaluation in self._tests(controller, seed)])
+                      for seed in self._seeds(sweep)]
         return units
 
     def results(self, sweep) -> dict:
         """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
         ratios = best_ratios()
         res = {}
-        for prefix, algo, env, extra, steps in self._trainings(sweep):
-            records = sweep.trained_seeds(algo, env, self._seeds(sweep), lambda s: f"{prefix}-s{s}", extra, steps)
-            row = res[f"{algo}/{prefix.split('-')[1]}"] = {level: [] for level, _ in LEVELS}
-            for seed, record in records.items():
-                for level, label, test_env in self._tests(prefix, seed):
-                    ev = sweep.evaluated(label, record, test_env, seed + TEST_SEED_OFFSET)
+        for training, controller in self._trainings(sweep):
+            row = res[f"{controller.algo}/{training}"] = {level: [] for level, _ in LEVELS}
+            for seed, record in sweep.trained_seeds(controller, self._seeds(sweep)).items():
+                for level, evaluation in self._tests(controller, seed):
+                    ev = sweep.evaluated(evaluation, record)
                     row[level].append(float(np.mean(ev["final"]) * ratios[level]))
         return res
 
     def report(self, sweep, results) -> None:
-        report(sweep.out, results, sweep.p, sweep.p.get("command", "python -m benchmarks.sweep --only reality"))
+        report(sweep.out, results, sweep.preset, sweep.preset.get("command", "python -m benchmarks.sweep --only reality"))
 
 
 def best_ratios() -> dict:
     """P_max / P_best of each level (1 for the ideal level)."""
-    from agents.envs import built
+    from agents.envs import best_ratio
 
-    ratios = {}
-    for name, scale in LEVELS:
-        env, params = built(env_config(scale))
-        ratios[name] = env.p_max / float(params.lab.p_best) if env.config.imperfect else 1.0
-    return ratios
+    return {name: best_ratio(level_env(scale)) for name, scale in LEVELS}
 
 
 def report(out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None) -> None:

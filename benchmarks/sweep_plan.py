@@ -13,23 +13,26 @@ from agents.registry import Registry
 from benchmarks import budget, reality
 from benchmarks import sweep_report as report
 from benchmarks.paper import MODES
-from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section, seed_label
+from benchmarks.sweep_records import Controller, Evaluation, seed_label
+from benchmarks.sweep_section import TEST_SEED_OFFSET, CellSection, Section
+from ops_jax import EnvSpec
 
-# Seeds, episodes and section settings per preset; each algorithm's budgets, hyperparameters and cost
+# Seeds, episodes, the learners' hyperparameter preset (``algo_config``: the ``config`` of their
+# ``agents.config`` classes) and section settings per preset; each algorithm's budgets, hyperparameters and cost
 # come from its entry in agents.registry (``preset``).
 PRESETS = {
-    "quick": dict(  # a first look: tiny budgets, a cheaper physics fit, few episodes
-        seeds=2, config="fast", episodes=8,
+    "quick": dict(  # a first look: tiny budgets, a cheaper physics-informed fit, few episodes
+        seeds=2, algo_config="fast", episodes=8,
         stage_range=(2, 3), stage_modes=("easy",), stage_algos=("spgd",), stage_seeds=1,
         feedback_ks=(1, 100), aux_seeds=1, reality_seeds=2,
     ),
     "default": dict(  # its wall time: docs/results.md
-        seeds=5, config="fast", episodes=32,
+        seeds=5, algo_config="fast", episodes=32,
         stage_range=(1, 7), stage_modes=("easy", "hard"), stage_algos=("spgd", "physics"), stage_seeds=1,
         feedback_ks=(1, 20, 40, 60, 80, 100), aux_seeds=2, reality_seeds=3,
     ),
     "paper": dict(
-        seeds=20, config="paper", episodes=100,
+        seeds=20, algo_config="paper", episodes=100,
         stage_range=(1, 7), stage_modes=MODES, stage_algos=("spgd", "physics", "td3", "sac"), stage_seeds=5,
         feedback_ks=(1, 20, 40, 60, 80, 100), reality_seeds=5,
     ),
@@ -49,16 +52,15 @@ def preset(name: str) -> dict:
     return {**out, **({"hyper": hyper} if hyper else {}), **({"reality_budgets": budgets} if budgets else {})}
 
 
-def _table1_cells(mode: str, algo: str) -> str:
-    """The label prefix of the table-1 cells of ``algo`` trained in ``mode``."""
-    return f"table1-{mode}-{algo}"
+def table1_controller(mode: str, algo: str) -> Controller:
+    """The table-1 controller of ``algo`` trained in ``mode`` (5 stages)."""
+    return Controller(prefix=f"table1-{mode}-{algo}", algo=algo, env=EnvSpec(stages=5, mode=mode))
 
 
 def table1_units(sweep) -> list:
     """The table-1 trainings: every algorithm on the 5-stage system in each mode, each seed."""
     return [u for mode in MODES for algo in sweep.algos
-            for u in sweep.train_units(_table1_cells(mode, algo), algo, {"stages": 5, "mode": mode},
-                                       range(sweep.p["seeds"]))]
+            for u in sweep.train_units(table1_controller(mode, algo), range(sweep.preset["seeds"]))]
 
 
 def table1_runs(sweep) -> dict:
@@ -67,8 +69,7 @@ def table1_runs(sweep) -> dict:
         runs = {}
         for mode in MODES:
             for algo in sweep.algos:
-                records = sweep.trained_seeds(algo, {"stages": 5, "mode": mode}, range(sweep.p["seeds"]),
-                                              lambda s: seed_label(_table1_cells(mode, algo), s))
+                records = sweep.trained_seeds(table1_controller(mode, algo), range(sweep.preset["seeds"]))
                 runs.update({(mode, algo, seed): r for seed, r in records.items()})
         sweep.memo["table1"] = runs
     return sweep.memo["table1"]
@@ -86,9 +87,9 @@ class Table1(Section):
         return table1_runs(sweep)
 
     def report(self, sweep, runs):
-        report.table1(sweep.out, runs, sweep.p)
-        report.training_curves(sweep.out, runs, sweep.p)
-        report.testing_curves(sweep.out, runs, sweep.p)
+        report.table1(sweep.out, runs, sweep.preset)
+        report.training_curves(sweep.out, runs, sweep.preset)
+        report.testing_curves(sweep.out, runs, sweep.preset)
 
 
 class Table2(Table1):
@@ -97,7 +98,7 @@ class Table2(Table1):
     name = "table2"
 
     def report(self, sweep, runs):
-        report.table2(sweep.out, runs, sweep.p)
+        report.table2(sweep.out, runs, sweep.preset)
 
 
 class Stages(Section):
@@ -106,57 +107,58 @@ class Stages(Section):
     name = "stages"
 
     @staticmethod
-    def _runs(sweep):
-        """(N, mode, algo, label prefix of its cells) of each trained controller."""
-        lo, hi = sweep.p["stage_range"]
-        algos = [a for a in sweep.p["stage_algos"] if a in sweep.algos]
-        return [(n, mode, algo, f"stages-N{n}-{mode}-{algo}") for n in range(lo, hi + 1)
-                for mode in sweep.p["stage_modes"] for algo in algos]
+    def _controllers(sweep) -> list:
+        """(N, mode, controller) of each trained controller."""
+        lo, hi = sweep.preset["stage_range"]
+        algos = [a for a in sweep.preset["stage_algos"] if a in sweep.algos]
+        return [(n, mode, Controller(prefix=f"stages-N{n}-{mode}-{algo}", algo=algo, env=EnvSpec(stages=n, mode=mode)))
+                for n in range(lo, hi + 1) for mode in sweep.preset["stage_modes"] for algo in algos]
 
     def units(self, sweep):
-        return [u for n, mode, algo, prefix in self._runs(sweep)
-                for u in sweep.train_units(prefix, algo, {"stages": n, "mode": mode}, range(sweep.p["stage_seeds"]))]
+        return [u for _, _, controller in self._controllers(sweep)
+                for u in sweep.train_units(controller, range(sweep.preset["stage_seeds"]))]
 
     def results(self, sweep):
         res = {}
-        for n, mode, algo, prefix in self._runs(sweep):
-            records = sweep.trained_seeds(algo, {"stages": n, "mode": mode}, range(sweep.p["stage_seeds"]),
-                                          lambda s: seed_label(prefix, s))
-            res.update({(n, mode, algo, seed): r for seed, r in records.items()})
+        for n, mode, controller in self._controllers(sweep):
+            records = sweep.trained_seeds(controller, range(sweep.preset["stage_seeds"]))
+            res.update({(n, mode, controller.algo, seed): r for seed, r in records.items()})
         return res
 
     def report(self, sweep, res):
-        report.stages(sweep.out, res, sweep.p)
+        report.stages(sweep.out, res, sweep.preset)
 
 
 class TableOneEvaluations(Section):
     """Evaluations of the table-1 controllers (the first ``aux_seeds`` seeds) in other environments:
-    ``evals(sweep, mode) -> [(key, label, env config)]`` for the controllers trained in ``mode``."""
+    ``evals(sweep, mode) -> [(key, label prefix, env options)]`` for the controllers trained in ``mode``."""
 
     def evals(self, sweep, mode: str) -> list:
         raise NotImplementedError
 
-    def _controllers(self, sweep):
-        return [(mode, algo, seed) for mode in MODES for algo in sweep.algos for seed in range(sweep.aux_seeds)
-                if self.evals(sweep, mode)]
+    def _tests(self, sweep) -> list:
+        """(mode, controller, seed, [(result key, Evaluation)]) of each table-1 controller tested here."""
+        out = []
+        for mode in MODES:
+            for algo in sweep.algos:
+                for seed in range(sweep.aux_seeds):
+                    tests = [((*key, algo, seed), Evaluation(label=seed_label(f"{label}-{algo}", seed), env=env,
+                                                             seed=seed + TEST_SEED_OFFSET))
+                             for key, label, env in self.evals(sweep, mode)]
+                    if tests:
+                        out.append((mode, table1_controller(mode, algo), seed, tests))
+        return out
 
     def units(self, sweep):
-        units = table1_units(sweep)
-        for mode, algo, seed in self._controllers(sweep):
-            evals = [(seed_label(f"{label}-{algo}", seed), env, seed + TEST_SEED_OFFSET)
-                     for _, label, env in self.evals(sweep, mode)]
-            units.append(sweep.eval_unit(f"{self.name}-evals-{mode}-{algo}-s{seed}", algo,
-                                         sweep.train_cell(seed_label(_table1_cells(mode, algo), seed), algo,
-                                                          {"stages": 5, "mode": mode}, seed), evals))
-        return units
+        return table1_units(sweep) + [
+            sweep.eval_unit(f"{self.name}-evals-{mode}-{controller.algo}-s{seed}", controller, seed,
+                            [evaluation for _, evaluation in tests])
+            for mode, controller, seed, tests in self._tests(sweep)]
 
     def results(self, sweep):
-        runs, res = table1_runs(sweep), {}
-        for mode, algo, seed in self._controllers(sweep):
-            for key, label, env in self.evals(sweep, mode):
-                res[(*key, algo, seed)] = sweep.evaluated(seed_label(f"{label}-{algo}", seed), runs[mode, algo, seed], env,
-                                                          seed + TEST_SEED_OFFSET)
-        return res
+        runs = table1_runs(sweep)
+        return {key: sweep.evaluated(evaluation, runs[mode, controller.algo, seed])
+                for mode, controller, seed, tests in self._tests(sweep) for key, evaluation in tests}
 
 
 class Transfer(TableOneEvaluations):
@@ -168,7 +170,7 @@ class Transfer(TableOneEvaluations):
         return [((mode, test), f"transfer-{mode}-{test}", {"stages": 5, "mode": test}) for test in MODES]
 
     def report(self, sweep, res):
-        report.transfer(sweep.out, res, sweep.p)
+        report.transfer(sweep.out, res, sweep.preset)
 
 
 class Feedback(TableOneEvaluations):
@@ -178,10 +180,10 @@ class Feedback(TableOneEvaluations):
 
     def evals(self, sweep, mode):
         return [((k,), f"feedback-k{k}", {"stages": 5, "mode": "hard", "feedback_k": k})
-                for k in sweep.p["feedback_ks"] if mode == "hard"]
+                for k in sweep.preset["feedback_ks"] if mode == "hard"]
 
     def report(self, sweep, res):
-        report.feedback(sweep.out, res, sweep.p)
+        report.feedback(sweep.out, res, sweep.preset)
 
 
 PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them

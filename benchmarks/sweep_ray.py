@@ -11,6 +11,7 @@ unit (``--restarts``).
 
 from __future__ import annotations
 
+import dataclasses
 import faulthandler
 import json
 import logging
@@ -24,6 +25,7 @@ from collections import Counter
 from pathlib import Path
 
 from agents.io import temp_dir, write_bytes_atomic
+from benchmarks.sweep_records import EvalUnit, Unit
 from benchmarks.sweep_units import Sweep, enable_compilation_cache
 from ops_jax.progress import is_terminal, progress
 
@@ -36,6 +38,19 @@ OBJECT_STORE_BYTES = 200 * 2**20  # a local instance's object store: units retur
 
 def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Computed:
+    """What a worker returns for a unit: the ``files`` it wrote ({path relative to the output folder: bytes}), the
+    number of cells it ``computed`` (not found stored), its wall ``seconds`` and where it ran (Ray ``node_id``,
+    ``hostname``)."""
+
+    files: dict
+    computed: int
+    seconds: float
+    node_id: str
+    hostname: str
 
 
 class SweepWorker:
@@ -55,28 +70,27 @@ class SweepWorker:
         self.scratch = Path(tempfile.mkdtemp(prefix="ops-jax-sweep-"))
         self.sweep = Sweep(preset, self.scratch, _stderr, meta=self.where)
 
-    def run(self, unit: dict, record: dict | None = None, checkpoint: dict | None = None) -> dict:
+    def run(self, unit: Unit, record: dict | None = None, checkpoint: dict | None = None) -> Computed:
         """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
-        files, {relative path: bytes}); returns {"files": {relative path: bytes}, "computed", "seconds",
-        "node_id", "hostname"}."""
+        files, {relative path: bytes})."""
         t0 = time.perf_counter()
         for rel, blob in (checkpoint or {}).items():
             (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
             (self.scratch / rel).write_bytes(blob)
-        computed = self.sweep.cells.computed
+        computed = self.sweep.store.computed
         self.sweep.compute_unit(unit, record)
         files = {}
-        for label, config in unit["cells"]:
-            path = self.sweep.cells.path(label, config)
+        for cell in unit.cells:
+            path = self.sweep.store.path(cell.label, cell.config)
             files[path.relative_to(self.scratch).as_posix()] = blob = path.read_bytes()
-            if unit["kind"] == "train":
+            if unit.kind == "train":
                 ckpt = self.scratch / json.loads(blob)["result"]["checkpoint"]
                 files.update({f.relative_to(self.scratch).as_posix(): f.read_bytes() for f in ckpt.iterdir()})
         for child in self.scratch.iterdir():  # this unit is returned: keep the node's disk clean
             shutil.rmtree(child)
-        self.sweep.cells.folder.mkdir()
-        return dict(files=files, computed=self.sweep.cells.computed - computed, seconds=time.perf_counter() - t0,
-                    **self.where)
+        self.sweep.store.folder.mkdir()
+        return Computed(files=files, computed=self.sweep.store.computed - computed, seconds=time.perf_counter() - t0,
+                        **self.where)
 
     def close(self) -> None:
         shutil.rmtree(self.scratch, ignore_errors=True)
@@ -131,10 +145,10 @@ def store_files(out: Path, files: dict) -> None:
             write_bytes_atomic(out / rel, blob)
 
 
-def _kind(unit: dict) -> str:
+def _kind(unit: Unit) -> str:
     """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
     or a section's own cells."""
-    return {"train": f"train {unit['algo']}", "eval": "eval"}.get(unit["kind"], f"cell {unit['algo']}")
+    return {"train": f"train {unit.algo}", "eval": "eval"}.get(unit.kind, f"cell {unit.algo}")
 
 
 def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
@@ -189,11 +203,11 @@ def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
     else of the one with the most remaining cost."""
     if not ready:
         return None
-    same = [u for u in ready if u["algo"] == last_algo]
+    same = [u for u in ready if u.algo == last_algo]
     if same:
         return same[0]
-    free = [u for u in ready if not running_algos[u["algo"]]] or ready
-    return max(free, key=lambda u: remaining[u["algo"]])  # max keeps the first of equals: plan order
+    free = [u for u in ready if not running_algos[u.algo]] or ready
+    return max(free, key=lambda u: remaining[u.algo])  # max keeps the first of equals: plan order
 
 
 def connect(address: str | None, jobs: int | None):
@@ -225,9 +239,9 @@ def run(preset: dict, out: Path, sections, address: str | None = None, jobs: int
     started = time.time()
     sweep = Sweep(preset, out, _stderr)
     units = sweep.units(sections)
-    todo = {u["key"]: t for u in units if (t := sweep.todo(u)) is not None}
-    done = {u["key"] for u in units} - set(todo)
-    reused = sum(len(u["cells"]) for u in units) - sum(len(u["cells"]) for u in todo.values())
+    todo = {u.key: t for u in units if (t := sweep.todo(u)) is not None}
+    done = {u.key for u in units} - set(todo)
+    reused = sum(len(u.cells) for u in units) - sum(len(u.cells) for u in todo.values())
     workers, computed = [], 0
     if todo:
         import ray
@@ -257,22 +271,22 @@ def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
     return env
 
 
-def _submit(sweep: Sweep, out: Path, actor, unit: dict):
+def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
     """Start ``unit`` on the worker ``actor``; an eval unit takes its controller's training record and checkpoint
     files along. Returns the task's reference."""
     record = checkpoint = None
-    if unit["kind"] == "eval":
-        record = sweep.cells.load(*unit["train"])
+    if isinstance(unit, EvalUnit):
+        record = sweep.store.load(unit.train.label, unit.train.config)
         checkpoint = checkpoint_files(out, record)
     return actor.run.remote(unit, record, checkpoint)
 
 
-def _returned(ray, ref, unit: dict, out: Path) -> dict:
+def _returned(ray, ref, unit: Unit, out: Path) -> Computed:
     """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it failed."""
     try:
         return ray.get(ref)
     except (ray.exceptions.RayError, OSError) as exc:
-        raise SystemExit(f"unit {unit['key']} failed ({type(exc).__name__}: {exc}); the finished cells are "
+        raise SystemExit(f"unit {unit.key} failed ({type(exc).__name__}: {exc}); the finished cells are "
                          f"stored in {out}/cells (re-run the command to resume)") from exc
 
 
@@ -288,9 +302,9 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     actors = [actor.remote(preset, env, cpus) for cpus in shares]
     remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
     for u in todo.values():
-        remaining[u["algo"]] += u["cost"]
-        est_left[_kind(u)] += u["cost"]
-    cells_total, cells_done = sum(len(u["cells"]) for u in todo.values()), 0
+        remaining[u.algo] += u.cost
+        est_left[_kind(u)] += u.cost
+    cells_total, cells_done = sum(len(u.cells) for u in todo.values()), 0
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"
     bar = progress(total=round(projected_seconds(est_left, est_done, spent), 1), desc=on,
                    unit="worker-s", smoothing=0)
@@ -302,42 +316,42 @@ def _compute(ray, sweep: Sweep, todo: dict, done: set, jobs, restarts: int, work
     try:
         while todo or running:
             for i in list(idle):
-                ready = [u for u in todo.values() if all(d in done for d in u["deps"])]
+                ready = [u for u in todo.values() if all(d in done for d in u.deps)]
                 unit = pick(ready, last_algo[i], running_algos, remaining)
                 if unit is None:
                     break
-                del todo[unit["key"]]
+                del todo[unit.key]
                 running[_submit(sweep, out, actors[i], unit)] = (i, unit, time.monotonic())
                 idle.remove(i)
-                last_algo[i] = unit["algo"]
-                running_algos[unit["algo"]] += 1
-            bar.set_description(f"{on}: " + ", ".join(u["key"] for _, u, _ in running.values()))
+                last_algo[i] = unit.algo
+                running_algos[unit.algo] += 1
+            bar.set_description(f"{on}: " + ", ".join(u.key for _, u, _ in running.values()))
             finished, _ = ray.wait(list(running), num_returns=1, timeout=PROGRESS_EVERY_S)
             # Work in flight counts as done for as long as it has run, up to 90% of its projected cost (a
             # unit running over its estimate holds the line back instead of showing nothing left): the rate
             # is then the number of busy workers from the start, not only what finished units show.
-            in_flight = sum(min(time.monotonic() - t, 0.9 * u["cost"] * cost_ratio(_kind(u), est_done, spent))
+            in_flight = sum(min(time.monotonic() - t, 0.9 * u.cost * cost_ratio(_kind(u), est_done, spent))
                             for _, u, t in running.values())
             if not finished:
                 _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
                 continue
             ref = finished[0]
             i, unit, t = running.pop(ref)
-            in_flight -= min(time.monotonic() - t, 0.9 * unit["cost"] * cost_ratio(_kind(unit), est_done, spent))
+            in_flight -= min(time.monotonic() - t, 0.9 * unit.cost * cost_ratio(_kind(unit), est_done, spent))
             result = _returned(ray, ref, unit, out)
-            store_files(out, result["files"])
-            done.add(unit["key"])
+            store_files(out, result.files)
+            done.add(unit.key)
             idle.append(i)
-            running_algos[unit["algo"]] -= 1
-            remaining[unit["algo"]] -= unit["cost"]
-            est_left[_kind(unit)] -= unit["cost"]
-            est_done[_kind(unit)] += unit["cost"]
-            spent[_kind(unit)] += result["seconds"]
-            busy[i] += result["seconds"]
-            algos[i].add(unit["algo"])
-            where[f"{result['hostname']} (node {result['node_id'][:8]})"] += len(unit["cells"])
-            computed += result["computed"]
-            cells_done += len(unit["cells"])
+            running_algos[unit.algo] -= 1
+            remaining[unit.algo] -= unit.cost
+            est_left[_kind(unit)] -= unit.cost
+            est_done[_kind(unit)] += unit.cost
+            spent[_kind(unit)] += result.seconds
+            busy[i] += result.seconds
+            algos[i].add(unit.algo)
+            where[f"{result.hostname} (node {result.node_id[:8]})"] += len(unit.cells)
+            computed += result.computed
+            cells_done += len(unit.cells)
             bar.set_postfix_str(cells(cells_done))
             _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
     finally:

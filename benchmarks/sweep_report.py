@@ -377,7 +377,7 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
         "",
         f"- sections: {', '.join(sections)}",
         f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: {p['episodes']}",
-        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['config']}",
+        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['algo_config']}",
         *([f"- the reality section's own budgets: {p['reality_budgets']}"]
           if "reality" in sections and p.get("reality_budgets") else []),
         f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",

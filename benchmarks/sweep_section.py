@@ -1,8 +1,8 @@
 """A section of ``benchmarks.sweep``: a name, its cells as work units, and its report.
 
 The plan (benchmarks/sweep_plan.py) is a list of sections; the unit list, the executor and the
-report pass all iterate the same objects. A section's ``units(sweep)`` declares its work (cell
-labels and configurations: the one place they are written), ``results(sweep)`` reads its cells back
+report pass all iterate the same objects. A section's ``units(sweep)`` declares its work (units of
+benchmarks/sweep_records.py: the one place its cells are declared), ``results(sweep)`` reads its cells back
 from the store (computing any that are missing) and ``report(sweep, results)`` writes its tables
 and figures. ``CellSection`` adapts a section of independent cells given as three functions.
 """
@@ -11,14 +11,11 @@ from __future__ import annotations
 
 from typing import Callable
 
+from benchmarks.sweep_records import Cell, SectionUnit
+
 TEST_SEED_OFFSET = 10_000  # the testing environment's seed: the training seed + this
 EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: agents.registry.CostModel)
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
-
-
-def seed_label(prefix: str, seed: int) -> str:
-    """The label of the training cell of seed ``seed`` among a section's cells ``prefix`` (one controller)."""
-    return f"{prefix}-s{seed}"
 
 
 class Section:
@@ -28,8 +25,8 @@ class Section:
     default: bool = True
 
     def units(self, sweep) -> list:
-        """The work units of this section's cells (``Sweep.train_units`` / ``Sweep.eval_unit`` dicts;
-        units shared with another section carry the same key and are computed once)."""
+        """The work units of this section's cells (``benchmarks.sweep_records.Unit``s, from ``Sweep.train_units``
+        and ``Sweep.eval_unit``; units shared with another section carry the same key and are computed once)."""
         raise NotImplementedError
 
     def results(self, sweep):
@@ -58,21 +55,21 @@ class CellSection(Section):
         self._cost = cost or (lambda config: float(config.get("cost", EVAL_S)))
 
     def labelled(self, preset: dict) -> list:
-        """[(label, config)] of the preset's cells."""
-        return [(c.get("label", f"{self.name}-{i}"), dict(c, section=self.name))
+        """The preset's cells (``Cell``: label and stored configuration)."""
+        return [Cell(label=c.get("label", f"{self.name}-{i}"), config=dict(c, section=self.name))
                 for i, c in enumerate(self._cells(preset))]
 
     def units(self, sweep) -> list:
-        return [dict(key=label, algo=self.name, kind="cell", section=self.name, cells=[(label, config)], deps=[],
-                     cost=float(self._cost(config))) for label, config in self.labelled(sweep.p)]
+        return [SectionUnit(key=cell.label, algo=self.name, section=self.name, cells=(cell,),
+                            cost=float(self._cost(cell.config))) for cell in self.labelled(sweep.preset)]
 
     def compute(self, config: dict) -> dict:
         return self._compute({k: v for k, v in config.items() if k != "section"})
 
     def results(self, sweep) -> list:
-        return [({k: v for k, v in config.items() if k != "section"},
-                 sweep.cells.get(label, config, lambda c=config: self.compute(c)))
-                for label, config in self.labelled(sweep.p)]
+        return [({k: v for k, v in cell.config.items() if k != "section"},
+                 sweep.store.get(cell.label, cell.config, lambda c=cell.config: self.compute(c)))
+                for cell in self.labelled(sweep.preset)]
 
     def report(self, sweep, results) -> None:
         self._report(results, sweep.out)

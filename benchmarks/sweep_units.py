@@ -1,21 +1,22 @@
-"""The sweep's work: the cells of the plan's sections (benchmarks/sweep_plan.py) as work units, their
-computation into the cell store, the report pass; compilation-cache setup of a worker process. The
-command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py (docs/sweep.md).
+"""The sweep's work: the cells of the plan's sections (benchmarks/sweep_plan.py) as work units (records of
+benchmarks/sweep_records.py), their computation into the cell store, the report pass; compilation-cache setup
+of a worker process. The command line is benchmarks/sweep.py; the Ray executor benchmarks/sweep_ray.py
+(docs/sweep.md).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from benchmarks import sweep_plan
-from ops_jax import EnvSpec
-from benchmarks.cells import CellStore, config_hash
-from benchmarks.sweep_section import IMPERFECT_COST, TEST_SEED_OFFSET, seed_label
+from benchmarks.cells import CellStore
+from benchmarks.sweep_records import Cell, Controller, EvalUnit, Evaluation, TrainUnit, Unit
+from benchmarks.sweep_section import IMPERFECT_COST, TEST_SEED_OFFSET
 
 
 def algo_entry(name: str):
@@ -30,34 +31,42 @@ def is_learner(algo: str) -> bool:
 
 
 class Sweep:
+    """The sweep of ``preset`` into the folder ``out``: the store of its cells (``store``), the plan's units, their
+    computation and the report pass."""
+
     def __init__(self, preset: dict, out: Path, log, meta: dict | None = None):
         """``meta``: keys stored in each cell computed here (``CellStore``)."""
-        self.p = preset
+        self.preset = preset
         self.out = out
         self.log = log
         self.algos = list(preset["algos"])
-        self.cells = CellStore(out / "cells", log, meta)
-        self.ckpt_dir = out / "checkpoints"
+        self.store = CellStore(out / "cells", log, meta)
         self.timing = {}
         self.memo = {}  # results read once and shared by sections (the table-1 runs)
         self.aux_seeds = min(preset.get("aux_seeds", preset["seeds"]), preset["seeds"])  # transfer, feedback
 
     # -- trained controllers --------------------------------------------------------------------
-    def _train_config(self, algo: str, env_config: EnvSpec | dict, seed: int, extra: dict | None = None,
-                      steps: int | None = None) -> dict:
-        """A training cell's configuration (its environment in the dict form of ``ops_jax.EnvSpec``, so a spec and
-        its dict are one cell); ``extra``: hyperparameters over the preset's (a section's variant);
-        ``steps``: a budget other than the preset's (a section's own)."""
-        hyper = {"config": self.p["config"]} if is_learner(algo) else {}
-        hyper.update(self.p.get("hyper", {}).get(algo, {}))
-        hyper.update(extra or {})
-        return dict(kind="train", algo=algo, env=EnvSpec.from_options(env_config).as_dict(), seed=seed,
-                    steps=self.p["budgets"][algo] if steps is None else steps, hyper=hyper, episodes=self.p["episodes"],
-                    settings=algo_entry(algo).settings(hyper))  # a changed preset is another cell
+    def train_cell(self, controller: Controller, seed: int) -> Cell:
+        """The training cell of ``controller``'s seed ``seed``: its configuration holds the environment in the dict
+        form of ``ops_jax.EnvSpec``, the preset's hyperparameters under the controller's and every setting they
+        resolve to (a changed preset is another cell)."""
+        algo = controller.algo
+        hyper = {"config": self.preset["algo_config"]} if is_learner(algo) else {}
+        hyper.update(self.preset.get("hyper", {}).get(algo, {}))
+        hyper.update(controller.hyper)
+        steps = self.preset["budgets"][algo] if controller.steps is None else controller.steps
+        return Cell(label=controller.label(seed), config=dict(
+            kind="train", algo=algo, env=controller.env.as_dict(), seed=seed, steps=steps, hyper=hyper,
+            episodes=self.preset["episodes"], settings=algo_entry(algo).settings(hyper)))
 
-    def _finished(self, label: str, config: dict, quiet: bool = True) -> bool:
+    @staticmethod
+    def checkpoint(cell: Cell) -> str:
+        """The folder of training cell ``cell``'s checkpoint, relative to the output folder."""
+        return f"checkpoints/{cell.label}-{cell.key}"
+
+    def _finished(self, cell: Cell, quiet: bool = True) -> bool:
         """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
-        record = self.cells.load(label, config, quiet=quiet)
+        record = self.store.load(cell.label, cell.config, quiet=quiet)
         return record is not None and self._loads(record, quiet=quiet)
 
     def _loads(self, record: dict, quiet: bool = False) -> bool:
@@ -72,141 +81,130 @@ class Sweep:
                 self.log(f"checkpoint {record['checkpoint']} unusable ({exc}): training again")
             return False
 
-    def trained(self, algo: str, env_config: dict, seed: int, label: str, result=None, extra=None,
-                steps=None) -> dict:
-        """Train (or reuse) one controller, evaluate it in its training and testing environment.
-        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call);
-        ``extra``, ``steps``: hyperparameter overrides and budget (``_train_config``)."""
+    def trained(self, controller: Controller, seed: int, result=None) -> dict:
+        """Train (or reuse) ``controller`` on seed ``seed``, evaluate it in its training and testing environment.
+        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call)."""
         import agents
 
-        config = self._train_config(algo, env_config, seed, extra, steps)
-        ckpt = self.ckpt_dir / f"{label}-{config_hash(config)}"
+        cell, env = self.train_cell(controller, seed), controller.env
+        config, checkpoint = cell.config, self.checkpoint(cell)
 
         # A controller with nothing to train records an evaluation as its curve: the same draws as
         # the training-environment evaluation below (which computes them again, with the compiled program kept).
-        curve = {} if is_learner(algo) else {"curve_episodes": config["episodes"]}
+        curve = {} if is_learner(controller.algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
             trained = result if result is not None else agents.train(
-                algo, env_config, seed=seed, total_steps=config["steps"], **config["hyper"], **curve)
-            agents.save(ckpt, trained)
-            ev_train = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed)
-            ev_test = agents.evaluate(trained, env_config, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
+                controller.algo, env, seed=seed, total_steps=config["steps"], **config["hyper"], **curve)
+            agents.save(self.out / checkpoint, trained)
+            ev_train = agents.evaluate(trained, env, episodes=config["episodes"], seed=seed)
+            ev_test = agents.evaluate(trained, env, episodes=config["episodes"], seed=seed + TEST_SEED_OFFSET)
             return dict(
-                checkpoint=str(ckpt.relative_to(self.out)),
+                checkpoint=checkpoint,
                 curve={k: np.asarray(v).tolist() for k, v in trained.curve.items()},
                 wall_time=trained.wall_time,
                 train_env=_eval_record(ev_train),
                 test_env=_eval_record(ev_test),
             )
 
-        computed = self.cells.computed
-        record = self.cells.get(label, config, compute)
-        if self.cells.computed == computed and not self._loads(record):  # stored cell, checkpoint lost or unusable
-            self.cells.path(label, config).unlink()
-            record = self.cells.get(label, config, compute)
+        computed = self.store.computed
+        record = self.store.get(cell.label, config, compute)
+        if self.store.computed == computed and not self._loads(record):  # stored cell, checkpoint lost or unusable
+            self.store.path(cell.label, config).unlink()
+            record = self.store.get(cell.label, config, compute)
         return record
 
-    def trained_seeds(self, algo: str, env_config: dict, seeds, label: Callable[[int], str], extra=None,
-                      steps=None) -> dict:
-        """``trained`` for each seed; the unfinished seeds of an algorithm that vmaps seeds (TD3)
-        train in one call first, then each seed's cell is written as it is evaluated."""
+    def trained_seeds(self, controller: Controller, seeds) -> dict:
+        """{seed: ``trained`` record} of ``controller``; the unfinished seeds of an algorithm that vmaps seeds
+        (TD3) train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
 
         results = {}
-        if algo_entry(algo).vmaps_seeds:
-            todo = [s for s in seeds if not self._finished(label(s), self._train_config(algo, env_config, s, extra, steps))]
+        if algo_entry(controller.algo).vmaps_seeds:
+            todo = [s for s in seeds if not self._finished(self.train_cell(controller, s))]
             if len(todo) > 1:
-                config = self._train_config(algo, env_config, todo[0], extra, steps)
-                results = dict(zip(todo, agents.train_seeds(algo, env_config, seeds=todo, total_steps=config["steps"],
-                                                            **config["hyper"])))
-        records = {}
-        for seed in seeds:
-            records[seed] = self.trained(algo, env_config, seed, label(seed), results.get(seed), extra, steps)
-        return records
+                config = self.train_cell(controller, todo[0]).config
+                results = dict(zip(todo, agents.train_seeds(controller.algo, controller.env, seeds=todo,
+                                                            total_steps=config["steps"], **config["hyper"])))
+        return {seed: self.trained(controller, seed, results.get(seed)) for seed in seeds}
 
     def policy(self, record: dict):
         import agents
 
         return agents.load(self.out / record["checkpoint"])
 
-    def evaluated(self, label: str, record: dict, env_config: dict, seed: int) -> dict:
+    def eval_cell(self, checkpoint: str, evaluation: Evaluation) -> Cell:
+        """The cell of ``evaluation`` of the controller stored at ``checkpoint`` (relative to the output folder)."""
+        return Cell(label=evaluation.label, config=dict(kind="eval", checkpoint=checkpoint, env=evaluation.env.as_dict(),
+                                                        seed=evaluation.seed, episodes=self.preset["episodes"]))
+
+    def evaluated(self, evaluation: Evaluation, record: dict) -> dict:
+        """The cell of ``evaluation`` of the controller of training ``record`` (computed unless stored)."""
         import agents
 
-        config = self._eval_config(record["checkpoint"], env_config, seed)
-        return self.cells.get(label, config, lambda: _eval_record(
-            agents.evaluate(self.policy(record), env_config, episodes=config["episodes"], seed=seed)))
+        cell = self.eval_cell(record["checkpoint"], evaluation)
+        return self.store.get(cell.label, cell.config, lambda: _eval_record(agents.evaluate(
+            self.policy(record), evaluation.env, episodes=cell.config["episodes"], seed=evaluation.seed)))
 
     # -- the plan's work units ---------------------------------------------------------------------
-    def train_cell(self, label: str, algo: str, env: dict, seed: int, extra=None, steps=None) -> tuple:
-        """(label, configuration) of one training cell."""
-        return label, self._train_config(algo, env, seed, extra, steps)
-
-    def train_units(self, prefix: str, algo: str, env: dict, seeds, extra=None, steps=None) -> list:
-        """Training units of ``algo`` on ``env``, cells ``prefix``-s<seed>: one unit of all ``seeds`` for an
-        algorithm that vmaps seeds, else one per seed; ``extra``, ``steps``: as ``_train_config``."""
-        groups = [list(seeds)] if algo_entry(algo).vmaps_seeds else [[s] for s in seeds]
-        factor = IMPERFECT_COST if "imperfections" in env else 1.0
+    def train_units(self, controller: Controller, seeds) -> list:
+        """Training units of ``controller``: one unit of all ``seeds`` for an algorithm that vmaps seeds, else one
+        per seed."""
+        entry = algo_entry(controller.algo)
+        groups = [list(seeds)] if entry.vmaps_seeds else [[s] for s in seeds]
+        factor = IMPERFECT_COST if controller.env.imperfections is not None else 1.0
         units = []
         for group in groups:
-            cells = [self.train_cell(seed_label(prefix, s), algo, env, s, extra, steps) for s in group]
-            config = cells[0][1]
-            cost = len(group) * algo_entry(algo).train_s(config["hyper"], config["steps"], env["stages"]) * factor
-            units.append(dict(key=prefix if len(groups) == 1 else cells[0][0], algo=algo, kind="train", env=env,
-                              seeds=group, prefix=prefix, cells=cells, deps=[], cost=round(cost, 1),
-                              hyper=extra or {}, steps=steps))
+            cells = [self.train_cell(controller, s) for s in group]
+            config = cells[0].config
+            cost = len(group) * entry.train_s(config["hyper"], config["steps"], controller.env.stages) * factor
+            units.append(TrainUnit(key=controller.prefix if len(groups) == 1 else cells[0].label, algo=controller.algo,
+                                   controller=controller, cells=cells, cost=round(cost, 1)))
         return units
 
-    def eval_unit(self, key: str, algo: str, train: tuple, evals: list) -> dict:
-        """The unit evaluating the controller of training cell ``train`` (label, config) in ``evals``
-        [(label, env config, seed)]; it needs that cell's unit (``deps``, resolved by ``units``)."""
-        ckpt = f"checkpoints/{train[0]}-{config_hash(train[1])}"
-        cells = [(label, self._eval_config(ckpt, env, seed)) for label, env, seed in evals]
-        factor = IMPERFECT_COST if any("imperfections" in env for _, env, _ in evals) else 1.0
-        return dict(key=key, algo=algo, kind="eval", train=train, evals=evals, cells=cells, deps=[],
-                    cost=len(cells) * algo_entry(algo).cost.eval_s * factor)
+    def eval_unit(self, key: str, controller: Controller, seed: int, evals: list) -> EvalUnit:
+        """The unit of ``evals`` (``Evaluation``s) of ``controller``'s seed ``seed``; it needs that training cell's
+        unit (``deps``, resolved by ``units``)."""
+        train = self.train_cell(controller, seed)
+        cells = [self.eval_cell(self.checkpoint(train), e) for e in evals]
+        factor = IMPERFECT_COST if any(e.env.imperfections is not None for e in evals) else 1.0
+        return EvalUnit(key=key, algo=controller.algo, train=train, evals=evals, cells=cells,
+                        cost=len(cells) * algo_entry(controller.algo).cost.eval_s * factor)
 
     def units(self, sections) -> list:
-        """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once:
-        dicts with ``key``, ``algo``, ``kind`` ("train": one ``trained_seeds`` call of ``seeds``,
-        labels ``prefix``-s<seed>; "eval": evaluations (``evals``: label, env, seed) of one trained
-        controller ``train`` (label, config); "cell": a ``CellSection``'s cell), ``cells`` [(label,
-        config)], ``deps`` (keys of the units whose checkpoints it needs) and ``cost`` (estimated seconds)."""
+        """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once, an
+        ``EvalUnit``'s ``deps`` naming the unit of its training cell (benchmarks/sweep_records.py)."""
         units, producer = {}, {}
         for name, section in sweep_plan.PLAN.items():
             for unit in section.units(self) if name in sections else ():
-                if unit["key"] not in units:
-                    units[unit["key"]] = unit
-                    producer.update({label: unit["key"] for label, _ in unit["cells"]})
-        for unit in units.values():
-            if unit["kind"] == "eval":
-                unit["deps"] = [producer[unit["train"][0]]]
-        return list(units.values())
+                if unit.key not in units:
+                    units[unit.key] = unit
+                    producer.update({cell.label: unit.key for cell in unit.cells})
+        return [dataclasses.replace(u, deps=(producer[u.train.label],)) if isinstance(u, EvalUnit) else u
+                for u in units.values()]
 
-    def todo(self, unit: dict):
+    def todo(self, unit: Unit):
         """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
-        if unit["kind"] != "train":
-            return unit if any(self.cells.load(label, config) is None for label, config in unit["cells"]) else None
-        left = [(label, config) for label, config in unit["cells"] if not self._finished(label, config, quiet=False)]
+        if not isinstance(unit, TrainUnit):
+            return unit if any(self.store.load(c.label, c.config) is None for c in unit.cells) else None
+        left = [cell for cell in unit.cells if not self._finished(cell, quiet=False)]
         if not left:
             return None
-        seeds = [config["seed"] for _, config in left]
-        per_seed = unit["cost"] / len(unit["seeds"])
-        return {**unit, "cells": left, "seeds": seeds, "cost": round(per_seed * len(seeds), 1)}
+        per_seed = unit.cost / len(unit.cells)
+        return dataclasses.replace(unit, cells=left, cost=round(per_seed * len(left), 1))
 
-    def compute_unit(self, unit: dict, record: dict | None = None) -> None:
+    def compute_unit(self, unit: Unit, record: dict | None = None) -> None:
         """Compute ``unit``'s cells into this sweep's folder; an eval unit needs its controller's
         training ``record`` (and checkpoint in this folder)."""
-        if unit["kind"] == "train":
-            self.trained_seeds(unit["algo"], unit["env"], unit["seeds"], lambda s: seed_label(unit["prefix"], s),
-                               unit.get("hyper"), unit.get("steps"))
-        elif unit["kind"] == "eval":
-            for label, env, seed in unit["evals"]:
-                self.evaluated(label, record, env, seed)
+        if isinstance(unit, TrainUnit):
+            self.trained_seeds(unit.controller, unit.seeds)
+        elif isinstance(unit, EvalUnit):
+            for evaluation in unit.evals:
+                self.evaluated(evaluation, record)
         else:
-            section = sweep_plan.PLAN[unit["section"]]
-            for label, config in unit["cells"]:
-                self.cells.get(label, config, lambda c=config: section.compute(c))
+            section = sweep_plan.PLAN[unit.section]
+            for cell in unit.cells:
+                self.store.get(cell.label, cell.config, lambda c=cell.config: section.compute(c))
 
     def run(self, sections, workers=(), computed=0, started=float("nan")):
         """Load every cell of ``sections`` (computing any not stored), then write each section's report
@@ -227,13 +225,9 @@ class Sweep:
             section.report(self, results[section.name])
         self.timing["tables and figures"] = time.perf_counter() - t
         self.timing["total"] = time.perf_counter() - t0
-        counts = (self.cells.computed + computed, self.cells.reused - computed)
-        sweep_report.summary(self.out, self.p, sections, self.timing, counts, workers, time.time() - started)
+        counts = (self.store.computed + computed, self.store.reused - computed)
+        sweep_report.summary(self.out, self.preset, sections, self.timing, counts, workers, time.time() - started)
         return counts
-
-    def _eval_config(self, checkpoint: str, env_config: EnvSpec | dict, seed: int) -> dict:
-        return dict(kind="eval", checkpoint=checkpoint, env=EnvSpec.from_options(env_config).as_dict(), seed=seed,
-                    episodes=self.p["episodes"])
 
 
 def _eval_record(ev) -> dict:

@@ -23,5 +23,34 @@ STORED = {  # preset -> {cell label: config_hash}
 def test_stored_cells_keep_their_keys(name, tmp_path: Path):
     preset = json.loads(json.dumps(sweep_plan.preset(name)))
     sweep = sweep_units.Sweep(preset, tmp_path, lambda *a: None)
-    cells = {label: config for unit in sweep.units(list(sweep_plan.default_sections())) for label, config in unit["cells"]}
-    assert {label: config_hash(cells[label]) for label in STORED[name]} == STORED[name]
+    cells = {c.label: c for unit in sweep.units(list(sweep_plan.default_sections())) for c in unit.cells}
+    assert {label: cells[label].key for label in STORED[name]} == STORED[name]
+    assert all(c.key == config_hash(c.config) for c in cells.values())
+
+
+def test_units_are_frozen_picklable_records_of_the_stored_form(tmp_path: Path):
+    """A unit crosses to a Ray worker by pickle and comes back equal; a cell's key is the hash of its
+    configuration as stored (JSON); a misspelt field or environment option fails where the record is built."""
+    import dataclasses
+    import pickle
+
+    from benchmarks.sweep_records import Controller, EvalUnit, Evaluation, TrainUnit
+
+    preset = json.loads(json.dumps(sweep_plan.preset("quick")))
+    units = sweep_units.Sweep(preset, tmp_path, lambda *a: None).units(list(sweep_plan.PLAN))
+    assert {type(u).__name__ for u in units} == {"TrainUnit", "EvalUnit", "SectionUnit"}
+    for unit in units:
+        assert pickle.loads(pickle.dumps(unit)) == unit
+        assert all(c.key == config_hash(json.loads(json.dumps(c.config))) for c in unit.cells)
+    train = next(u for u in units if isinstance(u, TrainUnit))
+    assert [c.label for c in train.cells] == [train.controller.label(s) for s in train.seeds]
+    evals = next(u for u in units if isinstance(u, EvalUnit))
+    assert [c.label for c in evals.cells] == [e.label for e in evals.evals]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        train.cost = 0.0
+    with pytest.raises(TypeError, match="extra"):
+        Controller(prefix="p", algo="spgd", env={"stages": 5}, extra={})
+    with pytest.raises(TypeError, match="stage"):
+        Evaluation(label="e", env={"stage": 5}, seed=0)
+    with pytest.raises(TypeError):
+        TrainUnit(key="k", algo="spgd", cells=(), cost=1.0)  # no controller

@@ -105,12 +105,12 @@ def test_registered_learner_in_a_sweep_plan(tiny, tmp_path):
     preset = dict(sweep_plan.preset("quick"), algos=["tiny"], seeds=1)
     assert preset["budgets"]["tiny"] == 120 and preset["hyper"]["tiny"] == {"max_gain": 0.8}
     plan = sweep_units.Sweep(preset, tmp_path, print)
-    units = [u for u in plan.units(["table1"]) if u["key"] == "table1-easy-tiny"]
-    assert len(units) == 1 and len(units[0]["cells"]) == 1
-    label, config = units[0]["cells"][0]
-    assert config["hyper"] == {"config": "fast", "max_gain": 0.8} and config["steps"] == 120
+    units = [u for u in plan.units(["table1"]) if u.key == "table1-easy-tiny"]
+    assert len(units) == 1 and len(units[0].cells) == 1
+    cell = units[0].cells[0]
+    assert cell.config["hyper"] == {"config": "fast", "max_gain": 0.8} and cell.config["steps"] == 120
     plan.compute_unit(units[0])
-    record = plan.cells.load(label, config)
+    record = plan.store.load(cell.label, cell.config)
     assert 0.5 < np.mean(record["test_env"]["final"]) <= 1.0
     assert agents.load(tmp_path / record["checkpoint"]).algo == "tiny"
 

@@ -17,6 +17,7 @@ from agents.config import PhysicsConfig, TD3Config
 from benchmarks import sweep
 from benchmarks.sweep_units import Sweep
 from benchmarks.cells import CellStore
+from benchmarks.sweep_records import SectionUnit
 from benchmarks.sweep_report import _steps_cell, bold_mask, bold_rule, convergence_step
 from processes import default_sigint, descendants
 
@@ -68,53 +69,53 @@ def test_cell_store_resumes_and_detects_corruption(tmp_path):
 def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
     units = Sweep(preset, tmp_path, print).units(sweep.SECTIONS)
-    labels = [label for u in units for label, _ in u["cells"]]
+    labels = [c.label for u in units for c in u.cells]
     assert len(labels) == len(set(labels)) == 282  # the default preset's cells, each in one unit
     produced = {}
     for u in units:
-        assert all(d in produced for d in u["deps"]), u["key"]  # in order: what a unit needs comes before it
-        produced[u["key"]] = {label for label, _ in u["cells"]}
-        if u["kind"] == "eval":
-            assert u["train"][0] in produced[u["deps"][0]]
-            assert all(config["checkpoint"].startswith(f"checkpoints/{u['train'][0]}-") for _, config in u["cells"])
-        assert u["cost"] > 0
-    td3 = [u for u in units if u["kind"] == "train" and u["algo"] == "td3"]
+        assert all(d in produced for d in u.deps), u.key  # in order: what a unit needs comes before it
+        produced[u.key] = {c.label for c in u.cells}
+        if u.kind == "eval":
+            assert u.train.label in produced[u.deps[0]]
+            assert all(c.config["checkpoint"] == f"checkpoints/{u.train.label}-{u.train.key}" for c in u.cells)
+        assert u.cost > 0
+    td3 = [u for u in units if u.kind == "train" and u.algo == "td3"]
     # a training cell names every setting its preset resolves to: a changed preset is another cell
-    td3_config = td3[0]["cells"][0][1]
+    td3_config = td3[0].cells[0].config
     assert td3_config["settings"] == TD3Config.make(**td3_config["hyper"]).to_hyper()
-    assert all(len(u["seeds"]) == len(u["cells"]) for u in units if u["kind"] == "train")
-    assert {len(u["seeds"]) for u in td3} == {5}  # vmapped seeds: one unit per table-1 mode
-    assert {len(u["seeds"]) for u in units if u["kind"] == "train" and u["algo"] == "ppo"} == {1}
+    assert all(list(u.seeds) == [c.config["seed"] for c in u.cells] for u in units if u.kind == "train")
+    assert {len(u.seeds) for u in td3} == {5}  # vmapped seeds: one unit per table-1 mode
+    assert {len(u.seeds) for u in units if u.kind == "train" and u.algo == "ppo"} == {1}
 
 
 def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=None, algos=None))
     units = Sweep(preset, tmp_path, print).units(["reality"])
-    trains = [u for u in units if u["kind"] == "train"]
+    trains = [u for u in units if u.kind == "train"]
     learners = ("ppo", "sac", "td3")
     prefixes = {f"reality-ideal-{a}" for a in preset["algos"]} | {f"reality-randomised-{a}" for a in learners}
     physics = {"reality-identify-physics", "reality-readout-physics"}
-    assert {u["prefix"] for u in trains} == prefixes | physics
+    assert {u.controller.prefix for u in trains} == prefixes | physics
     for u in trains:
-        config = u["cells"][0][1]
+        config, prefix = u.cells[0].config, u.controller.prefix
         assert config["env"]["stages"] == 5 and config["env"]["mode"] == "hard"
-        assert (config["env"].get("randomize") == 1.0) == ("randomised" in u["prefix"])
-        if u["prefix"].endswith("-physics"):  # the frames-only model, identifying, identifying + readout (the default)
+        assert (config["env"].get("randomize") == 1.0) == ("randomised" in prefix)
+        if prefix.endswith("-physics"):  # the frames-only model, identifying, identifying + readout (the default)
             h = PhysicsConfig.from_hyper(config["hyper"])
-            assert h.identify == (u["prefix"] in physics)
-            assert h.use_lengths == ("readout" in u["prefix"])
-    seeds = sorted(c["seed"] for u in trains for _, c in u["cells"] if u["prefix"] == "reality-randomised-sac")
+            assert h.identify == (prefix in physics)
+            assert h.use_lengths == ("readout" in prefix)
+    seeds = sorted(s for u in trains for s in u.seeds if u.controller.prefix == "reality-randomised-sac")
     assert seeds == list(range(preset["reality_seeds"]))
-    evals = [u for u in units if u["kind"] == "eval"]
+    evals = [u for u in units if u.kind == "eval"]
     assert len(evals) == (len(prefixes) + len(physics)) * preset["reality_seeds"]
     for u in evals:
-        assert [c["env"].get("imperfection_scale", 0.0) for _, c in u["cells"]] == [0.0, 1.0, 2.0]
-        assert u["cost"] > 0 and u["deps"]
-    assert not [u for u in Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u["key"]]
+        assert [c.config["env"].get("imperfection_scale", 0.0) for c in u.cells] == [0.0, 1.0, 2.0]
+        assert u.cost > 0 and u.deps
+    assert not [u for u in Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u.key]
     # The default preset's own reality budgets: SAC's trainings there run longer than its table-1 ones.
     default = sweep.build_preset(argparse.Namespace(quick=False, preset="default", seeds=None, algos=None))
-    steps = {(u["prefix"], config["steps"]) for u in Sweep(default, tmp_path, print).units(["reality", "table1"])
-             if u["kind"] == "train" and u["algo"] in ("sac", "ppo") for _, config in u["cells"]}
+    steps = {(u.controller.prefix, c.config["steps"]) for u in Sweep(default, tmp_path, print).units(["reality", "table1"])
+             if u.kind == "train" and u.algo in ("sac", "ppo") for c in u.cells}
     assert {st for prefix, st in steps if prefix.startswith("reality-") and "sac" in prefix} == {300_000}
     assert {st for prefix, st in steps if prefix.startswith("table1-") and "sac" in prefix} == {default["budgets"]["sac"]}
     assert {st for _, st in steps if st != 300_000} == {default["budgets"]["sac"], default["budgets"]["ppo"]}
@@ -125,12 +126,12 @@ def test_pick_keeps_workers_on_their_algorithm():
 
     from benchmarks.sweep_ray import pick
 
-    ready = [dict(key="a", algo="ppo"), dict(key="b", algo="sac"), dict(key="c", algo="td3")]
+    ready = [SectionUnit(key=k, algo=a, section=a, cells=(), cost=1.0) for k, a in zip("abc", ("ppo", "sac", "td3"))]
     remaining = {"ppo": 100.0, "sac": 50.0, "td3": 10.0}
-    assert pick(ready, "td3", Counter(), remaining)["key"] == "c"  # warm programs first
-    assert pick(ready, None, Counter(), remaining)["key"] == "a"  # else the most remaining work
-    assert pick(ready, None, Counter(ppo=1), remaining)["key"] == "b"  # not an algorithm another worker runs
-    assert pick(ready, None, Counter(ppo=1, sac=1, td3=1), remaining)["key"] == "a"
+    assert pick(ready, "td3", Counter(), remaining).key == "c"  # warm programs first
+    assert pick(ready, None, Counter(), remaining).key == "a"  # else the most remaining work
+    assert pick(ready, None, Counter(ppo=1), remaining).key == "b"  # not an algorithm another worker runs
+    assert pick(ready, None, Counter(ppo=1, sac=1, td3=1), remaining).key == "a"
     assert pick([], "ppo", Counter(), remaining) is None
 
 
@@ -252,9 +253,9 @@ def test_a_section_plugs_into_the_plan(tmp_path):
         preset = sweep.build_preset(argparse.Namespace(quick=True, preset="default", seeds=3, algos=None))
         plan = Sweep(preset, tmp_path, print)
         units = plan.units(["squares"])
-        assert [u["key"] for u in units] == ["square-0", "square-1", "square-2"] and units[0]["cost"] == 0.5
+        assert [u.key for u in units] == ["square-0", "square-1", "square-2"] and units[0].cost == 0.5
         plan.compute_unit(units[1])
-        assert computed == [1] and [u["key"] for u in units if plan.todo(u)] == ["square-0", "square-2"]
+        assert computed == [1] and [u.key for u in units if plan.todo(u)] == ["square-0", "square-2"]
         assert Sweep(preset, tmp_path, print).run(["squares"]) == (2, 1)
         assert sorted(computed) == [0, 1, 2] and (tmp_path / "squares.md").read_text() == "0 0\n1 1\n2 4"
         assert "squares" not in sweep.SECTIONS and "squares.md" in (tmp_path / "summary.md").read_text()

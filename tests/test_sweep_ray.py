@@ -96,7 +96,7 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
     assert stderr.count("sweep on 2 workers") >= 1
     preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=None))
     units = Sweep(preset, tmp_path / "plan", print).units(sweep.SECTIONS)
-    expected = {label for u in units for label, _ in u["cells"]}
+    expected = {c.label for u in units for c in u.cells}
     cells = {}
     for path in (out / "cells").glob("*.json"):
         data = json.loads(path.read_text())
