@@ -197,7 +197,9 @@ def main(argv=None) -> int:
         print(f"agents.bench: {exc}", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    if not args.resume:  # a resumed learning run appends its documents
+    if args.resume:  # a resumed learning run appends its documents
+        bench_learn.mend_documents(out / "documents.jsonl")
+    else:
         (out / "documents.jsonl").unlink(missing_ok=True)
     bench.detector.arm()
     learning, name = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)

@@ -141,6 +141,16 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
     return learning, env_config, float(env_params.action_scale), float(env_params.window)
 
 
+def mend_documents(path: Path) -> None:
+    """Cut a line a kill left half-written at the end of ``path`` (documents.jsonl), before a resumed run appends."""
+    if path.exists() and (size := path.stat().st_size):
+        with open(path, "rb+") as f:
+            f.seek(max(0, size - (1 << 20)))
+            tail = f.read()
+            if not tail.endswith(b"\n"):
+                f.truncate(size - len(tail) + tail.rfind(b"\n") + 1)
+
+
 def _is_key(x) -> bool:
     return jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
 
