@@ -106,7 +106,8 @@ def _settings(args, learner, mapping: dict, checkpoint: Path | None, env_options
     stages, lengths = len(mapping["lines"]), all("length" in line for line in mapping["lines"])
     start = base.load(checkpoint or args.from_) if (checkpoint or args.from_) else None
     if start is None:
-        h = learner.config_type.make(hyper.pop("config", None), **hyper).to_hyper()
+        presets = learner.config_type.PRESETS  # one instance, few env steps: the budget preset where there is one
+        h = learner.config_type.make(hyper.pop("config", "budget" if "budget" in presets else None), **hyper).to_hyper()
         return {"stages": stages, "observe_lengths": lengths, **env_options}, h, args.seed, None
     what = "--from" if checkpoint is None else f"the checkpoint in {args.out}"
     if start.algo != learner.name:
@@ -119,7 +120,8 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
     """(Learning, env_config, action scale (wl per unit), window (wl)) of the arguments on the bench of ``mapping``."""
     learner = off_policy_learner(args.learn)
     env_config, h, seed, start = _settings(args, learner, mapping, checkpoint, env_options, hyper)
-    env, env_params = built(train_env_config(base.check_env_config(env_config), h["train_reward"]))
+    env_config = base.check_env_config(env_config)
+    env, env_params = built(train_env_config(env_config, h["train_reward"]))
     stages = len(mapping["lines"])
     if env.num_actions != stages:
         raise ValueError(f"--learn: the policy's env_config drives {env.num_actions} lines, the bench has {stages}")
@@ -211,14 +213,17 @@ class Learning:
         """Continue the run of ``checkpoint`` (its ``learner.msgpack`` and ``learner.json``)."""
         from flax import serialization
 
-        state = serialization.msgpack_restore((checkpoint / "learner.msgpack").read_bytes())
-        meta = json.loads((checkpoint / "learner.json").read_text())
-        template = self._saved()
-        raw = serialization.from_state_dict(_raw(template), state["state"])
-        fields = jax.tree.map(lambda f, r: jax.random.wrap_key_data(r) if _is_key(f) else jnp.asarray(r, f.dtype),
-                              template, raw)
+        try:
+            state = serialization.msgpack_restore((checkpoint / "learner.msgpack").read_bytes())
+            meta = json.loads((checkpoint / "learner.json").read_text())
+            template = self._saved()
+            raw = serialization.from_state_dict(_raw(template), state["state"])
+            fields = jax.tree.map(lambda f, r: jax.random.wrap_key_data(r) if _is_key(f) else jnp.asarray(r, f.dtype),
+                                  template, raw)
+            self.counts = Counts(**meta["counts"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"--resume: the checkpoint at {checkpoint} cannot be read: {exc!r}") from exc
         self.ts = self.ts._replace(**fields)
-        self.counts = Counts(**meta["counts"])
         self.from_policy = meta["from"]
         self.warm_obs = None if self.learning or meta["from"] else list(np.asarray(state["warm_obs"]))
 

@@ -5,6 +5,7 @@ controller, a run SIGKILLed and resumed, and the command line's refusals. Every 
 import json
 import time
 
+import jax
 import numpy as np
 import pytest
 
@@ -181,3 +182,41 @@ def test_resume_cuts_a_torn_last_line_only(tmp_path):
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
     bench_learn.mend_documents(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+
+
+def _learning(out, steps: int, resume: bool):
+    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench."""
+    from types import SimpleNamespace
+
+    from agents.bench_devices import check_mapping, sim_mapping
+
+    args = SimpleNamespace(learn="droq", controller=None, trim=None, steps=steps, checkpoint_every=50, from_=None,
+                           out=str(out), resume=resume, set=None, env=None, seed=3)
+    hyper = {} if resume else dict(hidden=[16, 16], critic_hidden=[16, 16], batch_size=16, learning_starts=32,
+                                   buffer_size=1000, utd_ratio=2.0)
+    mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
+    return bench_learn.setup(args, mapping, bench_learn.check_args(args), {}, hyper)[0]
+
+
+def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, compiles):
+    """200 steps of acting, storing, gradient steps and checkpoints compile nothing after setup; --resume restores
+    every saved leaf of the training state bit for bit, and the counts."""
+    learning = _learning(tmp_path, 200, resume=False)
+    obs = np.random.default_rng(0).uniform(-1, 1, (201, learning.env.observation_size)).astype(np.float32)
+    with compiles() as n:
+        learning.begin(200, lambda exc: None)
+        learning.start(obs[0])
+        actions = [learning.act(o, np.zeros(0)) for o in obs[1:] if time.sleep(0.002) is None]  # a 500 Hz loop
+        learning.finish()
+    assert n[0] == 0 and learning.error is None
+    assert np.all(np.abs(actions) <= 1) and learning.counts.learn_steps > 0
+    assert learning.counts.learn_steps == int(learning.ts.updates)
+    leaves = lambda ts: {jax.tree_util.keystr(k): np.asarray(v) for k, v in  # noqa: E731
+                         jax.tree_util.tree_leaves_with_path(jax.device_get(bench_learn._raw(ts._saved())))}
+    saved = leaves(learning)
+    again = _learning(tmp_path, 300, resume=True)
+    assert again.counts == learning.counts and again.warm_obs is None
+    restored = leaves(again)
+    assert saved.keys() == restored.keys() and any("buffer" in k for k in saved), sorted(saved)
+    assert all(np.array_equal(saved[k], restored[k]) for k in saved), [k for k in saved
+                                                                       if not np.array_equal(saved[k], restored[k])]
