@@ -144,13 +144,20 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
 
 
 def mend_documents(path: Path) -> None:
-    """Cut a line a kill left half-written at the end of ``path`` (documents.jsonl), before a resumed run appends."""
+    """End the last line of ``path`` (documents.jsonl) before a resumed run appends: a whole document a kill left
+    without its newline gets it, a half-written one is cut."""
     if path.exists() and (size := path.stat().st_size):
         with open(path, "rb+") as f:
             f.seek(max(0, size - (1 << 20)))
             tail = f.read()
-            if not tail.endswith(b"\n"):
-                f.truncate(size - len(tail) + tail.rfind(b"\n") + 1)
+            if tail.endswith(b"\n"):
+                return
+            start = tail.rfind(b"\n") + 1
+            try:
+                json.loads(tail[start:])
+                f.write(b"\n")
+            except ValueError:
+                f.truncate(size - len(tail) + start)
 
 
 def _is_key(x) -> bool:

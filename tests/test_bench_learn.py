@@ -175,11 +175,14 @@ def test_replace_dir_leaves_one_whole_folder(tmp_path):
     assert (kept_dir(path) / "n").read_text() == "2" and not (tmp_path / "checkpoint.old").exists()
 
 
-def test_resume_cuts_a_torn_last_line_only(tmp_path):
+def test_resume_ends_the_last_line_of_the_documents(tmp_path):
     docs = tmp_path / "documents.jsonl"
     docs.write_text('{"name": "start"}\n{"name": "event"}\n{"name": "ev')
     bench_learn.mend_documents(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+    bench_learn.mend_documents(docs)
+    assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+    docs.write_text('{"name": "start"}\n{"name": "event"}')  # whole, its newline not written yet
     bench_learn.mend_documents(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
 
