@@ -202,11 +202,11 @@ def main(argv=None) -> int:
     else:
         (out / "documents.jsonl").unlink(missing_ok=True)
     bench.detector.arm()
-    learning, name = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
+    learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
     steps = args.steps - learning.counts.env_steps if learning else args.steps
     loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)
     loop.watch()
-    md = {"controller": name, "controller_env": env_config, "hyper": parse_set(args.set),
+    md = {"controller": label, "controller_env": env_config, "hyper": parse_set(args.set),
           "trim": None if args.trim is None else parse_set(args.trim), "learning": learning and learning.describe(),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
     if learning:
@@ -222,12 +222,12 @@ def main(argv=None) -> int:
             logging.getLogger(name).removeFilter(quiet)
     if learning:
         learning.finish()
-    summary = {**summarize(loop, name, elapsed), **(learning.report() if learning else {})}
+    summary = {**summarize(loop, label, elapsed), **(learning.report() if learning else {})}
     write_json_atomic(out / "summary.json", summary)
     stopped = summary["stopped_by"] not in ("time", "steps", "user")
     if stopped:
         print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr, flush=True)
-    plot(out / "power.png", loop, f"{name} on the bench, {summary['rate_hz']:.0f} steps/s",
+    plot(out / "power.png", loop, f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
          learning and learning.ratio_series(loop.t0))
     print(json.dumps(summary, indent=1))
     return EXIT_WATCHDOG if stopped else 0

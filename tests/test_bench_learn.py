@@ -56,7 +56,8 @@ def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
                                "--checkpoint-every", "100", *TINY))
     assert rc == 0, log
     s = summary_of(tmp_path)
-    assert s["stopped_by"] == "steps" and s["steps"] == s["env_steps_total"] == 300, s
+    assert s["controller"] == "learning droq" and s["stopped_by"] == "steps", s
+    assert s["steps"] == s["env_steps_total"] == 300, s
     assert s["transitions_total"] == 299 and s["learning_env_steps_total"] == 300 - 40, s
     assert 0 < s["learn_steps_total"] <= 2.0 * s["learning_env_steps_total"], s
     assert s["update_ratio"] == pytest.approx(s["learn_steps_total"] / s["learning_env_steps_total"]), s
