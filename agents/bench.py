@@ -112,6 +112,7 @@ def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
         twin = ax.twinx()
         twin.plot(*ratio, color="C3", lw=1)
         twin.set_ylabel("gradient steps per env step", color="C3")
+        twin.set_ylim(bottom=0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

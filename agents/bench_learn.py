@@ -194,7 +194,7 @@ class Learning:
         self.lock, self.wake = threading.Lock(), threading.Event()
         self.thread, self.error, self.on_error, self.bar = None, None, None, None
         self.ending, self.prev, self.t, self.power_sum = False, None, 0, [0.0, 0]
-        self.ratio_rec: list = []  # (perf_counter time, gradient steps per env step of the session)
+        self.ratio_rec: list = []  # (perf_counter time, the session's gradient steps, its env steps after the warm-up)
 
     # -- the run's state -------------------------------------------------------------------------
     @property
@@ -350,7 +350,7 @@ class Learning:
             self.snapshot = (snap, np.bool_(self.warm_obs is not None and not self.learning))
         if self.bar is not None:
             ratio = self.update_ratio()
-            self.ratio_rec.append((time.perf_counter(), ratio))
+            self.ratio_rec.append((time.perf_counter(), self._session("learn_steps"), self._session("learning_env_steps")))
             self.bar.set_postfix_str(f"env steps {self.counts.env_steps}, learn steps {self.counts.learn_steps}, "
                                      f"updates per env step {ratio:.2f} of {self.ratio:g}")
 
@@ -383,12 +383,15 @@ class Learning:
         return {"learner": self.learner.name, "hyper": self.h, "from": self.from_policy, "seed": self.seed,
                 "env_steps_resumed_from": self.counts.env_steps, "update_ratio_target": self.ratio}
 
-    def ratio_series(self, t0: float | None):
-        """(seconds since ``t0`` (perf_counter), this session's gradient steps per env step) for the plot, or None."""
-        if t0 is None or not self.ratio_rec:
+    def ratio_series(self, t0: float | None, window: int = 10):
+        """(seconds since ``t0`` (perf_counter), gradient steps per env step over the last ``window`` hand-overs, NaN
+        in the warm-up) for the plot, or None."""
+        if t0 is None or len(self.ratio_rec) <= window:
             return None
-        t, r = np.asarray(self.ratio_rec).T
-        return t - t0, r
+        t, learn, env = np.asarray(self.ratio_rec, float).T
+        d_env = env[window:] - env[:-window]
+        ratio = np.divide(learn[window:] - learn[:-window], d_env, out=np.full_like(d_env, np.nan), where=d_env > 0)
+        return t[window:] - t0, ratio
 
     def report(self) -> dict:
         """The summary's learning entries: totals over the run's sessions and this session's update ratio."""
