@@ -18,12 +18,17 @@ probed setpoints, wait for a frame that shows them, read the power; so each prob
 frame and the step's action goes out after it. ``--rate`` caps the control steps per second. The loop
 runs in its own thread as a Bluesky flyer (``agents.bench_flyer``); the plan collects its events in pages.
 
+``--learn NAME`` (an off-policy learner: droq, td3) learns on the bench instead (``agents.bench_learn``): it acts
+in the loop and learns from the bench's transitions for ``--steps`` env steps in all, from scratch or ``--from`` a
+saved policy, checkpointing to ``DIR/checkpoint`` every ``--checkpoint-every`` steps; ``--resume`` continues it.
+
 The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
 ends the run after the current step. Written to ``DIR``: ``documents.jsonl`` (the Bluesky documents,
-one per line, as they are emitted), ``power.png`` (P / P_max and P / P_best against time) and
-``summary.json``. Exit status 0 when the run ended by time or by the user, 3 when the watchdog
-stopped it, 2 for bad arguments or a bench that cannot be reached.
+one per line, as they are emitted), ``power.png`` (P / P_max and P / P_best against time; learning: the update
+ratio too), ``summary.json`` (learning: the step counts and update ratio) and, learning, ``checkpoint/``. Exit
+status 0 when the run ended by time, steps or the user, 3 when the watchdog stopped it, 2 for bad arguments or a
+bench that cannot be reached.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import base
+from agents import base, bench_learn
 from agents.bench_devices import (MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
                                   make_bench, sim_mapping)
 from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
@@ -93,8 +98,8 @@ def _pyplot():
     return plt
 
 
-def plot(path: Path, loop: Loop, title: str) -> None:
-    """P / P_max and P / P_best against time."""
+def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
+    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on a second axis."""
     plt = _pyplot()
     t = np.asarray(loop.rec["time_s"])
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -103,6 +108,11 @@ def plot(path: Path, loop: Loop, title: str) -> None:
     ax.set(xlabel="time (s)", ylabel="stacked power", ylim=(0, 1.05), title=title)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
+    if ratio is not None:
+        twin = ax.twinx()
+        twin.plot(*ratio, color="C3", lw=1)
+        twin.set_ylabel("gradient steps per env step", color="C3")
+        twin.set_ylim(bottom=0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -116,7 +126,13 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--mapping", help="a mapping file (JSON) naming the bench's PVs, units and safety limits")
     ap.add_argument("--no-lengths", action="store_true",
                     help="the simulated bench without its length readouts (LINEi:LEN not mapped; without --mapping)")
-    ap.add_argument("--controller", required=True, help="spgd, physics or a folder written by agents.save")
+    ap.add_argument("--controller", help="spgd, physics or a folder written by agents.save")
+    ap.add_argument("--learn", metavar="NAME", help="learn on the bench with this off-policy learner (droq, td3) "
+                    "instead of running a controller")
+    ap.add_argument("--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)")
+    ap.add_argument("--resume", action="store_true", help="--learn: continue the run checkpointed in --out")
+    ap.add_argument("--checkpoint-every", type=int, default=bench_learn.CHECKPOINT_EVERY, metavar="M",
+                    help="--learn: env steps between checkpoints")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
     ap.add_argument("--trim", nargs="*", metavar="KEY=VALUE", default=None,
@@ -124,8 +140,9 @@ def parser() -> argparse.ArgumentParser:
                          "with these TrimConfig settings (none: its default)")
     ap.add_argument("--lockstep", action="store_true",
                     help="the simulated bench runs --lockstep: advance it one frame per step and probe")
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--steps", type=int, default=0, help="stop after this many control steps too (0: no limit)")
+    ap.add_argument("--seconds", type=float, default=None, help="run length (s; default 60, with --learn no limit)")
+    ap.add_argument("--steps", type=int, default=0, help="stop after this many control steps too (0: no limit; "
+                    "--learn: env steps in all, resumes included)")
     ap.add_argument("--rate", type=float, default=100.0, help="most control steps per second (Hz)")
     ap.add_argument("--seed", type=int, default=0, help="the controller's random draws")
     ap.add_argument("--stale-s", type=float, default=None, help="the watchdog's limit on a reading's age and "
@@ -135,20 +152,29 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _setup(args):
-    """(mapping, Agent, env_config, action scale, window) from the arguments; raises what is wrong."""
-    if not (np.isfinite(args.seconds) and args.seconds > 0):
+    """(mapping, Agent (or ``bench_learn.Learning``), env_config, action scale, window) from the arguments; raises
+    what is wrong."""
+    if args.seconds is None:
+        args.seconds = np.inf if args.learn else 60.0
+    if not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
     if not (np.isfinite(args.rate) and args.rate > 0):
         raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
-    saved = args.controller not in ("spgd", "physics")
+    if (args.controller is None) == (args.learn is None):
+        raise ValueError("give one of --controller (run a controller) and --learn (learn on the bench)")
+    checkpoint = bench_learn.check_args(args) if args.learn else None
+    saved = args.controller not in ("spgd", "physics", None)
     if saved and not Path(args.controller).is_dir():
         raise ValueError(f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}")
-    stages = args.stages or (base.load(args.controller).env_config.get("stages", 5) if saved else 5)
+    stages = args.stages or (bench_learn.default_stages(args, checkpoint) if args.learn else
+                             base.load(args.controller).env_config.get("stages", 5) if saved else 5)
     mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep,
                                                                                  lengths=not args.no_lengths)
     if args.stale_s is not None:
         mapping["safety"] = {**(mapping.get("safety") or {}), "stale_s": args.stale_s}
     mapping = check_mapping(mapping)
+    if args.learn:
+        return (mapping, *bench_learn.setup(args, mapping, checkpoint, parse_set(args.env), parse_set(args.set)))
     agent, env_config, scale, window = load_controller(args.controller, mapping, parse_set(args.env),
                                                        parse_set(args.set), args.seed,
                                                        None if args.trim is None else parse_set(args.trim))
@@ -172,13 +198,20 @@ def main(argv=None) -> int:
         print(f"agents.bench: {exc}", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    (out / "documents.jsonl").unlink(missing_ok=True)
+    if args.resume:  # a resumed learning run appends its documents
+        bench_learn.mend_documents(out / "documents.jsonl")
+    else:
+        (out / "documents.jsonl").unlink(missing_ok=True)
     bench.detector.arm()
-    loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, args.steps)
+    learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
+    steps = args.steps - learning.counts.env_steps if learning else args.steps
+    loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)
     loop.watch()
-    md = {"controller": args.controller, "controller_env": env_config, "hyper": parse_set(args.set),
-          "trim": None if args.trim is None else parse_set(args.trim),
+    md = {"controller": label, "controller_env": env_config, "hyper": parse_set(args.set),
+          "trim": None if args.trim is None else parse_set(args.trim), "learning": learning and learning.describe(),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
+    if learning:
+        learning.begin(steps, lambda exc: loop.trip(f"error: the learner failed: {exc!r}"))
     quiet = _QuietStop()
     for name in QUIET_LOGGERS:
         logging.getLogger(name).addFilter(quiet)
@@ -188,12 +221,15 @@ def main(argv=None) -> int:
         disconnect(bench)
         for name in QUIET_LOGGERS:
             logging.getLogger(name).removeFilter(quiet)
-    summary = summarize(loop, args.controller, elapsed)
+    if learning:
+        learning.finish()
+    summary = {**summarize(loop, label, elapsed), **(learning.report() if learning else {})}
     write_json_atomic(out / "summary.json", summary)
     stopped = summary["stopped_by"] not in ("time", "steps", "user")
     if stopped:
         print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr, flush=True)
-    plot(out / "power.png", loop, f"{args.controller} on the bench, {summary['rate_hz']:.0f} steps/s")
+    plot(out / "power.png", loop, f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
+         learning and learning.ratio_series(loop.t0))
     print(json.dumps(summary, indent=1))
     return EXIT_WATCHDOG if stopped else 0
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 from pathlib import Path
 
 
@@ -40,3 +41,20 @@ def temp_dir(parent: Path, name: str) -> Path:
     tmp = _temp_name(parent, name)
     tmp.mkdir(0o777)
     return tmp
+
+
+def replace_dir(tmp: Path, path: Path) -> None:
+    """Put the filled folder ``tmp`` in place of ``path``: ``path`` renamed to ``PATH.old``, ``tmp`` to ``path``,
+    then ``PATH.old`` removed; a crash on the way leaves one of the two whole (``kept_dir``)."""
+    path, old = Path(path), Path(f"{path}.old")
+    if path.exists():
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(path, old)
+    os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def kept_dir(path: Path) -> Path | None:
+    """The folder ``replace_dir`` left: ``path``, else ``PATH.old``, else None."""
+    path = Path(path)
+    return next((p for p in (path, Path(f"{path}.old")) if p.is_dir()), None)

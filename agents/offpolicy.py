@@ -276,19 +276,19 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     ts, sim_per_iter = _warm_up(fns, ts, warm_iters, timing, random=start_from is None)
 
     t0 = time.perf_counter()
-    evaluate_fn = fns["compiled"]("evaluate", _policy_params(ts), env_params, k_eval, eval_ids)
+    evaluate_fn = fns["compiled"]("evaluate", policy_params(ts), env_params, k_eval, eval_ids)
     timing["compile"] += time.perf_counter() - t0
 
     def run_eval(ts):
         t0 = time.perf_counter()
-        npow, _ = evaluate_fn(_policy_params(ts), env_params, k_eval, eval_ids)
+        npow, _ = evaluate_fn(policy_params(ts), env_params, k_eval, eval_ids)
         npow = np.asarray(npow)  # (seeds, steps, episodes)
         timing["evaluation"] += time.perf_counter() - t0
         return npow[:, -10:].mean((1, 2)), npow[:, -1].mean(1)
 
     def report(step, npow, m=None):
         if snapshot_fn is not None:
-            params = jax.device_get(_policy_params(ts))
+            params = jax.device_get(policy_params(ts))
             snapshot_fn(step, [jax.tree.map(lambda x: x[i], params) for i in range(len(seeds))])
         if progress_fn is not None:
             progress_fn(step, dict(normalized_power=float(npow.mean()), elapsed_s=time.perf_counter() - t_start,
@@ -322,7 +322,7 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
     return _results(learner, env_config, h, seeds, ts, np.asarray(steps), curves, timing)
 
 
-def _policy_params(ts) -> dict:
+def policy_params(ts) -> dict:
     """The stored policy params of a training state: ``{"actor", "obs_norm"}``."""
     return {"actor": ts.actor.params, "obs_norm": ts.obs_norm}
 
@@ -353,7 +353,7 @@ def _results(learner: Learner, env_config: dict, h: dict, seeds: list, ts, steps
     env ``steps`` and the call's ``timing`` (s, shared out over the seeds)."""
     timing = {k: v / len(seeds) for k, v in timing.items()}
     timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(_policy_params(ts))
+    params = jax.device_get(policy_params(ts))
     kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
     return [base.TrainResult(learner.name, env_config, dict(h), jax.tree.map(lambda x: x[i], params),
                              dict(step=steps, **{k: v[i] for k, v in curves.items()}),

@@ -69,7 +69,8 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
     ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
     ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's exploration
     with ``random=False``; returns their observations (T, D)),
-    ``fit_norm(ts, obs)`` and ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics)."""
+    ``fit_norm(ts, obs)`` and ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics); and ``explore``
+    and ``update`` themselves (a bench learner steps them one at a time, ``agents.bench_learn``)."""
     b, d = h["num_envs"], env.observation_size
 
     def env_step(ts, key, random):
@@ -115,7 +116,7 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
         std = jnp.sqrt(((kept - mean) ** 2).mean(0))
         return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(std, 1e-2)})
 
-    return dict(warmup=warmup, fit_norm=fit_norm, train_chunk=train_chunk)
+    return dict(warmup=warmup, fit_norm=fit_norm, train_chunk=train_chunk, explore=explore, update=update)
 
 
 def mlp_module():

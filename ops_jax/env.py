@@ -197,7 +197,8 @@ class OPSEnv:
         frame = self.layout.encode(m.power / self.p_max, m.samples / self.peak, deltas, params.window, mu)
         return frame.astype(jnp.float32) + params.obs_noise * z
 
-    def _reward(self, power, p_init):
+    def reward(self, power, p_init):
+        """The reward at detected power ``power`` (units of ``p_max``; ``p_init``: P at the first reset, "reference")."""
         if self.config.reward == "paper":
             return -((power - self.p_max) ** 2) / (self.p_orig - self.p_max) ** 2
         if self.config.reward == "linear":
@@ -275,7 +276,7 @@ class OPSEnv:
             "deltas_wl": deltas,
             "action_nonfinite": ~jnp.all(finite),
         }
-        reward = self._reward(m.power, state.p_init).astype(jnp.float32)
+        reward = self.reward(m.power, state.p_init).astype(jnp.float32)
         return frames.reshape(-1), state, reward, terminated, truncated, info
 
     def next_episode(self, key, state, params):

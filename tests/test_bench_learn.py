@@ -1,0 +1,226 @@
+"""Learning on the bench (``agents.bench --learn``, ``agents.bench_learn``): a DroQ learner with tiny networks
+against a real simulated bench (a caproto IOC on a free localhost port, frames only), its checkpoint run as a
+controller, a run SIGKILLed and resumed, and the command line's refusals. Every wait is bounded."""
+
+import json
+import time
+
+import jax
+import numpy as np
+import pytest
+
+pytest.importorskip("caproto")
+pytest.importorskip("ophyd")
+pytest.importorskip("bluesky")
+
+from test_bench import START_S, bench_run, documents, finish  # noqa: E402
+
+from agents import base, bench_learn  # noqa: E402
+from agents.io import kept_dir  # noqa: E402
+from agents import bench as runner  # noqa: E402
+from benchmarks.lab import Process, ca_env  # noqa: E402
+
+TINY = ["--set", "hidden=[16,16]", "--set", "critic_hidden=[16,16]", "--set", "batch_size=16",
+        "--set", "learning_starts=40", "--set", "buffer_size=2000", "--set", "utd_ratio=2.0"]
+BENCH = ["--prefix", "LN:", "--stages", "3", "--no-lengths", "--stale-s", "5", "--rate", "50"]
+
+
+@pytest.fixture(scope="module")
+def ioc(tmp_path_factory):
+    """A free-running simulated bench (3 stages, 100 ticks per second)."""
+    log = tmp_path_factory.mktemp("ioc") / "ioc.log"
+    proc = Process("ops_jax.ioc", ["--prefix", "LN:", "--stages", "3", "--mode", "hard", "--model", "phasor",
+                                   "--rate", "100"], ca_env(), log)
+    try:
+        yield proc.wait_for("serving", START_S)
+    finally:
+        proc.kill()
+
+
+def summary_of(tmp) -> dict:
+    return json.loads((tmp / "out" / "summary.json").read_text())
+
+
+def counts_of(tmp) -> dict | None:
+    """The counts of the checkpoint in ``tmp/out`` (None while there is none)."""
+    try:
+        return json.loads((kept_dir(tmp / "out" / "checkpoint") / "learner.json").read_text())["counts"]
+    except (FileNotFoundError, TypeError):  # none yet, or between replace_dir's renames
+        return None
+
+
+def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
+    """300 env steps of DroQ on the bench: every step an event, gradient steps at most the ratio's, the
+    checkpoint's counts the summary's; then ``--controller DIR/checkpoint`` runs what it learned."""
+    rc, log = finish(bench_run(ioc, tmp_path, *BENCH, "--learn", "droq", "--steps", "300",
+                               "--checkpoint-every", "100", *TINY))
+    assert rc == 0, log
+    s = summary_of(tmp_path)
+    assert s["controller"] == "learning droq" and s["stopped_by"] == "steps", s
+    assert s["steps"] == s["env_steps_total"] == 300, s
+    assert s["transitions_total"] == 299 and s["learning_env_steps_total"] == 300 - 40, s
+    assert 0 < s["learn_steps_total"] <= 2.0 * s["learning_env_steps_total"], s
+    assert s["update_ratio"] == pytest.approx(s["learn_steps_total"] / s["learning_env_steps_total"]), s
+    assert s["update_ratio_target"] == 2.0 and s["learner_error"] is None, s
+    counts = counts_of(tmp_path)
+    assert (counts["env_steps"], counts["learn_steps"]) == (300, s["learn_steps_total"]), counts
+    assert counts["curve"]["step"] == [100, 200, 300], counts
+    docs = documents(tmp_path)
+    events = [d["doc"]["data"] for d in docs if d["name"] == "event"]
+    assert len(events) == 300 and docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success"
+    actions = np.array([e["control_action"] for e in events])
+    assert np.all(np.abs(actions) <= 1) and np.ptp(actions[:40]) > 0.5  # the warm-up's uniform actions
+    start = next(d["doc"] for d in docs if d["name"] == "start")
+    assert start["learning"]["learner"] == "droq" and start["learning"]["hyper"]["hidden"] == [16, 16]
+    result = base.load(tmp_path / "out" / "checkpoint")
+    assert result.algo == "droq" and result.env_config["observe_lengths"] is False
+    assert float(np.abs(result.params["obs_norm"]["std"] - 1).max()) > 0  # fitted to the warm-up's frames
+    assert (tmp_path / "out" / "power.png").stat().st_size > 0
+    rc, log = finish(Process("agents.bench", ["--out", tmp_path / "run", *BENCH, "--controller",
+                                              tmp_path / "out" / "checkpoint", "--steps", "20"], ioc.env,
+                             tmp_path / "controller.log"))
+    assert rc == 0, log
+    ran = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert ran["steps"] == 20 and ran["stopped_by"] == "steps", ran
+
+
+def test_sigkill_then_resume_ends_with_every_step(ioc, tmp_path):
+    """SIGKILL mid-run after a checkpoint: ``--resume`` takes the run on from the checkpoint to all its steps, the
+    counts add up, and documents.jsonl keeps every line written before the kill."""
+    steps, every = 400, 100
+    args = [*BENCH, "--learn", "droq", "--steps", str(steps), "--checkpoint-every", str(every), *TINY]
+    proc = bench_run(ioc, tmp_path, *args)
+    deadline = time.monotonic() + START_S
+    while (counts_of(tmp_path) or {"env_steps": 0})["env_steps"] < 200:
+        assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
+        time.sleep(0.05)
+    proc.kill()
+    written = (tmp_path / "out" / "documents.jsonl").read_text()
+    before = written[:written.rfind("\n") + 1]  # every line complete at the kill
+    kept = counts_of(tmp_path)
+    assert kept["env_steps"] in (200, 300) and not (tmp_path / "out" / "summary.json").exists(), kept
+    rc, log = finish(bench_run(ioc, tmp_path, *BENCH, "--learn", "droq", "--steps", str(steps), "--resume"))
+    assert rc == 0, log
+    s = summary_of(tmp_path)
+    assert s["env_steps_total"] == steps and s["env_steps_resumed_from"] == kept["env_steps"], s
+    assert s["steps"] == steps - kept["env_steps"] and s["sessions"] == 2, s
+    assert s["learn_steps_resumed_from"] == kept["learn_steps"] <= s["learn_steps_total"], s
+    assert s["transitions_total"] == kept["transitions"] + s["steps"] - 1, s
+    assert counts_of(tmp_path)["env_steps"] == steps
+    after = (tmp_path / "out" / "documents.jsonl").read_text()
+    assert after.startswith(before) and before.count('"name": "event"') >= kept["env_steps"] - 50
+    docs = [json.loads(line) for line in after[len(before):].splitlines()]
+    assert docs[0]["name"] == "start" and docs[-1]["name"] == "stop"
+    assert sum(d["name"] == "event" for d in docs) == s["steps"]
+    assert docs[0]["doc"]["learning"]["env_steps_resumed_from"] == kept["env_steps"]
+
+
+def _saved_policy(path, stages: int, lengths: bool):
+    """A DroQ policy of the tiny networks saved by ``agents.save`` (untrained)."""
+    env_config, hyper = {"stages": stages, "observe_lengths": lengths}, {"hidden": [16, 16]}
+    hyper = base.ALGOS["droq"].settings(hyper)
+    params = base.algo_module("droq").params_template(env_config, hyper)
+    base.save(path, base.TrainResult("droq", env_config, hyper, params, {"step": [0], "normalized_power": [0.0]}, {},
+                                     0))
+    return path
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--learn", "ppo"], "--learn must be an off-policy learner (td3, droq), got 'ppo'"),
+    (["--learn", "droq", "--controller", "spgd"], "give one of --controller"),
+    (["--learn", "droq", "--steps", "0"], "--steps must be >= 1 with --learn"),
+    (["--learn", "droq", "--steps", "10", "--checkpoint-every", "0"], "--checkpoint-every must be >= 1"),
+    (["--learn", "droq", "--steps", "10", "--resume"], "--resume needs a checkpoint of a learning run in --out"),
+    (["--learn", "droq", "--steps", "10", "--from", "NOPE"], "--from must be a folder written by agents.save"),
+    (["--learn", "droq", "--steps", "10", "--from", "LENGTHS"], "lacks lines[0].length, lines[1].length"),
+    (["--learn", "droq", "--steps", "10", "--from", "TWO"], "drives 2 lines, the bench has 3"),
+    (["--learn", "td3", "--steps", "10", "--from", "FRAMES"], "--learn td3: --from holds a droq policy"),
+    (["--learn", "droq", "--steps", "10", "--set", "utd_ratio=-1"], "utd_ratio must be"),
+])
+def test_bad_learning_arguments_fail_in_one_line(tmp_path, capsys, extra, needle):
+    """Refused before any PV is touched (no bench runs here): exit status 2, one line naming the parameter."""
+    policies = {"LENGTHS": (3, True), "TWO": (2, False), "FRAMES": (3, False)}
+    extra = [str(_saved_policy(tmp_path / x, *policies[x])) if x in policies else x for x in extra]
+    assert runner.main(["--prefix", "NONE:", "--stages", "3", "--no-lengths", "--out", str(tmp_path / "out"),
+                        *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+
+
+def test_a_checkpoint_in_out_is_continued_or_kept(tmp_path, capsys):
+    """A learning run's checkpoint in --out: a new run refuses to write over it; --resume refuses new settings."""
+    (tmp_path / "out" / "checkpoint").mkdir(parents=True)
+    (tmp_path / "out" / "checkpoint" / "learner.json").write_text("{}")
+    base_args = ["--prefix", "NONE:", "--stages", "3", "--out", str(tmp_path / "out"), "--learn", "droq", "--steps", "9"]
+    assert runner.main(base_args) == 2
+    assert "continue it with --resume" in capsys.readouterr().err
+    assert runner.main([*base_args, "--resume", "--set", "utd_ratio=1"]) == 2
+    assert "drop --from, --set and --env" in capsys.readouterr().err
+
+
+def test_replace_dir_leaves_one_whole_folder(tmp_path):
+    """A kill between replace_dir's two renames leaves PATH.old, which kept_dir finds; the next write cleans up."""
+    from agents.io import replace_dir, temp_dir
+
+    path = tmp_path / "checkpoint"
+    for k in range(2):
+        tmp = temp_dir(tmp_path, "checkpoint")
+        (tmp / "n").write_text(str(k))
+        replace_dir(tmp, path)
+        assert (kept_dir(path) / "n").read_text() == str(k)
+    path.rename(tmp_path / "checkpoint.old")  # as a kill after the first rename leaves it
+    assert (kept_dir(path) / "n").read_text() == "1"
+    tmp = temp_dir(tmp_path, "checkpoint")
+    (tmp / "n").write_text("2")
+    replace_dir(tmp, path)
+    assert (kept_dir(path) / "n").read_text() == "2" and not (tmp_path / "checkpoint.old").exists()
+
+
+def test_resume_ends_the_last_line_of_the_documents(tmp_path):
+    docs = tmp_path / "documents.jsonl"
+    docs.write_text('{"name": "start"}\n{"name": "event"}\n{"name": "ev')
+    bench_learn.mend_documents(docs)
+    assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+    bench_learn.mend_documents(docs)
+    assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+    docs.write_text('{"name": "start"}\n{"name": "event"}')  # whole, its newline not written yet
+    bench_learn.mend_documents(docs)
+    assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
+
+
+def _learning(out, steps: int, resume: bool):
+    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench."""
+    from types import SimpleNamespace
+
+    from agents.bench_devices import check_mapping, sim_mapping
+
+    args = SimpleNamespace(learn="droq", controller=None, trim=None, steps=steps, checkpoint_every=50, from_=None,
+                           out=str(out), resume=resume, set=None, env=None, seed=3)
+    hyper = {} if resume else dict(hidden=[16, 16], critic_hidden=[16, 16], batch_size=16, learning_starts=32,
+                                   buffer_size=1000, utd_ratio=2.0)
+    mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
+    return bench_learn.setup(args, mapping, bench_learn.check_args(args), {}, hyper)[0]
+
+
+def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, compiles):
+    """200 steps of acting, storing, gradient steps and checkpoints compile nothing after setup; --resume restores
+    every saved leaf of the training state bit for bit, and the counts."""
+    learning = _learning(tmp_path, 200, resume=False)
+    obs = np.random.default_rng(0).uniform(-1, 1, (201, learning.env.observation_size)).astype(np.float32)
+    with compiles() as n:
+        learning.begin(200, lambda exc: None)
+        learning.start(obs[0])
+        actions = [learning.act(o, np.zeros(0)) for o in obs[1:] if time.sleep(0.002) is None]  # a 500 Hz loop
+        learning.finish()
+    assert n[0] == 0 and learning.error is None
+    assert np.all(np.abs(actions) <= 1) and learning.counts.learn_steps > 0
+    assert learning.counts.learn_steps == int(learning.ts.updates)
+    leaves = lambda ts: {jax.tree_util.keystr(k): np.asarray(v) for k, v in  # noqa: E731
+                         jax.tree_util.tree_leaves_with_path(jax.device_get(bench_learn._raw(ts._saved())))}
+    saved = leaves(learning)
+    again = _learning(tmp_path, 300, resume=True)
+    assert again.counts == learning.counts and again.warm_obs is None
+    restored = leaves(again)
+    assert saved.keys() == restored.keys() and any("buffer" in k for k in saved), sorted(saved)
+    assert all(np.array_equal(saved[k], restored[k]) for k in saved), [k for k in saved
+                                                                       if not np.array_equal(saved[k], restored[k])]
