@@ -194,7 +194,7 @@ class Learning:
         self.lock, self.wake = threading.Lock(), threading.Event()
         self.thread, self.error, self.on_error, self.bar = None, None, None, None
         self.ending, self.prev, self.t, self.power_sum = False, None, 0, [0.0, 0]
-        self.ratio_rec: list = []  # (perf_counter time, the session's gradient steps, its env steps after the warm-up)
+        self.ratio_rec: list = []  # (perf_counter time, this invocation's gradient steps, its env steps after the warm-up)
 
     # -- the run's state -------------------------------------------------------------------------
     @property
@@ -260,7 +260,7 @@ class Learning:
 
     # -- the actor (the loop's thread) -----------------------------------------------------------
     def start(self, obs) -> None:
-        """A session's first frame: no transition before it."""
+        """An invocation's first frame: no transition before it."""
         self.prev, self.t = None, self.counts.env_steps
 
     def act(self, obs, results) -> np.ndarray:
@@ -277,7 +277,7 @@ class Learning:
 
     # -- the learner (its own thread) ------------------------------------------------------------
     def begin(self, steps: int, on_error) -> None:
-        """Start the learning thread for a session of ``steps`` env steps; ``on_error(exc)`` if it fails."""
+        """Start the learning thread for an invocation of ``steps`` env steps; ``on_error(exc)`` if it fails."""
         self.on_error, self.t0, self.session0 = on_error, time.perf_counter(), dataclasses.replace(self.counts)
         self.counts.sessions += 1
         self.bar = progress(total=steps, desc=f"learning {self.learner.name}", unit="step")
@@ -313,7 +313,7 @@ class Learning:
         return getattr(self.counts, name) - getattr(self.session0, name)
 
     def update_ratio(self) -> float:
-        """This session's gradient steps per env step after the warm-up."""
+        """This invocation's gradient steps per env step after the warm-up."""
         steps = self._session("learning_env_steps")
         return self._session("learn_steps") / steps if steps else 0.0
 
@@ -394,7 +394,7 @@ class Learning:
         return t[window:] - t0, ratio
 
     def report(self) -> dict:
-        """The summary's learning entries: totals over the run's sessions and this session's update ratio."""
+        """The summary's learning entries: totals over the run's sessions and this invocation's update ratio."""
         c = self.counts
         return {"learner": self.learner.name, "env_steps_total": c.env_steps, "learn_steps_total": c.learn_steps,
                 "env_steps_resumed_from": self.session0.env_steps, "learn_steps_resumed_from": self.session0.learn_steps,
