@@ -85,6 +85,7 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
         "p_over_pbest_mean": mean(rec["p_pbest"][tail]),
         "p_over_pmax_mean": mean(rec["p_pmax"][tail]),
         "clipped_moves": int(loop.lines.clipped.get()),
+        "wrapped_moves": int(loop.lines.wraps.get()),
     }
 
 
@@ -145,6 +146,9 @@ def parser() -> argparse.ArgumentParser:
                     "--learn: env steps in all, resumes included)")
     ap.add_argument("--rate", type=float, default=100.0, help="most control steps per second (Hz)")
     ap.add_argument("--seed", type=int, default=0, help="the controller's random draws")
+    ap.add_argument("--wrap", type=float, default=None, metavar="WL",
+                    help="take a line that comes within WL of its soft limit WL back (the optics' period: 0.5 for the "
+                         "simulated bench); safety.wrap_wl of the mapping")
     ap.add_argument("--stale-s", type=float, default=None, help="the watchdog's limit on a reading's age and "
                     "on the wait for a frame (s; default: the mapping's, 0.5)")
     ap.add_argument("--out", required=True, help="folder for documents.jsonl, power.png, summary.json")
@@ -170,8 +174,9 @@ def _setup(args):
                              base.load(args.controller).env_config.get("stages", 5) if saved else 5)
     mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep,
                                                                                  lengths=not args.no_lengths)
-    if args.stale_s is not None:
-        mapping["safety"] = {**(mapping.get("safety") or {}), "stale_s": args.stale_s}
+    for key, value in (("stale_s", args.stale_s), ("wrap_wl", args.wrap)):
+        if value is not None:
+            mapping["safety"] = {**(mapping.get("safety") or {}), key: value}
     mapping = check_mapping(mapping)
     if args.learn:
         return (mapping, *bench_learn.setup(args, mapping, checkpoint, parse_set(args.env), parse_set(args.set)))

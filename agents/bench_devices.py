@@ -9,7 +9,7 @@ wavelength); the safety limits in wavelengths::
                   "power_full_scale": 1.0, "trace_peak": 1.0, "settle_s": 0.002},
      "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
      "advance": null, "units_per_wl": 1.0,
-     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}}
+     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0, "wrap_wl": null}}
 
 ``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
 controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the
@@ -17,7 +17,12 @@ scope reading of the ideal pulse peak; ``settle_s``: from a setpoint write until
 later shows it (the write's transit and the actuator's settling; frames are told apart by their time
 stamps, the acquisition's start). ``evaluation`` PVs (optional) are recorded, never shown to a
 controller. ``advance`` (optional): a PV whose write advances a lockstep simulator by one tick.
-``soft_range_wl`` is one [low, high] for every line or a list of one per line.
+``soft_range_wl`` is one [low, high] for every line or a list of one per line. ``wrap_wl`` (optional): the
+period of the optics in a line's position (wl / 2 for a folded delay line); with it a move that would come within
+one period of a soft limit is taken one period back towards the middle (a fringe jump: the optics see the same
+state), so a controller can follow a drift for as long as it lasts. Such a move may exceed ``max_step_wl`` by
+``wrap_wl``: map it only where that is safe, and only for controllers that do not read the length readouts (a
+readout jumps by the period).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from ophyd.status import Status
 log = logging.getLogger("agents.bench")
 
 SETTLE_S = 0.002  # default detector.settle_s (s): a write's transit to a local IOC, with margin
-SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0}
+SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0, "wrap_wl": None}
 _KEYS = {
     "": {"lines", "detector", "evaluation", "advance", "units_per_wl", "safety"},
     "lines[]": {"setpoint", "readback", "length"},
@@ -119,6 +124,9 @@ def check_mapping(m: dict) -> dict:
     if not np.all(np.isfinite(rng)) or np.any(rng[:, 0] >= rng[:, 1]):
         raise MappingError(f"mapping: safety.soft_range_wl needs finite low < high, got {rng.tolist()}")
     safety["soft_range_wl"] = rng.tolist()
+    if safety["wrap_wl"] is not None:
+        third = float(np.min(rng[:, 1] - rng[:, 0])) / 3  # a wrapped line lands clear of the other limit's band
+        safety["wrap_wl"] = _number("safety.wrap_wl", safety["wrap_wl"], 0.0, third)
     advance = m.get("advance")
     return {"lines": lines, "detector": detector,
             "evaluation": {k: _pv(f"evaluation.{k}", v) for k, v in ev.items()},
@@ -273,14 +281,18 @@ class SafetyStop(RuntimeError):
 
 class Lines(Device):
     """The delay lines moved together: ``set(targets)`` (wl, one per line) clips each move to
-    ``max_step_wl`` and the result to the soft range, then writes every setpoint without waiting;
-    clipped moves are counted and logged. After ``lock()`` (the watchdog) nothing is written."""
+    ``max_step_wl``, takes a line that would come within ``wrap_wl`` of a soft limit one ``wrap_wl`` back
+    (when given), clips the result to the soft range, then writes every setpoint without waiting; clipped
+    moves and wraps are counted, clipped moves logged. After ``lock()`` (the watchdog) nothing is written."""
 
     clipped = Cpt(Signal, value=0, kind="normal")
+    wraps = Cpt(Signal, value=0, kind="normal")
 
-    def __init__(self, prefix="", *, lines: list, units_per_wl: float, max_step_wl: float, soft_range_wl, **kwargs):
+    def __init__(self, prefix="", *, lines: list, units_per_wl: float, max_step_wl: float, soft_range_wl,
+                 wrap_wl: float | None = None, **kwargs):
         self._lines, self.units_per_wl = lines, units_per_wl
         self.max_step_wl, self.soft_range = max_step_wl, np.asarray(soft_range_wl, float)
+        self.wrap_wl = wrap_wl
         self.locked: str | None = None
         self._sent = None
         super().__init__(prefix, **kwargs)
@@ -292,13 +304,22 @@ class Lines(Device):
             return np.array([line.setpoint.get() for line in self._lines], float) / self.units_per_wl
         return self._sent.copy()
 
-    def safe(self, targets) -> tuple[np.ndarray, np.ndarray]:
-        """(targets within the limits (wl), which lines were clipped)."""
+    def wrap(self, positions) -> np.ndarray:
+        """The shift (wl, one per line) that takes ``positions`` within ``wrap_wl`` of a soft limit one
+        ``wrap_wl`` back towards the middle (zeros without ``wrap_wl``)."""
+        if self.wrap_wl is None:
+            return np.zeros(len(self._lines))
+        low, high = self.soft_range[:, 0], self.soft_range[:, 1]
+        return self.wrap_wl * ((positions < low + self.wrap_wl).astype(float) - (positions > high - self.wrap_wl))
+
+    def safe(self, targets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(targets within the limits (wl), which lines were clipped, which were wrapped)."""
         targets = np.asarray(targets, float)
         here = self.position
         step = np.clip(targets - here, -self.max_step_wl, self.max_step_wl)
-        out = np.clip(here + step, self.soft_range[:, 0], self.soft_range[:, 1])
-        return out, ~np.isclose(out, targets, rtol=0, atol=1e-12)
+        shift = self.wrap(here + step)
+        out = np.clip(here + step + shift, self.soft_range[:, 0], self.soft_range[:, 1])
+        return out, ~np.isclose(out, targets + shift, rtol=0, atol=1e-12), shift != 0
 
     def lock(self, reason: str):
         self.locked = reason
@@ -313,7 +334,9 @@ class Lines(Device):
         """``set`` without a status: the setpoints sent (wl)."""
         if self.locked:
             raise SafetyStop(f"no move after the watchdog's stop ({self.locked})")
-        out, clipped = self.safe(targets)
+        out, clipped, wrapped = self.safe(targets)
+        if wrapped.any():
+            self.wraps.put(self.wraps.get() + int(wrapped.sum()))
         if clipped.any():
             self.clipped.put(self.clipped.get() + int(clipped.sum()))
             log.warning("move clipped to the safety limits: lines %s, asked %s wl, sent %s wl",
@@ -360,7 +383,7 @@ def make_bench(mapping: dict, device_class=None, name: str = "bench"):
     lines = [getattr(bench, f"line{i}") for i in range(1, len(mapping["lines"]) + 1)]
     s = mapping["safety"]
     mover = Lines("", name="lines", lines=lines, units_per_wl=mapping["units_per_wl"],
-                  max_step_wl=s["max_step_wl"], soft_range_wl=s["soft_range_wl"])
+                  max_step_wl=s["max_step_wl"], soft_range_wl=s["soft_range_wl"], wrap_wl=s["wrap_wl"])
     return bench, mover
 
 

@@ -127,7 +127,12 @@ def reads_lengths(algo: str, hyper: dict | None) -> bool:
 
 
 def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
-    """A controller that uses length readouts on a bench that lacks some fails here, naming the entries."""
+    """A controller that uses length readouts on a bench that lacks some, or that wraps its lines (a readout
+    jumps by the period), fails here, naming the entries."""
+    if reads and observes_lengths(env) and mapping["safety"]["wrap_wl"] is not None:
+        raise MappingError(f"the controller {controller} reads the length readouts, which jump by a period when "
+                           "a line wraps (safety.wrap_wl, --wrap); run it without wrapping, or run a controller that "
+                           "does not read them (spgd, physics with use_lengths=False, a policy trained without them)")
     missing = [f"lines[{i}].length" for i, line in enumerate(mapping["lines"]) if "length" not in line]
     if reads and observes_lengths(env) and missing:
         raise MappingError(f"the controller {controller} reads the length readouts and the mapping lacks "
@@ -145,6 +150,7 @@ class Loop:
         self.det = bench.detector
         self.n = len(mapping["lines"])
         self.frames = None
+        self.deadline = None  # time.perf_counter() before which the next step does not read (the rate cap)
         self.stop_reason: str | None = None
         self.stopped_at = None  # time.time() of the watchdog's stop
         self.user_stop = False
@@ -250,7 +256,7 @@ class Loop:
 
     def step(self) -> tuple[dict, dict]:
         """One control step (wait for a frame, read, probe, act, write); the event's data and time stamps."""
-        next_read = time.perf_counter() + self.period
+        started = time.perf_counter()
         self.frame()
         t_frame = self.det.tick_time
         data, stamps = self.readings()
@@ -279,9 +285,19 @@ class Loop:
         stamps.update(dict.fromkeys(control, sent_at))
         self.record(latency, decide_ms)
         self.tick()
-        if (wait := next_read - time.perf_counter()) > 0:
-            time.sleep(wait)
+        self.pace(started)
         return data, stamps
+
+    def pace(self, started: float):
+        """Sleep to the rate cap's next deadline, a period after the last (the first: a period after the step
+        ``started``). Deadlines are one period apart whatever each step took: a late wake-up does not shift the
+        next, so a cap equal to the bench's frame rate does not drift into skipping frames. After a step that
+        started more than a period past its deadline they start again from that step."""
+        late = self.deadline is None or started - self.deadline > self.period
+        self.deadline = (started if late else self.deadline) + self.period
+        now = time.perf_counter()
+        if (wait := self.deadline - now) > 0:
+            time.sleep(wait)
 
     def flyer(self) -> LoopFlyer:
         """The loop as a Bluesky flyer: one event per step in the stream ``primary``."""

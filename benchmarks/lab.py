@@ -3,6 +3,12 @@
 Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
 
     python -m benchmarks.lab --seconds 60 --rates 100 50 25 --out results/lab [--policy DIR ...]
+    python -m benchmarks.lab --frames-only --wrap 0.5 --idle-s 10 --seeds 1 2 3 --controllers physics-frames
+
+``--frames-only``: the bench serves no length readouts (``--observe-lengths False``) and the runner maps none;
+``--wrap WL``: the runner's ``--wrap``; ``--idle-s``: the bench runs uncontrolled this long before the runner
+starts (its own start-up comes on top: the summary's ``first_tick`` is the tick of its first step);
+``--seeds``: the benches' seeds (``--seed`` of the IOC), a run per seed.
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
 step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
@@ -27,7 +33,11 @@ IOC_ARGS = ["--stages", "5", "--mode", "hard", "--imperfections", "lab"]
 # (docs/imperfections.md); SPGD as tuned for the simulator, and with a dither above the bench's noise
 # between two frames (docs/lab.md).
 CONTROLLERS = {"spgd": ("spgd", []), "spgd-bench": ("spgd", ["delta=0.01", "kp_min=0.05"]),
-               "physics": ("physics", ["identify=True", "use_lengths=True", "starts=8", "iters=6"])}
+               "physics": ("physics", ["identify=True", "use_lengths=True", "starts=8", "iters=6"]),
+               # the detector's frames alone: the ideal model's fit, or the fit that identifies the imperfections
+               "physics-frames": ("physics", ["config=frames", "starts=8", "iters=6"]),
+               "physics-frames-identify": ("physics", ["config=frames", "identify=True", "starts=8", "iters=6"])}
+FRAMES_ONLY = ["--observe-lengths", "False"]
 START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
 
 
@@ -96,22 +106,29 @@ def start_ioc(out: Path, *args) -> Process:
 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
-                   lockstep: int = 0) -> dict:
-    """One run against a fresh IOC (``IOC_ARGS``, 100 Hz, or ``lockstep`` > 0 steps in lockstep);
-    returns its summary.json."""
+                   lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
+                   seed: int = 0) -> dict:
+    """One run against a fresh IOC (``IOC_ARGS``, bench seed ``seed``, 100 Hz, or ``lockstep`` > 0 steps in
+    lockstep; ``frames_only``: without length readouts), started ``idle_s`` after the IOC serves; returns its
+    summary.json with ``first_tick``, the bench's tick at the run's first step."""
     out.mkdir(parents=True, exist_ok=True)
     clock = ["--lockstep"] if lockstep else ["--rate", 100]
-    ioc = start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS)
+    ioc = start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--seed", seed, *(FRAMES_ONLY if frames_only else []))
     try:
+        time.sleep(idle_s)
         args = ["--prefix", "OPS:", "--controller", controller, "--seconds", seconds, "--rate", rate, "--out", out,
                 "--stale-s", stale_s]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
+        args += ["--no-lengths"] if frames_only else []
+        args += ["--wrap", wrap] if wrap is not None else []
         args += [x for s in sets for x in ("--set", s)]
         runner = Process("agents.bench", args, ioc.env, out / "runner.log")
         rc = runner.wait(START_S + 2 * seconds + lockstep)
         if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
             raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
-        return json.loads((out / "summary.json").read_text())
+        first = next(json.loads(line) for line in (out / "documents.jsonl").read_text().splitlines()
+                     if '"name": "event"' in line)
+        return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"]}
     finally:
         ioc.kill()
 
@@ -142,11 +159,12 @@ def kill_check(out: Path, stale_s: float, controller: str = "physics", after_eve
 
 
 def table(rows: list) -> str:
-    head = ("| controller | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) | CPU ms/step | P / P_best "
-            "| stopped by |\n|---|---|---|---|---|---|---|---|")
-    body = [f"| {r['controller']} | {r['rate']:g} | {r['rate_hz']:.1f} | {r['frames_per_step']:.2f} | "
-            f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['cpu_ms_per_step']:.2f} | "
-            f"{r['p_over_pbest_mean']:.4f} | {r['stopped_by']} |" for r in rows]
+    head = ("| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) "
+            "| CPU ms/step | P / P_best | clipped / wrapped moves | stopped by |\n" + "|---" * 11 + "|")
+    body = [f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | {r['rate_hz']:.1f} | "
+            f"{r['frames_per_step']:.2f} | {r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | "
+            f"{r['cpu_ms_per_step']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / "
+            f"{r.get('wrapped_moves', 0)} | {r['stopped_by']} |" for r in rows]
     return "\n".join([head, *body])
 
 
@@ -160,18 +178,25 @@ def main(argv=None) -> dict:
     ap.add_argument("--lockstep", type=int, default=0, metavar="STEPS",
                     help="run each controller STEPS steps in lockstep instead (scores without timing)")
     ap.add_argument("--no-kill", action="store_true", help="skip the IOC-SIGKILL check")
+    ap.add_argument("--frames-only", action="store_true", help="a bench without length readouts")
+    ap.add_argument("--wrap", type=float, default=None, metavar="WL", help="the runner's --wrap (wl)")
+    ap.add_argument("--idle-s", type=float, default=0.0, help="the bench runs uncontrolled this long first (s)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="the benches' seeds, a run per seed")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []
     runs = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
     for name, controller, sets in runs:
         for rate in args.rates:
-            s = run_controller(args.out / f"{name}-{rate:g}hz", controller, sets, args.seconds, rate, args.stale_s,
-                               args.lockstep)
-            rows.append({**s, "controller": name, "settings": sets, "rate": rate})
-            print(table(rows[-1:]).splitlines()[-1], flush=True)
-    result = {"ioc": IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]), "seconds": args.seconds,
-              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
+            for seed in args.seeds:
+                folder = args.out / (f"{name}-{rate:g}hz" + (f"-seed{seed}" if args.seeds != [0] else ""))
+                s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
+                                   args.frames_only, args.wrap, args.idle_s, seed)
+                rows.append({**s, "controller": name, "settings": sets, "rate": rate, "bench_seed": seed})
+                print(table(rows[-1:]).splitlines()[-1], flush=True)
+    ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
+    result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
+              "idle_s": args.idle_s, "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))
     if result["kill"]:

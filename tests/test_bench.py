@@ -40,6 +40,8 @@ START_S = 240  # an IOC or runner start-up on a loaded 2-core machine (JAX impor
     (lambda m: m["detector"].pop("tick"), "tick"),
     (lambda m: m.update(safety={"soft_range_wl": [1.0, -1.0]}), "soft_range_wl"),
     (lambda m: m.update(safety={"max_step_wl": -0.1}), "max_step_wl"),
+    (lambda m: m.update(safety={"wrap_wl": 2.5}), "wrap_wl"),  # more than a third of the soft range
+
     (lambda m: m["lines"][0].update(readback="OPS: LINE1"), "lines[0].readback"),
 ])
 def test_bad_mapping_fails_naming_the_key(edit, needle):
@@ -167,6 +169,44 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
         assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
 
 
+def test_lines_wrap_by_one_period_near_a_soft_limit_and_never_back_and_forth():
+    """With wrap_wl a line following a drift stays within its soft range for ever: each time it would come within
+    a period of a limit it is taken one period back (a move of up to max_step_wl + wrap_wl, not clipped)."""
+    bench, lines = fake_bench(max_step_wl=0.3, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
+    sent, target = [], np.zeros(3)
+    for _ in range(3000):  # line 1 drifts up, line 2 down, line 3 still: 30 wl in 0.01-wl moves
+        target = lines.position + np.array([0.01, -0.01, 0.0])
+        sent.append(lines.move(target))
+    sent = np.array(sent)
+    assert np.all(np.abs(sent[:, :2]) <= 2.5 + 1e-9) and np.all(sent[:, 2] == 0)
+    jumps = np.abs(np.diff(sent, axis=0))
+    assert np.all((jumps < 0.011) | np.isclose(jumps, 0.49))  # a move, or a move and one period back
+    # 27.5 wl of drift past the band's edge per line, one wrap each 0.5 wl
+    assert lines.wraps.get() == np.sum(np.isclose(jumps, 0.49)) == 2 * 55 and lines.clipped.get() == 0
+    _, plain = fake_bench(max_step_wl=0.3, soft_range_wl=[-3.0, 3.0])
+    for _ in range(400):
+        plain.move(plain.position + 0.01)
+    assert np.allclose(plain.position, 3.0) and plain.clipped.get() > 0 and plain.wraps.get() == 0
+
+
+def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
+    """The rate cap's deadlines are one period apart, so a late wake-up does not delay the next step; after a
+    stall of more than a period the schedule starts again."""
+    loop = runner.Loop.__new__(runner.Loop)
+    loop.period, loop.deadline = 0.01, None
+    start = time.perf_counter()
+    loop.pace(start)
+    first = loop.deadline
+    assert first == pytest.approx(start + 0.01) and time.perf_counter() >= first
+    time.sleep(0.004)  # a step that took 4 ms longer
+    loop.pace(first + 0.004)
+    assert loop.deadline == pytest.approx(first + 0.01)
+    time.sleep(0.05)  # a stall
+    late = time.perf_counter()
+    loop.pace(late)
+    assert loop.deadline == pytest.approx(late + 0.01)
+
+
 def test_length_readouts_a_controller_reads_must_be_mapped():
     """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a controller
     reading them fails before it is compiled, naming itself and the missing entries."""
@@ -183,6 +223,10 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
                                                                  {"setpoint": "T:LINE3:SP", "readback": "T:LINE3:RBV"}]})
     with pytest.raises(MappingError, match=r"lacks lines\[2\].length;"):
         runner.check_lengths("DIR", True, env, partial)
+    wrapping = check_mapping({**sim_mapping("T:", 3), "safety": {"wrap_wl": 0.5}})
+    with pytest.raises(MappingError, match="jump by a period when a line wraps"):
+        runner.check_lengths("DIR", True, env, wrapping)
+    runner.check_lengths("spgd", False, env, wrapping)
 
 
 def test_bench_reset_is_a_fresh_start():
