@@ -28,6 +28,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
     python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
     python -m benchmarks.budget --preset quick --out results/budget-quick
+    python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -68,6 +69,13 @@ PRESETS = {
 }
 # every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
 PRESETS["full"] = dict(PRESETS["default"])
+# the detector's frames alone (``observe_lengths=False``, no length readouts), on the lab's system and, for protocol
+# (b), pretrained and adapted without them: the default preset's lab columns, frames only
+FRAMES = dict(observe_lengths=False)
+_ADAPT = PRESETS["default"]["adapt"]
+PRESETS["frames"] = dict(PRESETS["default"], envs={"hard + lab, frames only": dict(ENVS["hard + lab"], **FRAMES)},
+                         adapt=dict(_ADAPT, pretrain_env=dict(_ADAPT["pretrain_env"], **FRAMES),
+                                    bench_env=dict(HARD, **FRAMES)))
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),

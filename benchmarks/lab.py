@@ -105,30 +105,63 @@ def start_ioc(out: Path, *args) -> Process:
     return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log").wait_for("serving")
 
 
+def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | None) -> list:
+    """The runner's arguments shared by every run on the simulated bench."""
+    return (["--prefix", "OPS:", "--rate", rate, "--stale-s", stale_s] + (["--no-lengths"] if frames_only else [])
+            + (["--wrap", wrap] if wrap is not None else []))
+
+
+def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
+    """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
+    run's first step."""
+    runner = Process("agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log")
+    rc = runner.wait(timeout)
+    if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
+        raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
+    first = next(json.loads(line) for line in (out / "documents.jsonl").read_text().splitlines()
+                 if '"name": "event"' in line)
+    return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"]}
+
+
+def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int) -> Process:
+    clock = ["--lockstep"] if lockstep else ["--rate", 100]
+    return start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--seed", seed, *(FRAMES_ONLY if frames_only else []))
+
+
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
                    seed: int = 0) -> dict:
     """One run against a fresh IOC (``IOC_ARGS``, bench seed ``seed``, 100 Hz, or ``lockstep`` > 0 steps in
     lockstep; ``frames_only``: without length readouts), started ``idle_s`` after the IOC serves; returns its
-    summary.json with ``first_tick``, the bench's tick at the run's first step."""
+    summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
-    clock = ["--lockstep"] if lockstep else ["--rate", 100]
-    ioc = start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--seed", seed, *(FRAMES_ONLY if frames_only else []))
+    ioc = _ioc(out, lockstep, frames_only, seed)
     try:
         time.sleep(idle_s)
-        args = ["--prefix", "OPS:", "--controller", controller, "--seconds", seconds, "--rate", rate, "--out", out,
-                "--stale-s", stale_s]
+        args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
-        args += ["--no-lengths"] if frames_only else []
-        args += ["--wrap", wrap] if wrap is not None else []
         args += [x for s in sets for x in ("--set", s)]
-        runner = Process("agents.bench", args, ioc.env, out / "runner.log")
-        rc = runner.wait(START_S + 2 * seconds + lockstep)
-        if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
-            raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
-        first = next(json.loads(line) for line in (out / "documents.jsonl").read_text().splitlines()
-                     if '"name": "event"' in line)
-        return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"]}
+        return _run(out / "run", args, ioc.env, START_S + 2 * seconds + lockstep)
+    finally:
+        ioc.kill()
+
+
+def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, stale_s: float,
+                 frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0, seed: int = 0,
+                 start_from: str | None = None) -> tuple[dict, dict]:
+    """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder) against a fresh
+    IOC started ``idle_s`` before, then its checkpoint as a controller for ``seconds`` on the same bench: the two
+    summaries."""
+    out.mkdir(parents=True, exist_ok=True)
+    ioc = _ioc(out, 0, frames_only, seed)
+    try:
+        time.sleep(idle_s)
+        shared = _bench_args(stale_s, rate, frames_only, wrap)
+        learn = [*shared, "--learn", algo, "--steps", steps] + (["--from", start_from] if start_from else [])
+        learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
+        ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds], ioc.env,
+                   START_S + 2 * seconds)
+        return learned, ran
     finally:
         ioc.kill()
 
@@ -182,10 +215,23 @@ def main(argv=None) -> dict:
     ap.add_argument("--wrap", type=float, default=None, metavar="WL", help="the runner's --wrap (wl)")
     ap.add_argument("--idle-s", type=float, default=0.0, help="the bench runs uncontrolled this long first (s)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="the benches' seeds, a run per seed")
+    ap.add_argument("--learn", metavar="ALGO", help="instead: learn on each bench (agents.bench --learn), then run "
+                    "the checkpoint as a controller for --seconds on the same bench")
+    ap.add_argument("--learn-steps", type=int, default=20_000, help="--learn: env steps of learning")
+    ap.add_argument("--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []
     runs = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
+    if args.learn:
+        runs = []
+        for seed in args.seeds:
+            learned, ran = run_learning(args.out / f"learn-{args.learn}-seed{seed}", args.learn, args.learn_steps,
+                                        args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
+                                        args.idle_s, seed, args.from_)
+            for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
+                rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
+                print(table(rows[-1:]).splitlines()[-1], flush=True)
     for name, controller, sets in runs:
         for rate in args.rates:
             for seed in args.seeds:
@@ -196,7 +242,8 @@ def main(argv=None) -> dict:
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
     result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
-              "idle_s": args.idle_s, "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
+              "idle_s": args.idle_s, "learn": args.learn, "learn_steps": args.learn_steps, "from": args.from_,
+              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))
     if result["kill"]:

@@ -566,3 +566,22 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
                                "--controller", "physics", "--set", "starts=2"))
     said = [line for line in log.splitlines() if line.startswith("agents.bench:")]
     assert rc == 2 and len(said) == 1 and "physics" in said[0] and "lines[2].length" in said[0], log
+
+
+def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path):
+    """``benchmarks.lab --frames-only --wrap --idle-s --seeds``: a bench serving no length readouts, a runner mapping
+    none, started after the idle time; the row names the bench's seed and the tick of the first step."""
+    from benchmarks import lab
+
+    result = lab.main(["--seconds", "3", "--controllers", "spgd", "--frames-only", "--wrap", "0.5", "--idle-s", "2",
+                       "--seeds", "3", "--no-kill", "--stale-s", "5", "--out", str(tmp_path)])
+    (row,) = result["rows"]
+    assert row["stopped_by"] == "time" and row["bench_seed"] == 3 and row["steps"] > 10, row
+    assert row["first_tick"] >= 150 and "wrapped_moves" in row  # at least the 2 s of idling at 100 ticks/s
+    run = tmp_path / "spgd-100hz-seed3" / "run"
+    assert json.loads((run / "summary.json").read_text())["controller"] == "spgd"
+    start = json.loads((run / "documents.jsonl").read_text().splitlines()[0])["doc"]
+    assert start["mapping"]["safety"]["wrap_wl"] == 0.5 and all("length" not in x for x in start["mapping"]["lines"])
+    assert "--observe-lengths False" in " ".join(result["ioc"])
+    assert "LEN" not in (tmp_path / "spgd-100hz-seed3" / "run.log").read_text()
+    assert "| spgd | 3 |" in lab.table(result["rows"])

@@ -110,3 +110,15 @@ def test_trimmed_result_keeps_the_learners_params():
     a = agents.evaluate(result, ENV, episodes=4, seed=2, steps=30)
     b = agents.evaluate((policy, params), ENV, episodes=4, seed=2, steps=30)
     np.testing.assert_allclose(a.normalized_power, b.normalized_power, atol=1e-6)
+
+
+def test_trim_loss_pairs_the_same_episodes():
+    """benchmarks.trim_loss counts, episode by episode, where the trim ends lower or higher than the policy alone."""
+    from benchmarks.trim_loss import paired, table
+
+    alone = np.array([0.99, 0.95, 0.20, 0.90])
+    trimmed = np.array([0.995, 0.20, 0.97, 0.93])
+    row = paired(alone, trimmed, margin=0.05)
+    assert row["lost"] == 1 and row["gained"] == 1 and row["episodes"] == 4
+    assert row["worst"] == pytest.approx(-0.75) and (row["worst_alone"], row["worst_trimmed"]) == (0.95, 0.20)
+    assert "-0.750 (0.950 -> 0.200)" in table([{**row, "env": "hard", "seed": 0}], 0.05)
