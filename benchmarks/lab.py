@@ -123,19 +123,30 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"]}
 
 
-def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int) -> Process:
+def unseen_args(seed: int, scale: float) -> list:
+    """IOC options of protocol (b)'s unseen bench ``seed`` (``benchmarks.budget.unseen_bench``: the lab preset at
+    ``scale``, its per-stage error patterns re-drawn from the seed)."""
+    from benchmarks.budget import unseen_bench
+
+    drawn = unseen_bench({"stages": 5}, seed, scale)
+    return [x for k, v in drawn.items() if isinstance(v, list) for x in (f"--{k.replace('_', '-')}", str(tuple(v)))]
+
+
+def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 1.0, unseen: bool = False) -> Process:
     clock = ["--lockstep"] if lockstep else ["--rate", 100]
-    return start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--seed", seed, *(FRAMES_ONLY if frames_only else []))
+    drawn = unseen_args(seed, scale) if unseen else []
+    return start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--imperfection-scale", scale, *drawn, "--seed", seed,
+                     *(FRAMES_ONLY if frames_only else []))
 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
-                   seed: int = 0) -> dict:
-    """One run against a fresh IOC (``IOC_ARGS``, bench seed ``seed``, 100 Hz, or ``lockstep`` > 0 steps in
-    lockstep; ``frames_only``: without length readouts), started ``idle_s`` after the IOC serves; returns its
-    summary.json with ``first_tick``."""
+                   seed: int = 0, scale: float = 1.0) -> dict:
+    """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
+    ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts), started ``idle_s`` after the IOC
+    serves; returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = _ioc(out, lockstep, frames_only, seed)
+    ioc = _ioc(out, lockstep, frames_only, seed, scale)
     try:
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
@@ -148,16 +159,18 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
 
 def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, stale_s: float,
                  frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0, seed: int = 0,
-                 start_from: str | None = None) -> tuple[dict, dict]:
-    """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder) against a fresh
-    IOC started ``idle_s`` before, then its checkpoint as a controller for ``seconds`` on the same bench: the two
-    summaries."""
+                 start_from: str | None = None, sets=(), scale: float = 1.0, unseen: bool = False) -> tuple[dict, dict]:
+    """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder; ``sets``: its
+    ``--set`` values) against a fresh IOC (the lab preset at ``scale``; ``unseen``: its per-stage errors re-drawn
+    from ``seed``, ``unseen_args``) started ``idle_s`` before, then its
+    checkpoint as a controller for ``seconds`` on the same bench: the two summaries."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = _ioc(out, 0, frames_only, seed)
+    ioc = _ioc(out, 0, frames_only, seed, scale, unseen)
     try:
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
         learn = [*shared, "--learn", algo, "--steps", steps] + (["--from", start_from] if start_from else [])
+        learn += [x for s in sets for x in ("--set", s)]
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds], ioc.env,
                    START_S + 2 * seconds)
@@ -219,6 +232,10 @@ def main(argv=None) -> dict:
                     "the checkpoint as a controller for --seconds on the same bench")
     ap.add_argument("--learn-steps", type=int, default=20_000, help="--learn: env steps of learning")
     ap.add_argument("--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)")
+    ap.add_argument("--learn-set", nargs="*", default=[], metavar="KEY=VALUE", help="--learn: the learner's settings")
+    ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
+    ap.add_argument("--unseen", action="store_true", help="--learn: each bench's per-stage errors re-drawn from its seed, "
+                    "as protocol (b)'s unseen benches (benchmarks.budget)")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []
@@ -228,7 +245,8 @@ def main(argv=None) -> dict:
         for seed in args.seeds:
             learned, ran = run_learning(args.out / f"learn-{args.learn}-seed{seed}", args.learn, args.learn_steps,
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
-                                        args.idle_s, seed, args.from_)
+                                        args.idle_s, seed, args.from_, args.learn_set, args.imperfection_scale,
+                                        args.unseen)
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
                 rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
@@ -237,12 +255,14 @@ def main(argv=None) -> dict:
             for seed in args.seeds:
                 folder = args.out / (f"{name}-{rate:g}hz" + (f"-seed{seed}" if args.seeds != [0] else ""))
                 s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
-                                   args.frames_only, args.wrap, args.idle_s, seed)
+                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale)
                 rows.append({**s, "controller": name, "settings": sets, "rate": rate, "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
+    ioc += ["--imperfection-scale", str(args.imperfection_scale)]
     result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
-              "idle_s": args.idle_s, "learn": args.learn, "learn_steps": args.learn_steps, "from": args.from_,
+              "idle_s": args.idle_s, "imperfection_scale": args.imperfection_scale, "unseen": args.unseen,
+              "learn": args.learn, "learn_steps": args.learn_steps, "from": args.from_,
               "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))
