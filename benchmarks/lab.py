@@ -141,12 +141,12 @@ def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
-                   seed: int = 0, scale: float = 1.0) -> dict:
+                   seed: int = 0, scale: float = 1.0, unseen: bool = False) -> dict:
     """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
-    ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts), started ``idle_s`` after the IOC
-    serves; returns its summary.json with ``first_tick``."""
+    ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts; ``unseen``: as ``run_learning``),
+    started ``idle_s`` after the IOC serves; returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = _ioc(out, lockstep, frames_only, seed, scale)
+    ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen)
     try:
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
@@ -210,7 +210,7 @@ def table(rows: list) -> str:
     body = [f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | {r['rate_hz']:.1f} | "
             f"{r['frames_per_step']:.2f} | {r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | "
             f"{r['cpu_ms_per_step']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / "
-            f"{r.get('wrapped_moves', 0)} | {r['stopped_by']} |" for r in rows]
+            f"{r['wrapped_moves']} | {r['stopped_by']} |" for r in rows]
     return "\n".join([head, *body])
 
 
@@ -234,14 +234,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)")
     ap.add_argument("--learn-set", nargs="*", default=[], metavar="KEY=VALUE", help="--learn: the learner's settings")
     ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
-    ap.add_argument("--unseen", action="store_true", help="--learn: each bench's per-stage errors re-drawn from its seed, "
+    ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
                     "as protocol (b)'s unseen benches (benchmarks.budget)")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []
-    runs = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
+    controllers = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
+    runs = [] if args.learn else controllers  # --learn: the learners' runs instead
     if args.learn:
-        runs = []
         for seed in args.seeds:
             learned, ran = run_learning(args.out / f"learn-{args.learn}-seed{seed}", args.learn, args.learn_steps,
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
@@ -255,7 +255,7 @@ def main(argv=None) -> dict:
             for seed in args.seeds:
                 folder = args.out / (f"{name}-{rate:g}hz" + (f"-seed{seed}" if args.seeds != [0] else ""))
                 s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
-                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale)
+                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen)
                 rows.append({**s, "controller": name, "settings": sets, "rate": rate, "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
