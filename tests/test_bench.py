@@ -585,3 +585,17 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
     assert "--observe-lengths False" in " ".join(result["ioc"])
     assert "LEN" not in (tmp_path / "spgd-100hz-seed3" / "run.log").read_text()
     assert "| spgd | 3 |" in lab.table(result["rows"])
+
+
+def test_unseen_bench_reaches_the_ioc_as_the_budget_section_draws_it():
+    """``benchmarks.lab --unseen``: the IOC's options give the bench of ``benchmarks.budget.unseen_bench``."""
+    from benchmarks.budget import unseen_bench
+    from benchmarks.lab import IOC_ARGS, unseen_args
+
+    ns = ioc.parser().parse_args([*IOC_ARGS, "--imperfection-scale", "2.0", *unseen_args(1011, 2.0)])
+    got = ioc.make_options(ns)
+    want = unseen_bench({"stages": 5, "mode": "hard"}, 1011, 2.0)
+    assert got["imperfections"] == "lab" and got["imperfection_scale"] == 2.0
+    drawn = [k for k, v in want.items() if isinstance(v, list)]
+    assert len(drawn) >= 3 and all(np.allclose(got[k], want[k]) for k in drawn)
+    assert unseen_args(1011, 2.0) != unseen_args(1012, 2.0)
