@@ -166,6 +166,9 @@ class TrimConfig(EscapeConfig):
     DEFAULT_PRESET: ClassVar[str] = "default"
     PRESETS: ClassVar[dict] = {"default": dict(ki=0.003, amp=0.002, p_gate=0.0, release=1.0,
                                                jump=0.0, patience=10.0, p_stall=0.6, margin=0.005)}
+    # integrates only above half of P_max and lets the offset decay below: a trim that led a line off the top is
+    # undone (docs/learners.md, "Does the trim ever lose?")
+    PRESETS["guarded"] = dict(PRESETS["default"], p_gate=0.5, release=0.9)
 
     ki: float = field(Range(0, 1))
     amp: float = field(DITHER)

@@ -1,12 +1,14 @@
 """Whether the trim (``agents.trim``) loses: learned policies alone and trimmed, on the same test episodes.
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
+    python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
 
 DroQ at its budget preset (20,000 env steps; the seeds in one vmapped call) on each environment, each policy
-evaluated alone and with the default trim on the same test episodes (``agents.evaluate``'s ``--eval-seed``: the
-same starts and the same noise; the trim's dither has a key stream of its own). Per (environment, seed): the mean
-final P / P_best of both, the episodes the trim loses by more than ``--margin`` of P / P_best and those it gains
-by more, and the worst paired difference. Prints the table and writes ``trim_loss.json``.
+evaluated alone and with each of the trim's presets (``TrimConfig``) on the same test episodes
+(``agents.evaluate``'s ``--eval-seed``: the same starts and the same noise; the trim's dither has a key stream of
+its own). Per (environment, seed, trim): the mean final P / P_best of both, the episodes the trim loses by more
+than ``--margin`` of P / P_best and those it gains by more, and the worst paired difference. Prints the table and
+writes ``trim_loss.json``.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from agents.config import TrimConfig
 
 ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
         "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab")}
@@ -31,8 +35,9 @@ def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
             "worst_trimmed": float(trimmed[diff.argmin()])}
 
 
-def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int) -> list[dict]:
-    """Train on ``ENVS[env_name]`` for ``seeds``; one row per seed."""
+def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int,
+            trims=("default",)) -> list[dict]:
+    """Train on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset."""
     import agents
     from agents import trim
 
@@ -43,16 +48,19 @@ def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, 
     rows = []
     for seed, result in zip(seeds, results):
         final = lambda policy: agents.evaluate(policy, env, episodes=episodes, seed=eval_seed).normalized_power_best[:, -1]
-        rows.append({"env": env_name, "seed": int(seed), **paired(final(result), final(trim.trimmed(result)), margin),
-                     "train_s": train_s / len(seeds)})
+        alone = final(result)
+        rows += [{"env": env_name, "seed": int(seed), "trim": name,
+                  **paired(alone, final(trim.trimmed(result, {"config": name})), margin), "train_s": train_s / len(seeds)}
+                 for name in trims]
     return rows
 
 
 def table(rows: list, margin: float) -> str:
-    head = (f"| environment | seed | alone | trimmed | episodes | lost by > {margin:g} | gained by > {margin:g} | "
-            "worst difference (alone -> trimmed) |\n" + "|---" * 8 + "|")
-    body = [f"| {r['env']} | {r['seed']} | {r['alone']:.4f} | {r['trimmed']:.4f} | {r['episodes']} | {r['lost']} | "
-            f"{r['gained']} | {r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |" for r in rows]
+    head = (f"| environment | seed | trim | alone | trimmed | episodes | lost by > {margin:g} | gained by > {margin:g} | "
+            "worst difference (alone -> trimmed) |\n" + "|---" * 9 + "|")
+    body = [f"| {r['env']} | {r['seed']} | {r['trim']} | {r['alone']:.4f} | {r['trimmed']:.4f} | {r['episodes']} | "
+            f"{r['lost']} | {r['gained']} | {r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |"
+            for r in rows]
     return "\n".join([head, *body])
 
 
@@ -64,13 +72,15 @@ def main(argv=None) -> dict:
     ap.add_argument("--eval-seed", type=int, default=4242)
     ap.add_argument("--margin", type=float, default=0.05, help="a loss or gain counts beyond this P / P_best")
     ap.add_argument("--steps", type=int, default=20_000, help="env steps of training per seed")
+    ap.add_argument("--trims", nargs="+", default=["default"], choices=sorted(TrimConfig.PRESETS),
+                    help="the trim's presets (TrimConfig)")
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.steps < 1 or not args.margin >= 0:
         ap.error("--episodes and --steps must be >= 1 and --margin >= 0")
     rows = []
     for env_name in args.envs:
-        new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps)
+        new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims)
         print("\n".join(table(new, args.margin).splitlines()[2:]), flush=True)
         rows += new
     result = {"command": "python -m benchmarks.trim_loss", "args": {k: str(v) for k, v in vars(args).items()},

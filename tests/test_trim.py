@@ -121,4 +121,5 @@ def test_trim_loss_pairs_the_same_episodes():
     row = paired(alone, trimmed, margin=0.05)
     assert row["lost"] == 1 and row["gained"] == 1 and row["episodes"] == 4
     assert row["worst"] == pytest.approx(-0.75) and (row["worst_alone"], row["worst_trimmed"]) == (0.95, 0.20)
-    assert "-0.750 (0.950 -> 0.200)" in table([{**row, "env": "hard", "seed": 0}], 0.05)
+    assert "| guarded | 0.7600 | 0.7738 | 4 | 1 | 1 | -0.750 (0.950 -> 0.200) |" in table(
+        [{**row, "env": "hard", "seed": 0, "trim": "guarded"}], 0.05)
