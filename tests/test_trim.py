@@ -123,3 +123,10 @@ def test_trim_loss_pairs_the_same_episodes():
     assert row["worst"] == pytest.approx(-0.75) and (row["worst_alone"], row["worst_trimmed"]) == (0.95, 0.20)
     assert "| guarded | 0.7600 | 0.7738 | 4 | 1 | 1 | -0.750 (0.950 -> 0.200) |" in table(
         [{**row, "env": "hard", "seed": 0, "trim": "guarded"}], 0.05)
+
+
+def test_guarded_preset_gates_and_releases():
+    """The ``guarded`` preset is the default one with the gate at half of P_max and a decaying offset below it."""
+    default, guarded = trim.gains(None), trim.gains({"config": "guarded"})
+    assert float(guarded["p_gate"]) == 0.5 and float(guarded["release"]) == pytest.approx(0.9)
+    assert float(default["p_gate"]) == 0.0 and float(guarded["ki"]) == float(default["ki"])
