@@ -111,6 +111,11 @@ def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | No
             + (["--wrap", wrap] if wrap is not None else []))
 
 
+def _sets(values) -> list:
+    """``--set V`` for each of ``values`` (the runner takes one setting per ``--set``)."""
+    return [x for v in values for x in ("--set", v)]
+
+
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
     run's first step."""
@@ -151,7 +156,7 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
-        args += [x for s in sets for x in ("--set", s)]
+        args += _sets(sets)
         return _run(out / "run", args, ioc.env, START_S + 2 * seconds + lockstep)
     finally:
         ioc.kill()
@@ -170,7 +175,7 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
         learn = [*shared, "--learn", algo, "--steps", steps] + (["--from", start_from] if start_from else [])
-        learn += [x for s in sets for x in ("--set", s)]
+        learn += _sets(sets)
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds], ioc.env,
                    START_S + 2 * seconds)
