@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import base, offpolicy, registry, replay
+from agents import base, observer, offpolicy, registry, replay
 from agents.bench_loop import check_lengths
 from agents.envs import built, train_env_config
 from agents.io import kept_dir, replace_dir, temp_dir
@@ -186,14 +186,17 @@ class Learning:
         self.checkpoint_every, self.from_policy = checkpoint_every, None
         self.env, env_params = built(train_env_config(env_config, h["train_reward"]))
         self.ratio = replay.updates_per_iter(h) / (h["num_envs"] * h["unroll"])  # target gradient steps per env step
-        self.fns = learner.build(self.env, h)
+        self.train_env = learner.training_env(self.env, env_config, h)  # with the observer's entries, if any
+        self.observer = observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
+        self.fns = learner.build(self.train_env, h)
         self.ts = jax.jit(self.fns["init"])(jax.random.key(seed), env_params)
         self.k_act = jax.random.fold_in(jax.random.key(seed), 1)
+        self.k_observe = jax.random.fold_in(jax.random.key(seed), 2)
         self.counts, self.warm_obs = Counts(), []
         self.queue: collections.deque = collections.deque()
         self.lock, self.wake = threading.Lock(), threading.Event()
         self.thread, self.error, self.on_error, self.bar = None, None, None, None
-        self.ending, self.prev, self.t, self.power_sum = False, None, 0, [0.0, 0]
+        self.ending, self.prev, self.t, self.power_sum, self.seen = False, None, 0, [0.0, 0], None
         self.ratio_rec: list = []  # (perf_counter time, this invocation's gradient steps, its env steps after the warm-up)
 
     # -- the run's state -------------------------------------------------------------------------
@@ -237,19 +240,30 @@ class Learning:
     # -- the jitted programs ---------------------------------------------------------------------
     def compile(self) -> None:
         """Compile exploration, insertion, gradient step and the statistics' fit before the run."""
-        env, fns, ts = self.env, self.fns, self.ts
-        buffer = replay.replay_buffer(env, self.h)
+        env, fns, ts, d_raw = self.env, self.fns, self.ts, self.env.observation_size
+        buffer = replay.replay_buffer(self.train_env, self.h)
 
         def explore(snap, t, obs, random):
             return fns["explore"](snap, jax.random.fold_in(self.k_act, t), obs[None], random)[0]
 
         def insert(ts, obs, action, next_obs, p_init):
-            reward = env.reward(env.layout.power(next_obs) * env.p_max, p_init).astype(jnp.float32)
+            reward = env.reward(env.layout.power(next_obs[:d_raw]) * env.p_max, p_init).astype(jnp.float32)
             tr = dict(obs=obs, action=action, reward=reward, discount=jnp.float32(1.0), next_obs=next_obs)
             return ts._replace(buffer=buffer.insert(ts.buffer, jax.tree.map(lambda x: x[None], tr)))
 
-        d, n = env.observation_size, env.num_actions
+        d, n = self.train_env.observation_size, env.num_actions
         obs, act = jax.ShapeDtypeStruct((d,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.float32)
+        if self.observer is not None:
+            ob, raw = self.observer, jax.ShapeDtypeStruct((1, d_raw), jnp.float32)
+
+            def observe(carry, obs, t):
+                seen, carry = ob.observe(None, carry, obs[None], jax.random.fold_in(self.k_observe, t))
+                return seen[0], carry
+
+            carry, frame = jax.eval_shape(ob.init, None, raw), jax.ShapeDtypeStruct((d_raw,), jnp.float32)
+            self._init_seen = jax.jit(lambda obs: ob.init(None, obs)).lower(raw).compile()
+            self._observe = jax.jit(observe).lower(carry, frame, jnp.int32(0)).compile()
+            self._moved = jax.jit(lambda carry, a: ob.moved(None, carry, a[None])).lower(carry, act).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._explore = jax.jit(explore).lower(_acting(ts), jnp.int32(0), obs, jnp.bool_(True)).compile()
         self._insert = jax.jit(insert, donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
@@ -260,17 +274,24 @@ class Learning:
 
     # -- the actor (the loop's thread) -----------------------------------------------------------
     def start(self, obs) -> None:
-        """An invocation's first frame: no transition before it."""
+        """An invocation's first frame: no transition before it (and the observer's fit without history)."""
         self.prev, self.t = None, self.counts.env_steps
+        if self.observer is not None:
+            self.seen = self._init_seen(np.asarray(obs, np.float32)[None])
 
     def act(self, obs, results) -> np.ndarray:
         """The exploration action (N,) in [-1, 1] at ``obs``; the step handed to the learner."""
         del results
         obs = np.asarray(obs, np.float32)
+        if self.observer is not None:
+            obs, self.seen = self._observe(self.seen, obs, np.int32(self.t))
+            obs = np.asarray(obs)
         self.queue.append((obs, self.prev))
         with self.lock:
             snap, random = self.snapshot
         action = np.asarray(self._explore(snap, np.int32(self.t), obs, random))
+        if self.observer is not None:
+            self.seen = self._moved(self.seen, action)
         self.prev, self.t = (obs, action), self.t + 1
         self.wake.set()
         return action.astype(np.float64)
@@ -324,7 +345,7 @@ class Learning:
         """One env step: its transition stored, the warm-up ended, the actor handed its network, a checkpoint."""
         c = self.counts
         if c.p_init < 0:
-            c.p_init = float(self.env.layout.power(obs)) * self.env.p_max
+            c.p_init = float(self.env.layout.power(obs[:self.env.observation_size])) * self.env.p_max
         if prev is not None:
             self.ts = self._insert(self.ts, prev[0], prev[1], obs, np.float32(c.p_init))
             if self.warm_obs is not None:
@@ -335,7 +356,7 @@ class Learning:
                 self._publish()
         c.learning_env_steps += int(self.learning)
         c.env_steps += 1
-        self.power_sum[0] += float(self.env.layout.power(obs))
+        self.power_sum[0] += float(self.env.layout.power(obs[:self.env.observation_size]))
         self.power_sum[1] += 1
         self.bar.update(1)
         if c.env_steps % PUBLISH_STEPS == 0:
@@ -368,7 +389,7 @@ class Learning:
         host = jax.device_get(_raw(self._saved()))
         result = base.TrainResult(self.learner.name, self.env_config, self.h, offpolicy.policy_params(self.ts),
                                   dict(c.curve), {"total": c.seconds}, self.seed)
-        warm = np.stack(self.warm_obs) if self.warm_obs else np.zeros((0, self.env.observation_size), np.float32)
+        warm = np.stack(self.warm_obs) if self.warm_obs else np.zeros((0, self.train_env.observation_size), np.float32)
         blob = serialization.msgpack_serialize({"state": serialization.to_state_dict(host), "warm_obs": warm})
         staging = temp_dir(self.out, "checkpoint")
         base.save(staging, result)

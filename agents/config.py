@@ -51,9 +51,11 @@ def _optional(check):
     return f
 
 
-def field(check):
-    """A dataclass field validated by ``check(name, value) -> normalised value``."""
-    return dataclasses.field(metadata={"check": check})
+def field(check, **default):
+    """A dataclass field validated by ``check(name, value) -> normalised value``. With ``default=value`` (fields
+    added after configurations were stored), the field is left out of the stored form at that value, so stored
+    configurations keep their form (and the sweep's cells their keys)."""
+    return dataclasses.field(metadata={"check": check}, **default)
 
 
 DITHER = Range(1e-6, 0.25, unit="wl")  # a dither's amplitude (SPGD, the trim)
@@ -61,6 +63,7 @@ COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1,
 POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
 # the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
 TRAIN_REWARD = _optional(_choice(*REWARDS))
+OBSERVER = _choice("none", "fit")  # what an off-policy learner adds to its observation (``agents.observer``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,7 +125,8 @@ class AlgoConfig:
     def to_hyper(self) -> dict:
         """The stored form: field -> value (tuples as lists), with ``config`` for the learners."""
         return {f.name: list(v) if isinstance(v, tuple) else v
-                for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
+                for f in dataclasses.fields(self) for v in [getattr(self, f.name)] if f.default is dataclasses.MISSING
+                or v != f.default}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -395,6 +399,7 @@ class TD3Config(ReplayConfig):
     eval_episodes: int = field(COUNT)
     utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
     train_reward: str | None = field(TRAIN_REWARD)
+    observer: str = field(OBSERVER, default="none")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -436,3 +441,4 @@ class DroQConfig(ReplayConfig):
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
     train_reward: str | None = field(TRAIN_REWARD)
+    observer: str = field(OBSERVER, default="none")

@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import base, replay
+from agents import base, observer, replay
 from agents.envs import built, train_env_config
 
 
@@ -66,24 +66,41 @@ class Learner(NamedTuple):
         return self.config_type.from_hyper({k: v for k, v in hyper.items() if k in names})
 
     def _actor(self, env_config: dict, hyper: dict):
-        env, _ = built(train_env_config(env_config))
-        return self.networks(self.stored_config(hyper).to_hyper(), env.num_actions)[0], env.observation_size
+        """(the actor module, its observation size, the observer or None)."""
+        h = self.stored_config(hyper).to_hyper()
+        config = train_env_config(env_config, h["train_reward"])
+        env, _ = built(config)
+        seen = observer.of_learner(config, h)
+        return self.networks(h, env.num_actions)[0], env.observation_size + (seen.size if seen else 0), seen
 
     def params_template(self, env_config: dict, hyper: dict):
         """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
-        actor, d = self._actor(env_config, hyper)
+        actor, d, _ = self._actor(env_config, hyper)
         return {"actor": actor.init(jax.random.key(0), jnp.zeros((1, d))), "obs_norm": replay.identity_norm(d)}
 
     def make_policy(self, env_config: dict, hyper: dict) -> base.Policy:
         """The deterministic actor at observations standardised by the params' ``obs_norm``; ignores key, carry
-        and probe."""
-        actor, _ = self._actor(env_config, hyper)
+        and probe. With an observer (``agents.observer``), the observer's estimate is appended first (its
+        carry is the policy's)."""
+        actor, _, seen = self._actor(env_config, hyper)
+
+        def greedy(params, obs):
+            return self.greedy(actor, params["actor"], replay.normalise(params["obs_norm"], obs))
+
+        if seen is not None:
+            return observer.policy(seen, greedy)
 
         def act(params, carry, obs, key, probe):
             del key, probe
-            return self.greedy(actor, params["actor"], replay.normalise(params["obs_norm"], obs)), carry
+            return greedy(params, obs), carry
 
         return base.Policy(lambda key, obs: (), act)
+
+    def training_env(self, env, env_config: dict, h: dict):
+        """The batched env the learner trains on: ``env`` (of ``train_env_config(env_config, h["train_reward"])``),
+        wrapped by ``agents.observer.Observed`` with an observer."""
+        seen = observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
+        return env if seen is None else observer.Observed(env, seen)
 
 
 def seed_axes(ts):
@@ -159,7 +176,7 @@ def _cached_build(learner: Learner, env_config: dict, h: dict, num_seeds: int) -
     key = (learner.name, env.config, repr(sorted((k, v) for k, v in h.items() if k not in _RUN_KEYS)), num_seeds > 1,
            sharding)
     if key not in _BUILDS:
-        raw = learner.build(env, h)
+        raw = learner.build(learner.training_env(env, env_config, h), h)
         evaluate_fn, _ = base.evaluator(env, learner.make_policy(env_config, h), env.config.max_steps, 10)
         ts_shape = jax.eval_shape(raw["init"], jax.random.key(0), env_params)
         fns = _over_seeds(raw, evaluate_fn, ts_shape, num_seeds, sharding)

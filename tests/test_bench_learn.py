@@ -15,7 +15,7 @@ pytest.importorskip("bluesky")
 
 from test_bench import START_S, bench_run, documents, finish  # noqa: E402
 
-from agents import base, bench_learn  # noqa: E402
+from agents import base, bench_learn, replay  # noqa: E402
 from agents.io import kept_dir  # noqa: E402
 from agents import bench as runner  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
@@ -188,8 +188,9 @@ def test_resume_ends_the_last_line_of_the_documents(tmp_path):
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
 
 
-def _learning(out, steps: int, resume: bool):
-    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench."""
+def _learning(out, steps: int, resume: bool, **extra):
+    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench; ``extra``: more
+    hyperparameters."""
     from types import SimpleNamespace
 
     from agents.bench_devices import check_mapping, sim_mapping
@@ -197,7 +198,7 @@ def _learning(out, steps: int, resume: bool):
     args = SimpleNamespace(learn="droq", controller=None, trim=None, steps=steps, checkpoint_every=50, from_=None,
                            out=str(out), resume=resume, set=None, env=None, seed=3)
     hyper = {} if resume else dict(hidden=[16, 16], critic_hidden=[16, 16], batch_size=16, learning_starts=32,
-                                   buffer_size=1000, utd_ratio=2.0)
+                                   buffer_size=1000, utd_ratio=2.0, **extra)
     mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
     return bench_learn.setup(args, mapping, bench_learn.check_args(args), {}, hyper)[0]
 
@@ -224,3 +225,25 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
     assert saved.keys() == restored.keys() and any("buffer" in k for k in saved), sorted(saved)
     assert all(np.array_equal(saved[k], restored[k]) for k in saved), [k for k in saved
                                                                        if not np.array_equal(saved[k], restored[k])]
+
+
+def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_frames(tmp_path, compiles):
+    """With ``observer=fit`` the loop's frames get the fit's offsets before the learner sees them (stored
+    transitions hold both), nothing compiles after setup, and the checkpoint's policy acts on raw frames."""
+    learning = _learning(tmp_path, 120, resume=False, observer="fit")
+    d = learning.env.observation_size
+    assert learning.train_env.observation_size == d + 2  # 3 stages, detector "total": 2 fitted lines
+    obs = np.random.default_rng(1).uniform(-1, 1, (121, d)).astype(np.float32)
+    with compiles() as n:
+        learning.begin(120, lambda exc: None)
+        learning.start(obs[0])
+        actions = [learning.act(o, np.zeros(0)) for o in obs[1:]]
+        learning.finish()
+    assert n[0] == 0 and learning.error is None and np.all(np.abs(actions) <= 1)
+    _, batch = replay.replay_buffer(learning.train_env, learning.h).sample(learning.ts.buffer)
+    fitted = np.asarray(batch["obs"])[:, d:]
+    assert fitted.shape[1] == 2 and np.any(fitted != 0) and np.all(np.abs(fitted) <= 0.25)
+    result = base.load(tmp_path / "checkpoint")
+    assert result.hyper["observer"] == "fit" and result.params["obs_norm"]["mean"].shape == (d + 2,)
+    ev = base.evaluate(result, result.env_config, episodes=2, seed=0, steps=5)
+    assert np.all(np.isfinite(ev.normalized_power))

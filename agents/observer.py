@@ -1,0 +1,112 @@
+"""The fit observer (``observer="fit"`` of the off-policy learners, ``agents.offpolicy``): the line offsets that the
+physics-informed controller's fit reads from the detector's frames (``agents.physics_informed``, preset "frames",
+its state estimation alone) appended to the learner's observation, so that a learner without length readouts
+(``observe_lengths=False``) sees an estimate of the state instead of a sign-ambiguous frame.
+
+The appended entries: the fitted stages' offsets from the nearest optimum (wl, in [-0.25, 0.25)), estimated from
+the newest frame and, through the move the learner commanded before it, the frame before. On the first frame of an
+episode (or of a bench run) the fit has no history. Training (``Observed``) and the stored policy
+(``Learner.make_policy``) run the same estimate, so a checkpoint acts on the raw observation of the env or bench.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from agents.envs import built
+
+class Observer(NamedTuple):
+    """``size``: entries appended; ``init(key, obs (B, D)) -> carry``; ``observe(params, carry, obs, key) ->
+    (obs (B, D + size), carry)``; ``moved(params, carry, action (B, N)) -> carry`` records the commanded move.
+    ``params``: ``physics_informed.policy_params`` (None: those of the env_config)."""
+
+    size: int
+    init: Callable
+    observe: Callable
+    moved: Callable
+
+
+def fit_observer(env_config: dict) -> Observer:
+    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options)."""
+    from agents import physics_informed
+    from agents.config import PhysicsConfig
+
+    estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames"))
+    default = physics_informed.policy_params(env_config)
+    env = built(env_config)[0]
+    fit = env.config.stages if env.config.detector == "polariser" else env.config.stages - 1
+
+    def observe(params, carry, obs, key):
+        _, carry = estimator.act(default if params is None else params, carry, obs, key, None)
+        carry = dict(carry, dz_prev=jnp.zeros_like(carry["dz_prev"]))  # until ``moved`` records the real move
+        return jnp.concatenate([obs, carry["z"]], axis=-1), carry
+
+    def moved(params, carry, action):
+        scale = (default if params is None else params)["action_scale"]
+        return dict(carry, dz_prev=jnp.clip(action[:, :fit], -1.0, 1.0) * scale)
+
+    return Observer(fit, estimator.init, observe, moved)
+
+
+def of_learner(env_config: dict, h: dict) -> Observer | None:
+    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``; None for "none") on its training
+    environment ``env_config``."""
+    return fit_observer(env_config) if h.get("observer", "none") == "fit" else None
+
+
+def policy(observer: Observer, act: Callable):
+    """``agents.base.Policy`` that observes, then acts by ``act(params, obs (B, D + size)) -> action (B, N)``."""
+    from agents.base import Policy
+
+    def act_observed(params, carry, obs, key, probe):
+        del probe
+        seen, carry = observer.observe(None, carry, obs, key)
+        action = act(params, seen)
+        return action, observer.moved(None, carry, action)
+
+    return Policy(observer.init, act_observed)
+
+
+def _estimate_params(env_params) -> dict:
+    return {"action_scale": env_params.action_scale, "window": env_params.window}
+
+
+class Observed:
+    """The batched environment a learner with the fit observer trains on: ``reset_batch`` and ``step_batch`` of
+    ``env`` with the observer's entries appended (the final observation's too) and its carry in the state
+    (``(env state, carry)``); the estimate's random starts are drawn from the first instance's step key. Other
+    attributes are ``env``'s."""
+
+    def __init__(self, env, observer: Observer):
+        self.env, self.observer = env, observer
+        self.observation_size = env.observation_size + observer.size
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def reset_batch(self, keys, params):
+        obs, state = self.env.reset_batch(keys, params)
+        k = jax.random.fold_in(keys[0], 1)
+        seen, carry = self.observer.observe(_estimate_params(params), self.observer.init(k, obs), obs, k)
+        return seen, (state, carry)
+
+    def step_batch(self, keys, states, actions, params):
+        state, carry = states
+        obs, state, reward, terminated, truncated, info = self.env.step_batch(keys, state, actions, params)
+        p = _estimate_params(params)
+        k_final, k_reset = jax.random.split(jax.random.fold_in(keys[0], 1))
+        final, carry = self.observer.observe(p, self.observer.moved(p, carry, actions), info["final_observation"],
+                                             k_final)
+        done = terminated | truncated
+
+        def restarted(carry):
+            seen, fresh = self.observer.observe(p, self.observer.init(k_reset, obs), obs, k_reset)
+            pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            return pick(seen, final), jax.tree.map(pick, fresh, carry)
+
+        seen, carry = jax.lax.cond(jnp.any(done), restarted, lambda carry: (final, carry), carry)
+        info = dict(info, final_observation=final)
+        return seen, (state, carry), reward, terminated, truncated, info

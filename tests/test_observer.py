@@ -1,0 +1,93 @@
+"""The fit observer (``observer="fit"`` of TD3 and DroQ, ``agents.observer``): what it appends, its resets, the
+stored form of the field, and a learner trained and evaluated with it on frames alone."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agents
+from agents import droq, observer
+from agents.config import DroQConfig, TD3Config
+from agents.envs import built
+from agents.physics_informed import wrap
+
+FRAMES = dict(stages=5, mode="hard", model="phasor", observe_lengths=False)
+
+
+def _rollout(env_config, steps: int, actions_fn):
+    """(appended entries (steps, B, fit), true offsets (steps, B, N) wl, done flags) of ``Observed`` under
+    ``actions_fn(key) -> (B, N)``."""
+    env, params = built(env_config)
+    seen_env = observer.Observed(env, observer.fit_observer(env_config))
+    step = jax.jit(seen_env.step_batch)
+    key = jax.random.key(0)
+    obs, state = seen_env.reset_batch(jax.random.split(key, 16), params)
+    assert obs.shape == (16, env.observation_size + seen_env.observer.size)
+    out = []
+    for _ in range(steps):
+        key, k_act, k_env = jax.random.split(key, 3)
+        obs, state, _, term, trunc, info = step(jax.random.split(k_env, 16), state, actions_fn(k_act), params)
+        out.append((np.asarray(info["final_observation"][:, env.observation_size:]), np.asarray(info["deltas_wl"]),
+                    np.asarray(term | trunc)))
+    return [np.stack(x) for x in zip(*out)]
+
+
+def test_fit_reads_the_offsets_from_frames_under_random_moves():
+    """Ideal hard mode, frames only, uniform random actions: the appended offsets are the true ones (modulo the
+    period) within 0.005 wl in >= 90 % of the steps after the first five."""
+    z, deltas, _ = _rollout(FRAMES, 40, lambda k: jax.random.uniform(k, (16, 5), minval=-1, maxval=1))
+    fit = z.shape[-1]
+    err = np.abs(np.asarray(wrap(z - deltas[..., :fit])))[5:]
+    assert fit == 4 and np.mean(err < 0.005) >= 0.9, np.quantile(err, [0.5, 0.9])
+
+
+def test_episode_ends_restart_the_fit():
+    """At a truncation the final observation keeps the episode's fit, and the next episode's first observation is
+    the fit of a fresh carry at its first frame."""
+    config = dict(FRAMES, max_steps=3)
+    env, params = built(config)
+    ob = observer.fit_observer(config)
+    seen_env = observer.Observed(env, ob)
+    key = jax.random.key(1)
+    obs, state = jax.jit(seen_env.reset_batch)(jax.random.split(key, 4), params)
+    step = jax.jit(seen_env.step_batch)
+    for t in range(3):
+        keys = jax.random.split(jax.random.fold_in(key, t), 4)
+        obs, state, _, term, trunc, info = step(keys, state, jnp.zeros((4, 5)), params)
+    assert bool(jnp.all(trunc)) and not bool(jnp.allclose(obs, info["final_observation"]))
+    carry = state[1]
+    assert float(carry["valid"].min()) == 1.0  # one fit done on the new episode's frame
+    raw = obs[:, :env.observation_size]
+    k_reset = jax.random.split(jax.random.fold_in(keys[0], 1))[1]
+    fresh, _ = jax.jit(ob.observe)({"action_scale": params.action_scale, "window": params.window},
+                                   ob.init(k_reset, raw), raw, k_reset)
+    np.testing.assert_allclose(np.asarray(obs), np.asarray(fresh), atol=1e-6)
+
+
+def test_observer_field_is_checked_and_stored_only_when_set():
+    assert "observer" not in DroQConfig.make().to_hyper() and "observer" not in TD3Config.make("budget").to_hyper()
+    assert DroQConfig.make(observer="fit").to_hyper()["observer"] == "fit"
+    assert DroQConfig.from_hyper(DroQConfig.make().to_hyper()).observer == "none"
+    with pytest.raises(ValueError, match="observer must be one of"):
+        DroQConfig.make(observer="kalman")
+
+
+def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
+    """A short DroQ run with the fit: its policy params are sized for frames + offsets, the saved policy evaluates
+    on the frames-only env (the fit runs inside the policy), and the same seed gives the same params."""
+    config = dict(FRAMES, imperfections="none")
+    kw = dict(seed=2, total_steps=300, observer="fit", learning_starts=200, eval_every=100, hidden=(16, 16),
+              critic_hidden=(16, 16), batch_size=32, utd_ratio=1.0, eval_episodes=2)
+    result = agents.train("droq", config, **kw)
+    env, _ = built(config)
+    assert result.hyper["observer"] == "fit"
+    assert result.params["obs_norm"]["mean"].shape == (env.observation_size + 4,)
+    agents.save(tmp_path / "p", result)
+    loaded = agents.load(tmp_path / "p")
+    ev = agents.evaluate(loaded, config, episodes=3, seed=0)
+    assert np.all(np.isfinite(ev.normalized_power)) and ev.normalized_power.shape[0] == 3
+    again = agents.train("droq", config, **kw)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(result.params), jax.tree.leaves(again.params)))
+    assert droq.LEARNER.make_policy(config, result.hyper).init(None, jnp.zeros((1, env.observation_size)))["z"].shape \
+        == (1, 4)
