@@ -134,6 +134,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--resume", action="store_true", help="--learn: continue the run checkpointed in --out")
     ap.add_argument("--checkpoint-every", type=int, default=bench_learn.CHECKPOINT_EVERY, metavar="M",
                     help="--learn: env steps between checkpoints")
+    ap.add_argument("--catch-up-s", type=float, default=bench_learn.CATCH_UP_S, metavar="S",
+                    help="--learn: at the end of a run stopped by its --steps or --seconds, take the gradient steps "
+                         "the learner fell behind its ratio, for at most S seconds (0: none)")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
     ap.add_argument("--trim", nargs="*", metavar="KEY=VALUE", default=None,
@@ -226,9 +229,10 @@ def main(argv=None) -> int:
         disconnect(bench)
         for name in QUIET_LOGGERS:
             logging.getLogger(name).removeFilter(quiet)
+    summary = summarize(loop, label, elapsed)
     if learning:
-        learning.finish()
-    summary = {**summarize(loop, label, elapsed), **(learning.report() if learning else {})}
+        learning.finish(args.catch_up_s if summary["stopped_by"] in ("steps", "time") else 0.0)
+        summary.update(learning.report())
     write_json_atomic(out / "summary.json", summary)
     stopped = summary["stopped_by"] not in ("time", "steps", "user")
     if stopped:

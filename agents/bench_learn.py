@@ -44,6 +44,7 @@ from ops_jax.progress import progress
 
 PUBLISH_STEPS = 10  # env steps between two hand-overs of the actor network
 CHECKPOINT_EVERY = 1000  # env steps between two checkpoints (default)
+CATCH_UP_S = 120.0  # most seconds of gradient steps taken after the loop to make up the ratio (default)
 LIVE = ("env_state", "obs", "env_params")  # training-state fields of a simulated run: not saved, fresh on resume
 log = logging.getLogger("agents.bench")
 
@@ -79,6 +80,8 @@ def check_args(args) -> Path | None:
         raise ValueError("--learn replaces --controller and --trim: give --learn alone")
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1 with --learn (env steps in all, resumes included), got {args.steps}")
+    if not args.catch_up_s >= 0:
+        raise ValueError(f"--catch-up-s must be >= 0 s, got {args.catch_up_s}")
     if args.checkpoint_every < 1:
         raise ValueError(f"--checkpoint-every must be >= 1 env step, got {args.checkpoint_every}")
     if args.from_ is not None and not Path(args.from_).is_dir():
@@ -197,6 +200,7 @@ class Learning:
         self.lock, self.wake = threading.Lock(), threading.Event()
         self.thread, self.error, self.on_error, self.bar = None, None, None, None
         self.ending, self.prev, self.t, self.power_sum, self.seen = False, None, 0, [0.0, 0], None
+        self.catch_up_s, self.in_loop_steps = 0.0, 0
         self.ratio_rec: list = []  # (perf_counter time, this invocation's gradient steps, its env steps after the warm-up)
 
     # -- the run's state -------------------------------------------------------------------------
@@ -305,8 +309,10 @@ class Learning:
         self.thread = threading.Thread(target=self._run, name="learner", daemon=True)
         self.thread.start()
 
-    def finish(self) -> None:
-        """Store what the loop handed over, write the last checkpoint, end the thread."""
+    def finish(self, catch_up_s: float = 0.0) -> None:
+        """Store what the loop handed over; then, for at most ``catch_up_s`` seconds, take the gradient steps the
+        learner fell behind the ratio (``catch_up_steps``); write the last checkpoint, end the thread."""
+        self.catch_up_s = catch_up_s
         self.ending = True
         self.wake.set()
         self.thread.join()
@@ -324,6 +330,12 @@ class Learning:
                 else:
                     self.wake.wait(0.005)
                     self.wake.clear()
+            self.in_loop_steps = self._session("learn_steps")
+            deadline = time.perf_counter() + self.catch_up_s
+            while self._may_update() and time.perf_counter() < deadline:
+                self.ts = self._update(self.ts)
+                jax.block_until_ready(self.ts.updates)
+                self.counts.learn_steps += 1
             self.checkpoint()
         except Exception as exc:  # the loop stops (on_error), the last checkpoint stays
             self.error = exc
@@ -333,10 +345,11 @@ class Learning:
     def _session(self, name: str) -> int:
         return getattr(self.counts, name) - getattr(self.session0, name)
 
-    def update_ratio(self) -> float:
-        """This invocation's gradient steps per env step after the warm-up."""
+    def update_ratio(self, learn_steps: int | None = None) -> float:
+        """This invocation's gradient steps (``learn_steps``, default all so far) per env step after the warm-up."""
         steps = self._session("learning_env_steps")
-        return self._session("learn_steps") / steps if steps else 0.0
+        learn_steps = self._session("learn_steps") if learn_steps is None else learn_steps
+        return learn_steps / steps if steps else 0.0
 
     def _may_update(self) -> bool:
         return self.learning and self._session("learn_steps") < self.ratio * self._session("learning_env_steps")
@@ -420,6 +433,8 @@ class Learning:
         return {"learner": self.learner.name, "env_steps_total": c.env_steps, "learn_steps_total": c.learn_steps,
                 "env_steps_resumed_from": self.session0.env_steps, "learn_steps_resumed_from": self.session0.learn_steps,
                 "transitions_total": c.transitions, "learning_env_steps_total": c.learning_env_steps,
-                "update_ratio": self.update_ratio(), "update_ratio_target": self.ratio,
+                "update_ratio": self.update_ratio(self.in_loop_steps), "update_ratio_target": self.ratio,
+                "catch_up_steps": self._session("learn_steps") - self.in_loop_steps,
+                "update_ratio_with_catch_up": self.update_ratio(),
                 "update_ratio_total": c.learn_steps / c.learning_env_steps if c.learning_env_steps else 0.0,
                 "sessions": c.sessions, "learner_error": None if self.error is None else repr(self.error)}
