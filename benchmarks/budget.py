@@ -29,6 +29,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
     python -m benchmarks.budget --preset quick --out results/budget-quick
     python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
+    python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -76,6 +77,9 @@ _ADAPT = PRESETS["default"]["adapt"]
 PRESETS["frames"] = dict(PRESETS["default"], envs={"hard + lab, frames only": dict(ENVS["hard + lab"], **FRAMES)},
                          adapt=dict(_ADAPT, pretrain_env=dict(_ADAPT["pretrain_env"], **FRAMES),
                                     bench_env=dict(HARD, **FRAMES)))
+# frames only, from scratch, the learners with the fit observer (``agents.observer``) beside the references
+PRESETS["frames-fit"] = dict(PRESETS["frames"])
+del PRESETS["frames-fit"]["adapt"]
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),
