@@ -136,7 +136,7 @@ def parser() -> argparse.ArgumentParser:
                     help="--learn: env steps between checkpoints")
     ap.add_argument("--catch-up-s", type=float, default=bench_learn.CATCH_UP_S, metavar="S",
                     help="--learn: at the end of a run stopped by its --steps or --seconds, take the gradient steps "
-                         "the learner fell behind its ratio, for at most S seconds (0: none)")
+                         "the learner fell behind its ratio, for at most S seconds (default 0: none)")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument("--env", action="append", metavar="KEY=VALUE", help="ops_jax.make option of the controller")
     ap.add_argument("--trim", nargs="*", metavar="KEY=VALUE", default=None,

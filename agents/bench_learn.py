@@ -44,7 +44,7 @@ from ops_jax.progress import progress
 
 PUBLISH_STEPS = 10  # env steps between two hand-overs of the actor network
 CHECKPOINT_EVERY = 1000  # env steps between two checkpoints (default)
-CATCH_UP_S = 120.0  # most seconds of gradient steps taken after the loop to make up the ratio (default)
+CATCH_UP_S = 0.0  # most seconds of gradient steps taken after the loop to make up the ratio (default: none)
 LIVE = ("env_state", "obs", "env_params")  # training-state fields of a simulated run: not saved, fresh on resume
 log = logging.getLogger("agents.bench")
 

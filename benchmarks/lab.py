@@ -166,19 +166,20 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
 def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, stale_s: float,
                  frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0, seed: int = 0,
                  start_from: str | None = None, sets=(), scale: float = 1.0, unseen: bool = False,
-                 kill_after: float | None = None) -> tuple[dict, dict]:
+                 kill_after: float | None = None, catch_up_s: float | None = None) -> tuple[dict, dict]:
     """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder; ``sets``: its
     ``--set`` values) against a fresh IOC (the lab preset at ``scale``; ``unseen``: its per-stage errors re-drawn
     from ``seed``, ``unseen_args``) started ``idle_s`` before, then its
     checkpoint as a controller for ``seconds`` on the same bench: the two summaries. ``kill_after``: the learning
     run is SIGKILLed that many seconds after its start and continued with ``--resume`` (the summary, the resumed
-    run's, adds ``killed_after_s``)."""
+    run's, adds ``killed_after_s``); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default)."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, 0, frames_only, seed, scale, unseen)
     try:
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
-        learn = [*shared, "--learn", algo, "--steps", steps] + (["--from", start_from] if start_from else [])
+        catch_up = [] if catch_up_s is None else ["--catch-up-s", catch_up_s]
+        learn = [*shared, "--learn", algo, "--steps", steps, *catch_up] + (["--from", start_from] if start_from else [])
         learn += _sets(sets)
         if kill_after is not None:
             killed = Process("agents.bench", [*learn, "--out", out / "learn"], ioc.env, out / "learn-killed.log")
@@ -186,7 +187,7 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
             if killed.proc.poll() is not None:
                 raise RuntimeError(f"the learning run ended before its kill:\n{killed.text()}")
             killed.kill()
-            learn = [*shared, "--learn", algo, "--steps", steps, "--resume"]
+            learn = [*shared, "--learn", algo, "--steps", steps, *catch_up, "--resume"]
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         if kill_after is not None:
             learned["killed_after_s"] = kill_after
@@ -253,6 +254,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--learn-set", nargs="*", default=[], metavar="KEY=VALUE", help="--learn: the learner's settings")
     ap.add_argument("--kill-learner-after", type=float, default=None, metavar="S",
                     help="--learn: SIGKILL the learning run S seconds after its start, then continue it with --resume")
+    ap.add_argument("--catch-up-s", type=float, default=None, metavar="S", help="--learn: the runner's --catch-up-s")
     ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
     ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
                     "as protocol (b)'s unseen benches (benchmarks.budget)")
@@ -266,7 +268,7 @@ def main(argv=None) -> dict:
             learned, ran = run_learning(args.out / f"learn-{args.learn}-seed{seed}", args.learn, args.learn_steps,
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
                                         args.idle_s, seed, args.from_, args.learn_set, args.imperfection_scale,
-                                        args.unseen, args.kill_learner_after)
+                                        args.unseen, args.kill_learner_after, args.catch_up_s)
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
                 rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
@@ -283,7 +285,7 @@ def main(argv=None) -> dict:
     result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
               "idle_s": args.idle_s, "imperfection_scale": args.imperfection_scale, "unseen": args.unseen,
               "learn": args.learn, "learn_steps": args.learn_steps, "from": args.from_,
-              "kill_learner_after": args.kill_learner_after,
+              "kill_learner_after": args.kill_learner_after, "catch_up_s": args.catch_up_s,
               "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))

@@ -53,7 +53,7 @@ def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
     """300 env steps of DroQ on the bench: every step an event, gradient steps at most the ratio's, the
     checkpoint's counts the summary's; then ``--controller DIR/checkpoint`` runs what it learned."""
     rc, log = finish(bench_run(ioc, tmp_path, *BENCH, "--learn", "droq", "--steps", "300",
-                               "--checkpoint-every", "100", *TINY))
+                               "--checkpoint-every", "100", "--catch-up-s", "120", *TINY))
     assert rc == 0, log
     s = summary_of(tmp_path)
     assert s["controller"] == "learning droq" and s["stopped_by"] == "steps", s
