@@ -190,7 +190,7 @@ class Learning:
         self.env, env_params = built(train_env_config(env_config, h["train_reward"]))
         self.ratio = replay.updates_per_iter(h) / (h["num_envs"] * h["unroll"])  # target gradient steps per env step
         self.train_env = learner.training_env(self.env, env_config, h)  # with the observer's entries, if any
-        self.observer = observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
+        self.observer = self.train_env.observer if isinstance(self.train_env, observer.Observed) else None
         self.fns = learner.build(self.train_env, h)
         self.ts = jax.jit(self.fns["init"])(jax.random.key(seed), env_params)
         self.k_act = jax.random.fold_in(jax.random.key(seed), 1)

@@ -16,7 +16,11 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from agents import physics_informed
+from agents.base import Policy
+from agents.config import PhysicsConfig
 from agents.envs import built
+
 
 class Observer(NamedTuple):
     """``size``: entries appended; ``init(key, obs (B, D)) -> carry``; ``observe(params, carry, obs, key) ->
@@ -31,13 +35,9 @@ class Observer(NamedTuple):
 
 def fit_observer(env_config: dict) -> Observer:
     """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options)."""
-    from agents import physics_informed
-    from agents.config import PhysicsConfig
-
     estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames"))
     default = physics_informed.policy_params(env_config)
-    env = built(env_config)[0]
-    fit = env.config.stages if env.config.detector == "polariser" else env.config.stages - 1
+    fit = physics_informed.fitted_stages(built(env_config)[0].config)
 
     def observe(params, carry, obs, key):
         _, carry = estimator.act(default if params is None else params, carry, obs, key, None)
@@ -59,8 +59,6 @@ def of_learner(env_config: dict, h: dict) -> Observer | None:
 
 def policy(observer: Observer, act: Callable):
     """``agents.base.Policy`` that observes, then acts by ``act(params, obs (B, D + size)) -> action (B, N)``."""
-    from agents.base import Policy
-
     def act_observed(params, carry, obs, key, probe):
         del probe
         seen, carry = observer.observe(None, carry, obs, key)
@@ -68,10 +66,6 @@ def policy(observer: Observer, act: Callable):
         return action, observer.moved(None, carry, action)
 
     return Policy(observer.init, act_observed)
-
-
-def _estimate_params(env_params) -> dict:
-    return {"action_scale": env_params.action_scale, "window": env_params.window}
 
 
 class Observed:
@@ -90,13 +84,13 @@ class Observed:
     def reset_batch(self, keys, params):
         obs, state = self.env.reset_batch(keys, params)
         k = jax.random.fold_in(keys[0], 1)
-        seen, carry = self.observer.observe(_estimate_params(params), self.observer.init(k, obs), obs, k)
+        seen, carry = self.observer.observe(physics_informed.params_of(params), self.observer.init(k, obs), obs, k)
         return seen, (state, carry)
 
     def step_batch(self, keys, states, actions, params):
         state, carry = states
         obs, state, reward, terminated, truncated, info = self.env.step_batch(keys, state, actions, params)
-        p = _estimate_params(params)
+        p = physics_informed.params_of(params)
         k_final, k_reset = jax.random.split(jax.random.fold_in(keys[0], 1))
         final, carry = self.observer.observe(p, self.observer.moved(p, carry, actions), info["final_observation"],
                                              k_final)

@@ -70,7 +70,18 @@ def policy_params(env_config: dict) -> dict:
     ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
     program, so one compiled policy serves every mode (make_policy reads only the static config)."""
     _, env_params = built(env_config)
-    return {"action_scale": np.float32(env_params.action_scale), "window": np.float32(env_params.window)}
+    return params_of(env_params, np)
+
+
+def params_of(env_params, xp=jnp) -> dict:
+    """``policy_params`` of an ``EnvParams`` (``xp``: ``jax.numpy``, which keeps traced fields traced, or ``numpy``)."""
+    return {"action_scale": xp.float32(env_params.action_scale), "window": xp.float32(env_params.window)}
+
+
+def fitted_stages(config) -> int:
+    """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the detector
+    "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
+    return config.stages if config.detector == "polariser" else config.stages - 1
 
 
 def wrap(x):
@@ -255,7 +266,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     if not obs_layout.lengths and (h["use_lengths"] or h["lengths_only"]):
         raise ValueError("use_lengths and lengths_only must be False on an environment without length readouts "
                          "(observe_lengths=False): use config=\"frames\"")
-    fit = n if cfg.detector == "polariser" else n - 1  # fitted (interferometric) stages
+    fit = fitted_stages(cfg)
     default = policy_params(env_config)
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
     readout = identify and h["use_lengths"]
