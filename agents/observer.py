@@ -81,10 +81,13 @@ class Observed:
     def __getattr__(self, name):
         return getattr(self.env, name)
 
+    def _first(self, p, obs, key):
+        """(observation, carry) of a fit without history at ``obs``."""
+        return self.observer.observe(p, self.observer.init(key, obs), obs, key)
+
     def reset_batch(self, keys, params):
         obs, state = self.env.reset_batch(keys, params)
-        k = jax.random.fold_in(keys[0], 1)
-        seen, carry = self.observer.observe(physics_informed.params_of(params), self.observer.init(k, obs), obs, k)
+        seen, carry = self._first(physics_informed.params_of(params), obs, jax.random.fold_in(keys[0], 1))
         return seen, (state, carry)
 
     def step_batch(self, keys, states, actions, params):
@@ -97,7 +100,7 @@ class Observed:
         done = terminated | truncated
 
         def restarted(carry):
-            seen, fresh = self.observer.observe(p, self.observer.init(k_reset, obs), obs, k_reset)
+            seen, fresh = self._first(p, obs, k_reset)
             pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             return pick(seen, final), jax.tree.map(pick, fresh, carry)
 

@@ -68,9 +68,8 @@ class Learner(NamedTuple):
     def _actor(self, env_config: dict, hyper: dict):
         """(the actor module, its observation size, the observer or None)."""
         h = self.stored_config(hyper).to_hyper()
-        config = train_env_config(env_config, h["train_reward"])
-        env, _ = built(config)
-        seen = observer.of_learner(config, h)
+        env, _ = built(train_env_config(env_config, h["train_reward"]))
+        seen = self._observer(env_config, h)
         return self.networks(h, env.num_actions)[0], env.observation_size + (seen.size if seen else 0), seen
 
     def params_template(self, env_config: dict, hyper: dict):
@@ -96,10 +95,15 @@ class Learner(NamedTuple):
 
         return base.Policy(lambda key, obs: (), act)
 
+    @staticmethod
+    def _observer(env_config: dict, h: dict):
+        """The observer of the stored hyperparameters ``h`` on the learner's training environment, or None."""
+        return observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
+
     def training_env(self, env, env_config: dict, h: dict):
         """The batched env the learner trains on: ``env`` (of ``train_env_config(env_config, h["train_reward"])``),
         wrapped by ``agents.observer.Observed`` with an observer."""
-        seen = observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
+        seen = self._observer(env_config, h)
         return env if seen is None else observer.Observed(env, seen)
 
 

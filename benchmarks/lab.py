@@ -178,16 +178,15 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
     try:
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
-        catch_up = [] if catch_up_s is None else ["--catch-up-s", catch_up_s]
-        learn = [*shared, "--learn", algo, "--steps", steps, *catch_up] + (["--from", start_from] if start_from else [])
-        learn += _sets(sets)
+        run = [*shared, "--learn", algo, "--steps", steps] + ([] if catch_up_s is None else ["--catch-up-s", catch_up_s])
+        learn = run + (["--from", start_from] if start_from else []) + _sets(sets)
         if kill_after is not None:
             killed = Process("agents.bench", [*learn, "--out", out / "learn"], ioc.env, out / "learn-killed.log")
             time.sleep(kill_after)
             if killed.proc.poll() is not None:
                 raise RuntimeError(f"the learning run ended before its kill:\n{killed.text()}")
             killed.kill()
-            learn = [*shared, "--learn", algo, "--steps", steps, *catch_up, "--resume"]
+            learn = [*run, "--resume"]  # the run's own settings, from its checkpoint
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         if kill_after is not None:
             learned["killed_after_s"] = kill_after
