@@ -13,7 +13,8 @@ from agents.registry import Algo, CostModel, SweepPresets, register
 # update-to-data ratio (SAC 0.25 and 10, TD3 0.125 and 10, PPO 0.016 and 0.08 gradient steps per env step).
 register(Algo("spgd", "agents.spgd", SPGDConfig, "SPGD", cost=CostModel(fixed_s=3.0),
               sweep=SweepPresets(budgets={"quick": 0, "default": 0, "paper": 0},
-                                 lab_budget={"quick": {}, "default": {}, "full": {}, "frames": {}, "frames-fit": {}})))
+                                 lab_budget={"quick": {}, "default": {}, "full": {}, "frames": {}, "frames-fit": {},
+                                             "frames-residual": {}})))
 register(Algo("physics", "agents.physics_informed", PhysicsConfig, "Physics",
               cost=CostModel(fixed_s=6.0, stage_growth=3.5, eval_s=6.0),
               sweep=SweepPresets(budgets={"quick": 0, "default": 0, "paper": 0},
@@ -21,7 +22,7 @@ register(Algo("physics", "agents.physics_informed", PhysicsConfig, "Physics",
                                         "default": {"starts": 8, "iters": 6}},  # half the fit cost of 16 x 8
                                  lab_budget={"quick": {"config": "frames", "starts": 4, "iters": 4}, "default": {},
                                              "frames": {"config": "frames"}, "frames-fit": {"config": "frames"},
-                                             "full": {}})))
+                                             "frames-residual": {"config": "frames"}, "full": {}})))
 register(Algo("ppo", "agents.ppo", PPOConfig, "PPO", cost=CostModel(s_per_step=9.9e-6, s_per_update=2.38e-3),
               sweep=SweepPresets(budgets={"quick": 32_768, "default": 2_000_000, "paper": 200_000},
                                  hyper={"quick": {"num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64],
@@ -51,4 +52,5 @@ register(Algo("droq", "agents.droq", DroQConfig, "DroQ", vmaps_seeds=True, off_p
                                                        "batch_size": 64},
                                              "default": {"config": "budget"}, "full": {"config": "budget"},
                                              "frames": {"config": "budget"},
-                                             "frames-fit": {"config": "budget", "observer": "fit"}})))
+                                             "frames-fit": {"config": "budget", "observer": "fit"},
+                                             "frames-residual": {"config": "budget", "observer": "fit-residual"}})))

@@ -267,7 +267,12 @@ class Learning:
             carry, frame = jax.eval_shape(ob.init, None, raw), jax.ShapeDtypeStruct((d_raw,), jnp.float32)
             self._init_seen = jax.jit(lambda obs: ob.init(None, obs)).lower(raw).compile()
             self._observe = jax.jit(observe).lower(carry, frame, jnp.int32(0)).compile()
-            self._moved = jax.jit(lambda carry, a: ob.moved(None, carry, a[None])).lower(carry, act).compile()
+
+            def send(carry, action):
+                sent = ob.command(carry, action[None])
+                return sent[0], ob.moved(None, carry, sent)
+
+            self._send = jax.jit(send).lower(carry, act).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._explore = jax.jit(explore).lower(_acting(ts), jnp.int32(0), obs, jnp.bool_(True)).compile()
         self._insert = jax.jit(insert, donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
@@ -284,7 +289,8 @@ class Learning:
             self.seen = self._init_seen(np.asarray(obs, np.float32)[None])
 
     def act(self, obs, results) -> np.ndarray:
-        """The exploration action (N,) in [-1, 1] at ``obs``; the step handed to the learner."""
+        """The move sent (N,) in [-1, 1] at ``obs``: the exploration action (with the fit-residual observer, added to
+        the fit's own move); the step (with the learner's action) handed to the learner."""
         del results
         obs = np.asarray(obs, np.float32)
         if self.observer is not None:
@@ -293,12 +299,12 @@ class Learning:
         self.queue.append((obs, self.prev))
         with self.lock:
             snap, random = self.snapshot
-        action = np.asarray(self._explore(snap, np.int32(self.t), obs, random))
+        action = sent = np.asarray(self._explore(snap, np.int32(self.t), obs, random))
         if self.observer is not None:
-            self.seen = self._moved(self.seen, action)
+            sent, self.seen = self._send(self.seen, action)
         self.prev, self.t = (obs, action), self.t + 1
         self.wake.set()
-        return action.astype(np.float64)
+        return np.asarray(sent, np.float64)
 
     # -- the learner (its own thread) ------------------------------------------------------------
     def begin(self, steps: int, on_error) -> None:

@@ -24,37 +24,49 @@ from agents.envs import built
 
 class Observer(NamedTuple):
     """``size``: entries appended; ``init(key, obs (B, D)) -> carry``; ``observe(params, carry, obs, key) ->
-    (obs (B, D + size), carry)``; ``moved(params, carry, action (B, N)) -> carry`` records the commanded move.
-    ``params``: ``physics_informed.policy_params`` (None: those of the env_config)."""
+    (obs (B, D + size), carry)``; ``command(carry, action (B, N)) -> (B, N)`` the move sent for the learner's
+    action; ``moved(params, carry, command (B, N)) -> carry`` records the move sent. ``params``:
+    ``physics_informed.policy_params`` (None: those of the env_config)."""
 
     size: int
     init: Callable
     observe: Callable
+    command: Callable
     moved: Callable
 
 
-def fit_observer(env_config: dict) -> Observer:
-    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options)."""
+def fit_observer(env_config: dict, residual: bool = False) -> Observer:
+    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with ``residual``,
+    the learner's action is a correction added to the fitted model's own move (the physics-informed controller's,
+    clipped to [-1, 1] after the sum)."""
     estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames"))
     default = physics_informed.policy_params(env_config)
-    fit = physics_informed.fitted_stages(built(env_config)[0].config)
+    env = built(env_config)[0]
+    fit = physics_informed.fitted_stages(env.config)
+
+    def init(key, obs):
+        return dict(estimator.init(key, obs), prior=jnp.zeros((obs.shape[0], env.num_actions), jnp.float32))
 
     def observe(params, carry, obs, key):
-        _, carry = estimator.act(default if params is None else params, carry, obs, key, None)
-        carry = dict(carry, dz_prev=jnp.zeros_like(carry["dz_prev"]))  # until ``moved`` records the real move
+        prior, carry = estimator.act(default if params is None else params, carry, obs, key, None)
+        carry = dict(carry, dz_prev=jnp.zeros_like(carry["dz_prev"]), prior=prior)  # ``moved`` records the real move
         return jnp.concatenate([obs, carry["z"]], axis=-1), carry
 
-    def moved(params, carry, action):
-        scale = (default if params is None else params)["action_scale"]
-        return dict(carry, dz_prev=jnp.clip(action[:, :fit], -1.0, 1.0) * scale)
+    def command(carry, action):
+        return jnp.clip(carry["prior"] + action, -1.0, 1.0) if residual else action
 
-    return Observer(fit, estimator.init, observe, moved)
+    def moved(params, carry, sent):
+        scale = (default if params is None else params)["action_scale"]
+        return dict(carry, dz_prev=jnp.clip(sent[:, :fit], -1.0, 1.0) * scale)
+
+    return Observer(fit, init, observe, command, moved)
 
 
 def of_learner(env_config: dict, h: dict) -> Observer | None:
-    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``; None for "none") on its training
-    environment ``env_config``."""
-    return fit_observer(env_config) if h.get("observer", "none") == "fit" else None
+    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual"; None for
+    "none") on its training environment ``env_config``."""
+    kind = h.get("observer", "none")
+    return None if kind == "none" else fit_observer(env_config, residual=kind == "fit-residual")
 
 
 def policy(observer: Observer, act: Callable):
@@ -62,8 +74,8 @@ def policy(observer: Observer, act: Callable):
     def act_observed(params, carry, obs, key, probe):
         del probe
         seen, carry = observer.observe(None, carry, obs, key)
-        action = act(params, seen)
-        return action, observer.moved(None, carry, action)
+        sent = observer.command(carry, act(params, seen))
+        return sent, observer.moved(None, carry, sent)
 
     return Policy(observer.init, act_observed)
 
@@ -92,10 +104,11 @@ class Observed:
 
     def step_batch(self, keys, states, actions, params):
         state, carry = states
-        obs, state, reward, terminated, truncated, info = self.env.step_batch(keys, state, actions, params)
+        sent = self.observer.command(carry, actions)
+        obs, state, reward, terminated, truncated, info = self.env.step_batch(keys, state, sent, params)
         p = physics_informed.params_of(params)
         k_final, k_reset = jax.random.split(jax.random.fold_in(keys[0], 1))
-        final, carry = self.observer.observe(p, self.observer.moved(p, carry, actions), info["final_observation"],
+        final, carry = self.observer.observe(p, self.observer.moved(p, carry, sent), info["final_observation"],
                                              k_final)
         done = terminated | truncated
 

@@ -30,6 +30,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset quick --out results/budget-quick
     python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
     python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
+    python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -80,6 +81,8 @@ PRESETS["frames"] = dict(PRESETS["default"], envs={"hard + lab, frames only": di
 # frames only, from scratch, the learners with the fit observer (``agents.observer``) beside the references
 PRESETS["frames-fit"] = dict(PRESETS["frames"])
 del PRESETS["frames-fit"]["adapt"]
+# the same, DroQ's action a correction added to the fit's own move (``observer="fit-residual"``)
+PRESETS["frames-residual"] = dict(PRESETS["frames-fit"])
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),

@@ -231,10 +231,13 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
                                                                        if not np.array_equal(saved[k], restored[k])]
 
 
-def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_frames(tmp_path, compiles):
+@pytest.mark.parametrize("kind", ["fit", "fit-residual"])
+def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_frames(tmp_path, compiles, kind):
     """With ``observer=fit`` the loop's frames get the fit's offsets before the learner sees them (stored
-    transitions hold both), nothing compiles after setup, and the checkpoint's policy acts on raw frames."""
-    learning = _learning(tmp_path, 120, resume=False, observer="fit")
+    transitions hold both), nothing compiles after setup, and the checkpoint's policy acts on raw frames. The
+    stored actions are the moves sent; with ``fit-residual`` they are the learner's corrections, not the moves
+    sent (the fit's move added)."""
+    learning = _learning(tmp_path, 120, resume=False, observer=kind)
     d = learning.env.observation_size
     assert learning.train_env.observation_size == d + 2  # 3 stages, detector "total": 2 fitted lines
     obs = np.random.default_rng(1).uniform(-1, 1, (121, d)).astype(np.float32)
@@ -247,7 +250,10 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
     _, batch = replay.replay_buffer(learning.train_env, learning.h).sample(learning.ts.buffer)
     fitted = np.asarray(batch["obs"])[:, d:]
     assert fitted.shape[1] == 2 and np.any(fitted != 0) and np.all(np.abs(fitted) <= 0.25)
+    sent = np.asarray(actions)
+    was_sent = np.mean([np.any(np.all(np.abs(sent - a) < 1e-6, axis=1)) for a in np.asarray(batch["action"])])
+    assert was_sent == 1.0 if kind == "fit" else was_sent < 0.05, was_sent
     result = base.load(tmp_path / "checkpoint")
-    assert result.hyper["observer"] == "fit" and result.params["obs_norm"]["mean"].shape == (d + 2,)
+    assert result.hyper["observer"] == kind and result.params["obs_norm"]["mean"].shape == (d + 2,)
     ev = base.evaluate(result, result.env_config, episodes=2, seed=0, steps=5)
     assert np.all(np.isfinite(ev.normalized_power))

@@ -1,5 +1,6 @@
-"""The fit observer (``observer="fit"`` of TD3 and DroQ, ``agents.observer``): what it appends, its resets, the
-stored form of the field, and a learner trained and evaluated with it on frames alone."""
+"""The fit observer (``observer="fit"`` or ``"fit-residual"`` of TD3 and DroQ, ``agents.observer``): what it
+appends, its resets, the move a residual learner sends, the stored form of the field, and a learner trained and
+evaluated with it on frames alone."""
 
 import jax
 import jax.numpy as jnp
@@ -15,11 +16,11 @@ from agents.physics_informed import wrap
 FRAMES = dict(stages=5, mode="hard", model="phasor", observe_lengths=False)
 
 
-def _rollout(env_config, steps: int, actions_fn):
-    """(appended entries (steps, B, fit), true offsets (steps, B, N) wl, done flags) of ``Observed`` under
-    ``actions_fn(key) -> (B, N)``."""
+def _rollout(env_config, steps: int, actions_fn, residual: bool = False, power: bool = False):
+    """(appended entries (steps, B, fit), true offsets (steps, B, N) wl, done flags[, P / P_max (steps, B)]) of
+    ``Observed`` under ``actions_fn(key) -> (B, N)``."""
     env, params = built(env_config)
-    seen_env = observer.Observed(env, observer.fit_observer(env_config))
+    seen_env = observer.Observed(env, observer.fit_observer(env_config, residual=residual))
     step = jax.jit(seen_env.step_batch)
     key = jax.random.key(0)
     obs, state = seen_env.reset_batch(jax.random.split(key, 16), params)
@@ -29,7 +30,7 @@ def _rollout(env_config, steps: int, actions_fn):
         key, k_act, k_env = jax.random.split(key, 3)
         obs, state, _, term, trunc, info = step(jax.random.split(k_env, 16), state, actions_fn(k_act), params)
         out.append((np.asarray(info["final_observation"][:, env.observation_size:]), np.asarray(info["deltas_wl"]),
-                    np.asarray(term | trunc)))
+                    np.asarray(term | trunc)) + ((np.asarray(info["normalized_power"]),) if power else ()))
     return [np.stack(x) for x in zip(*out)]
 
 
@@ -40,6 +41,24 @@ def test_fit_reads_the_offsets_from_frames_under_random_moves():
     fit = z.shape[-1]
     err = np.abs(np.asarray(wrap(z - deltas[..., :fit])))[5:]
     assert fit == 4 and np.mean(err < 0.005) >= 0.9, np.quantile(err, [0.5, 0.9])
+
+
+def test_a_residual_learner_sends_its_correction_added_to_the_fits_move():
+    """With ``fit-residual`` a zero correction sends the fit's own move (the physics-informed controller's frames
+    preset), which stacks ideal hard from its random starts; with ``fit`` the same zero action leaves the lines
+    where they start. A correction is added to that move, then clipped to [-1, 1]."""
+    zeros = lambda k: jnp.zeros((16, 5))  # noqa: E731
+    *_, p_residual = _rollout(FRAMES, 60, zeros, residual=True, power=True)
+    *_, p_fit = _rollout(FRAMES, 60, zeros, power=True)
+    assert np.mean(p_residual[-10:]) >= 0.95 and np.mean(p_fit[-10:]) < 0.6, (p_residual[-1], p_fit[-1])
+    env, params = built(FRAMES)
+    ob = observer.fit_observer(FRAMES, residual=True)
+    obs, _ = env.reset_batch(jax.random.split(jax.random.key(3), 4), params)
+    _, carry = ob.observe(None, ob.init(None, obs), obs, jax.random.key(4))
+    correction = jax.random.uniform(jax.random.key(5), (4, 5), minval=-1, maxval=1)
+    np.testing.assert_allclose(np.asarray(ob.command(carry, correction)),
+                               np.clip(np.asarray(carry["prior"]) + np.asarray(correction), -1, 1), atol=1e-6)
+    assert np.any(np.asarray(carry["prior"]) != 0)
 
 
 def test_episode_ends_restart_the_fit():
@@ -68,6 +87,7 @@ def test_episode_ends_restart_the_fit():
 def test_observer_field_is_checked_and_stored_only_when_set():
     assert "observer" not in DroQConfig.make().to_hyper() and "observer" not in TD3Config.make("budget").to_hyper()
     assert DroQConfig.make(observer="fit").to_hyper()["observer"] == "fit"
+    assert TD3Config.make(observer="fit-residual").to_hyper()["observer"] == "fit-residual"
     assert DroQConfig.from_hyper(DroQConfig.make().to_hyper()).observer == "none"
     with pytest.raises(ValueError, match="observer must be one of"):
         DroQConfig.make(observer="kalman")
