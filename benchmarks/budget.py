@@ -81,8 +81,13 @@ PRESETS["frames"] = dict(PRESETS["default"], envs={"hard + lab, frames only": di
 # frames only, from scratch, the learners with the fit observer (``agents.observer``) beside the references
 PRESETS["frames-fit"] = dict(PRESETS["frames"])
 del PRESETS["frames-fit"]["adapt"]
-# the same, DroQ's action a correction added to the fit's own move (``observer="fit-residual"``)
-PRESETS["frames-residual"] = dict(PRESETS["frames-fit"])
+# the same, DroQ's action a correction added to the fit's own move (``observer="fit-residual"``); protocol (b) too,
+# pretrained 20,000 env steps (the fit's move is sent from the first step), adapted as in "frames"
+_RESIDUAL = dict(observer="fit-residual")
+PRESETS["frames-residual"] = dict(PRESETS["frames"], adapt=dict(
+    PRESETS["frames"]["adapt"], pretrain_steps=20_000,
+    pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_RESIDUAL),
+    hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_RESIDUAL)))
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),
