@@ -63,7 +63,8 @@ COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1,
 POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
 # the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
 TRAIN_REWARD = _optional(_choice(*REWARDS))
-OBSERVER = _choice("none", "fit", "fit-residual")  # what an off-policy learner adds to its observation (``agents.observer``)
+# what an off-policy learner adds to its observation, and whether its action corrects the fit's move (``agents.observer``)
+OBSERVER = _choice("none", "fit", "fit-residual")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """The fit observer (``observer="fit"`` of the off-policy learners, ``agents.offpolicy``): the line offsets that the
 physics-informed controller's fit reads from the detector's frames (``agents.physics_informed``, preset "frames",
 its state estimation alone) appended to the learner's observation, so that a learner without length readouts
-(``observe_lengths=False``) sees an estimate of the state instead of a sign-ambiguous frame.
+(``observe_lengths=False``) sees an estimate of the state instead of a sign-ambiguous frame. With
+``observer="fit-residual"`` the learner's action is also a correction added to the fit's own move.
 
 The appended entries: the fitted stages' offsets from the nearest optimum (wl, in [-0.25, 0.25)), estimated from
 the newest frame and, through the move the learner commanded before it, the frame before. On the first frame of an
