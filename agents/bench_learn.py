@@ -257,24 +257,22 @@ class Learning:
 
         d, n = self.train_env.observation_size, env.num_actions
         obs, act = jax.ShapeDtypeStruct((d,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.float32)
-        if self.observer is not None:
+        if self.observer is None:
+            self._act = jax.jit(explore).lower(_acting(ts), jnp.int32(0), obs, jnp.bool_(True)).compile()
+        else:
             ob, raw = self.observer, jax.ShapeDtypeStruct((1, d_raw), jnp.float32)
 
-            def observe(carry, obs, t):
-                seen, carry = ob.observe(None, carry, obs[None], jax.random.fold_in(self.k_observe, t))
-                return seen[0], carry
+            def act_observed(carry, frame, t, snap, random):
+                """(the observation with the fit's entries, the learner's action, the move sent, the carry)."""
+                seen, carry = ob.observe(None, carry, frame[None], jax.random.fold_in(self.k_observe, t))
+                action = explore(snap, t, seen[0], random)
+                sent = ob.command(carry, action[None])
+                return seen[0], action, sent[0], ob.moved(None, carry, sent)
 
             carry, frame = jax.eval_shape(ob.init, None, raw), jax.ShapeDtypeStruct((d_raw,), jnp.float32)
             self._init_seen = jax.jit(lambda obs: ob.init(None, obs)).lower(raw).compile()
-            self._observe = jax.jit(observe).lower(carry, frame, jnp.int32(0)).compile()
-
-            def send(carry, action):
-                sent = ob.command(carry, action[None])
-                return sent[0], ob.moved(None, carry, sent)
-
-            self._send = jax.jit(send).lower(carry, act).compile()
+            self._act = jax.jit(act_observed).lower(carry, frame, jnp.int32(0), _acting(ts), jnp.bool_(True)).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
-        self._explore = jax.jit(explore).lower(_acting(ts), jnp.int32(0), obs, jnp.bool_(True)).compile()
         self._insert = jax.jit(insert, donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
         self._update = jax.jit(lambda ts: fns["update"](ts, None)[0], donate_argnums=0).lower(ts).compile()
         warm = jax.ShapeDtypeStruct((self.h["learning_starts"], d), jnp.float32)
@@ -293,15 +291,14 @@ class Learning:
         the fit's own move); the step (with the learner's action) handed to the learner."""
         del results
         obs = np.asarray(obs, np.float32)
-        if self.observer is not None:
-            obs, self.seen = self._observe(self.seen, obs, np.int32(self.t))
-            obs = np.asarray(obs)
-        self.queue.append((obs, self.prev))
         with self.lock:
             snap, random = self.snapshot
-        action = sent = np.asarray(self._explore(snap, np.int32(self.t), obs, random))
-        if self.observer is not None:
-            sent, self.seen = self._send(self.seen, action)
+        if self.observer is None:
+            action = sent = np.asarray(self._act(snap, np.int32(self.t), obs, random))
+        else:
+            obs, action, sent, self.seen = self._act(self.seen, obs, np.int32(self.t), snap, random)
+            obs, action = np.asarray(obs), np.asarray(action)
+        self.queue.append((obs, self.prev))
         self.prev, self.t = (obs, action), self.t + 1
         self.wake.set()
         return np.asarray(sent, np.float64)

@@ -401,6 +401,8 @@ class TD3Config(ReplayConfig):
     utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
     train_reward: str | None = field(TRAIN_REWARD)
     observer: str = field(OBSERVER, default="none")
+    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
+    residual_scale: float = field(UNIT, default=1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -443,3 +445,5 @@ class DroQConfig(ReplayConfig):
     eval_episodes: int = field(COUNT)
     train_reward: str | None = field(TRAIN_REWARD)
     observer: str = field(OBSERVER, default="none")
+    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
+    residual_scale: float = field(UNIT, default=1.0)

@@ -31,6 +31,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
     python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
     python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
+    python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames   # a smaller correction
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -88,6 +89,12 @@ PRESETS["frames-residual"] = dict(PRESETS["frames"], adapt=dict(
     PRESETS["frames"]["adapt"], pretrain_steps=20_000,
     pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_RESIDUAL),
     hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_RESIDUAL)))
+# the same, the correction bounded (DroQ's ``residual_scale`` of this preset, pretrained and adapted with it too)
+_BOUNDED = {k: v for k, v in get("droq").sweep.lab_budget["frames-residual-bounded"].items() if k != "config"}
+PRESETS["frames-residual-bounded"] = dict(PRESETS["frames"], adapt=dict(
+    PRESETS["frames-residual"]["adapt"],
+    pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_BOUNDED),
+    hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_BOUNDED)))
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),

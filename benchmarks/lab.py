@@ -119,14 +119,17 @@ def _sets(values) -> list:
 
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
-    run's first step."""
+    run's first step, and ``wall_s``, the process's seconds from its start (imports and compiling included)."""
+    t0 = time.monotonic()
     runner = Process("agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log")
     rc = runner.wait(timeout)
+    wall_s = time.monotonic() - t0
     if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
         raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
     first = next(json.loads(line) for line in (out / "documents.jsonl").read_text().splitlines()
                  if '"name": "event"' in line)
-    return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"]}
+    return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"],
+            "wall_s": wall_s}
 
 
 def unseen_args(seed: int, scale: float) -> list:
@@ -166,30 +169,41 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
 def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, stale_s: float,
                  frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0, seed: int = 0,
                  start_from: str | None = None, sets=(), scale: float = 1.0, unseen: bool = False,
-                 kill_after: float | None = None, catch_up_s: float | None = None) -> tuple[dict, dict]:
+                 kill_after: float | None = None, catch_up_s: float | None = None,
+                 learn_seconds: float | None = None, checkpoint_every: int | None = None) -> tuple[dict, dict]:
     """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder; ``sets``: its
     ``--set`` values) against a fresh IOC (the lab preset at ``scale``; ``unseen``: its per-stage errors re-drawn
     from ``seed``, ``unseen_args``) started ``idle_s`` before, then its
     checkpoint as a controller for ``seconds`` on the same bench: the two summaries. ``kill_after``: the learning
-    run is SIGKILLed that many seconds after its start and continued with ``--resume`` (the summary, the resumed
-    run's, adds ``killed_after_s``); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default)."""
+    run is SIGKILLed that many seconds after its start, or once it has written its first checkpoint if later, and
+    continued with ``--resume`` (the summary, the resumed run's, adds ``killed_after_s``); ``checkpoint_every``: the
+    runner's ``--checkpoint-every`` (None: its default); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default);
+    ``learn_seconds``: the learning run's ``--seconds`` (it stops at ``steps`` or then, whichever comes first)."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, 0, frames_only, seed, scale, unseen)
     try:
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
         run = [*shared, "--learn", algo, "--steps", steps] + ([] if catch_up_s is None else ["--catch-up-s", catch_up_s])
+        run += [] if learn_seconds is None else ["--seconds", learn_seconds]
+        run += [] if checkpoint_every is None else ["--checkpoint-every", checkpoint_every]
         learn = run + (["--from", start_from] if start_from else []) + _sets(sets)
         if kill_after is not None:
             killed = Process("agents.bench", [*learn, "--out", out / "learn"], ioc.env, out / "learn-killed.log")
-            time.sleep(kill_after)
-            if killed.proc.poll() is not None:
-                raise RuntimeError(f"the learning run ended before its kill:\n{killed.text()}")
+            started, limit = time.monotonic(), START_S + kill_after + 10 * steps / rate
+            while time.monotonic() - started < kill_after or not (out / "learn" / "checkpoint" / "learner.json").exists():
+                if killed.proc.poll() is not None:
+                    raise RuntimeError(f"the learning run ended before its kill:\n{killed.text()}")
+                if time.monotonic() - started > limit:
+                    killed.kill()
+                    raise TimeoutError(f"the learning run wrote no checkpoint within {limit:.0f} s:\n{killed.text()}")
+                time.sleep(0.05)
             killed.kill()
+            killed_after = time.monotonic() - started
             learn = [*run, "--resume"]  # the run's own settings, from its checkpoint
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         if kill_after is not None:
-            learned["killed_after_s"] = kill_after
+            learned["killed_after_s"] = killed_after
         ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds], ioc.env,
                    START_S + 2 * seconds)
         return learned, ran
@@ -249,10 +263,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--learn", metavar="ALGO", help="instead: learn on each bench (agents.bench --learn), then run "
                     "the checkpoint as a controller for --seconds on the same bench")
     ap.add_argument("--learn-steps", type=int, default=20_000, help="--learn: env steps of learning")
+    ap.add_argument("--learn-seconds", type=float, default=None, metavar="S",
+                    help="--learn: the learning loop's limit (s; start-up not included): it stops at --learn-steps or "
+                         "S, whichever comes first")
     ap.add_argument("--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)")
     ap.add_argument("--learn-set", nargs="*", default=[], metavar="KEY=VALUE", help="--learn: the learner's settings")
     ap.add_argument("--kill-learner-after", type=float, default=None, metavar="S",
-                    help="--learn: SIGKILL the learning run S seconds after its start, then continue it with --resume")
+                    help="--learn: SIGKILL the learning run S seconds after its start (not before its first checkpoint), "
+                         "then continue it with --resume")
+    ap.add_argument("--checkpoint-every", type=int, default=None, metavar="M",
+                    help="--learn: the runner's --checkpoint-every (env steps)")
     ap.add_argument("--catch-up-s", type=float, default=None, metavar="S", help="--learn: the runner's --catch-up-s")
     ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
     ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
@@ -267,7 +287,8 @@ def main(argv=None) -> dict:
             learned, ran = run_learning(args.out / f"learn-{args.learn}-seed{seed}", args.learn, args.learn_steps,
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
                                         args.idle_s, seed, args.from_, args.learn_set, args.imperfection_scale,
-                                        args.unseen, args.kill_learner_after, args.catch_up_s)
+                                        args.unseen, args.kill_learner_after, args.catch_up_s, args.learn_seconds,
+                                        args.checkpoint_every)
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
                 rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
@@ -283,8 +304,10 @@ def main(argv=None) -> dict:
     ioc += ["--imperfection-scale", str(args.imperfection_scale)]
     result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
               "idle_s": args.idle_s, "imperfection_scale": args.imperfection_scale, "unseen": args.unseen,
-              "learn": args.learn, "learn_steps": args.learn_steps, "from": args.from_,
-              "kill_learner_after": args.kill_learner_after, "catch_up_s": args.catch_up_s,
+              "learn": args.learn, "learn_steps": args.learn_steps, "learn_seconds": args.learn_seconds,
+              "from": args.from_,
+              "kill_learner_after": args.kill_learner_after, "checkpoint_every": args.checkpoint_every,
+              "catch_up_s": args.catch_up_s,
               "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))

@@ -117,6 +117,21 @@ def test_sigkill_then_resume_ends_with_every_step(ioc, tmp_path):
     assert docs[0]["doc"]["learning"]["env_steps_resumed_from"] == kept["env_steps"]
 
 
+def test_the_lab_benchmark_kills_a_learning_run_past_its_first_checkpoint_and_resumes_it(tmp_path):
+    """``benchmarks.lab --learn ... --kill-learner-after 0``: the learning run SIGKILLed once its first checkpoint is
+    written, resumed to all its steps, and its checkpoint then run as a controller on the same bench."""
+    from benchmarks import lab
+
+    learned, ran = lab.run_learning(tmp_path, "droq", 300, seconds=2, rate=50, stale_s=5, frames_only=True,
+                                    sets=TINY[1::2], kill_after=0.0, checkpoint_every=100)
+    resumed_from = learned["env_steps_resumed_from"]
+    assert resumed_from in (100, 200) and learned["sessions"] == 2, learned
+    assert learned["env_steps_total"] == 300 and learned["steps"] == 300 - resumed_from, learned
+    assert learned["killed_after_s"] > 0 and learned["wall_s"] > 0, learned
+    assert "Traceback" not in (tmp_path / "learn-killed.log").read_text()
+    assert ran["controller"].endswith("checkpoint") and ran["stopped_by"] == "time" and ran["steps"] > 0, ran
+
+
 def _saved_policy(path, stages: int, lengths: bool):
     """A DroQ policy of the tiny networks saved by ``agents.save`` (untrained)."""
     env_config, hyper = {"stages": stages, "observe_lengths": lengths}, {"hidden": [16, 16]}

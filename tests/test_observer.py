@@ -52,13 +52,15 @@ def test_a_residual_learner_sends_its_correction_added_to_the_fits_move():
     *_, p_fit = _rollout(FRAMES, 60, zeros, power=True)
     assert np.mean(p_residual[-10:]) >= 0.95 and np.mean(p_fit[-10:]) < 0.6, (p_residual[-1], p_fit[-1])
     env, params = built(FRAMES)
-    ob = observer.fit_observer(FRAMES, residual=True)
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(3), 4), params)
-    _, carry = ob.observe(None, ob.init(None, obs), obs, jax.random.key(4))
     correction = jax.random.uniform(jax.random.key(5), (4, 5), minval=-1, maxval=1)
-    np.testing.assert_allclose(np.asarray(ob.command(carry, correction)),
-                               np.clip(np.asarray(carry["prior"]) + np.asarray(correction), -1, 1), atol=1e-6)
-    assert np.any(np.asarray(carry["prior"]) != 0)
+    for scale in (1.0, 0.25):  # ``residual_scale``: the correction per unit of the learner's action
+        ob = observer.of_learner(FRAMES, {"observer": "fit-residual", "residual_scale": scale})
+        _, carry = ob.observe(None, ob.init(None, obs), obs, jax.random.key(4))
+        np.testing.assert_allclose(np.asarray(ob.command(carry, correction)),
+                                   np.clip(np.asarray(carry["prior"]) + scale * np.asarray(correction), -1, 1),
+                                   atol=1e-6)
+        assert np.any(np.asarray(carry["prior"]) != 0)
 
 
 def test_episode_ends_restart_the_fit():
@@ -91,6 +93,10 @@ def test_observer_field_is_checked_and_stored_only_when_set():
     assert DroQConfig.from_hyper(DroQConfig.make().to_hyper()).observer == "none"
     with pytest.raises(ValueError, match="observer must be one of"):
         DroQConfig.make(observer="kalman")
+    assert "residual_scale" not in DroQConfig.make(observer="fit-residual").to_hyper()
+    assert TD3Config.make(observer="fit-residual", residual_scale=0.25).to_hyper()["residual_scale"] == 0.25
+    with pytest.raises(ValueError, match="residual_scale must be"):
+        DroQConfig.make(residual_scale=0.0)
 
 
 def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
