@@ -36,9 +36,9 @@ class Observer(NamedTuple):
     moved: Callable
 
 
-def fit_observer(env_config: dict, residual: bool = False, scale: float = 1.0) -> Observer:
+def fit_observer(env_config: dict, residual: bool = False, residual_scale: float = 1.0) -> Observer:
     """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with ``residual``,
-    ``scale`` times the learner's action is a correction added to the fitted model's own move (the
+    ``residual_scale`` times the learner's action is a correction added to the fitted model's own move (the
     physics-informed controller's, clipped to [-1, 1] after the sum)."""
     estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames"))
     default = physics_informed.policy_params(env_config)
@@ -54,7 +54,7 @@ def fit_observer(env_config: dict, residual: bool = False, scale: float = 1.0) -
         return jnp.concatenate([obs, carry["z"]], axis=-1), carry
 
     def command(carry, action):
-        return jnp.clip(carry["prior"] + scale * action, -1.0, 1.0) if residual else action
+        return jnp.clip(carry["prior"] + residual_scale * action, -1.0, 1.0) if residual else action
 
     def moved(params, carry, sent):
         scale = (default if params is None else params)["action_scale"]
@@ -68,7 +68,7 @@ def of_learner(env_config: dict, h: dict) -> Observer | None:
     "none"; ``h["residual_scale"]``) on its training environment ``env_config``."""
     kind = h.get("observer", "none")
     return None if kind == "none" else fit_observer(env_config, residual=kind == "fit-residual",
-                                                    scale=h.get("residual_scale", 1.0))
+                                                    residual_scale=h.get("residual_scale", 1.0))
 
 
 def policy(observer: Observer, act: Callable):
