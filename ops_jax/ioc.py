@@ -53,6 +53,7 @@ import numpy as np
 
 import ops_jax
 from ops_jax.env import option_names
+from ops_jax.gym_codec import FlatCodec
 
 STATUS_OK, STATUS_OUTSIDE = "running", "outside window"
 
@@ -89,7 +90,9 @@ def make_options(args: argparse.Namespace) -> dict:
 
 
 class Bench:
-    """One simulated instance: the jitted single-instance step and its wall-clock state (host side)."""
+    """One simulated instance: the jitted single-instance step and its wall-clock state (host side). The
+    state is kept as one float32 vector and a tick's outputs come back as another (``gym_codec``): one
+    argument in and one copy out per tick instead of one per leaf."""
 
     def __init__(self, stages: int, mode: str, options: dict, seed: int = 0, drift_episode: int = 10):
         self.env, self.params = ops_jax.make(stages, mode, **options)
@@ -99,20 +102,23 @@ class Bench:
         self._k_reset, _, self._k_run = jax.random.split(jax.random.key(seed), 3)
         reset = jax.jit(self.env.reset, static_argnums=2)
         self._reset = lambda key: reset(key, self.params, drift_episode)
+        self._codec = FlatCodec(jax.eval_shape(self._reset, self._k_reset)[1])
+        self._pack = jax.jit(self._codec.flatten)
         self._step = jax.jit(self._advance)
         self.t, self.resets = 0, -1
         self.reset()
         # compile once, before serving (the result is discarded: the step is pure)
-        jax.block_until_ready(self._step(self.state, np.zeros(self.n, np.float32), 1))
+        jax.block_until_ready(self._step(self._packed, np.zeros(self.n, np.float32), 1))
 
     def reset(self) -> dict:
         """Start again: the lines drawn afresh as at start-up (the k-th reset folds its key by k), the
         setpoints applied back to 0; the tick count goes on. Returns the new PV values."""
         self.resets += 1
-        obs, self.state = self._reset(jax.random.fold_in(self._k_reset, self.resets))
+        obs, state = self._reset(jax.random.fold_in(self._k_reset, self.resets))
+        self._packed = self._pack(state)
         self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
         self.frame = self._decode(self.env.layout.latest(np.asarray(obs)), np.zeros(self.n),
-                                  *self._true_power(self.state), False)
+                                  *self._true_power(state), False)
         return self.frame
 
     def _true_power(self, state):
@@ -121,12 +127,15 @@ class Bench:
         best = float(np.max(self.params.lab.p_best)) if self.env.config.imperfect else 0.0
         return float(power / self.env.p_max), float(power / (best if best > 0 else self.env.p_max))
 
-    def _advance(self, state, action, t):
+    def _advance(self, packed, action, t):
+        """(packed state, [frame, position (N,) wl, P / P_max, P / P_best, outside]) after step ``t``."""
         k_env = jax.random.split(jax.random.fold_in(self._k_run, t - 1))[1]
+        state = self._codec.unflatten(packed)
         obs, state, _, terminated, _, info = self.env.step_env(jax.random.fold_in(k_env, 0), state, action, self.params)
         position = state.lab.position if self.env.config.imperfect else jnp.zeros(self.n)
-        return state, self.env.layout.latest(obs), position, info["normalized_power"], \
-            info["normalized_power_best"], terminated
+        out = [self.env.layout.latest(obs), position, info["normalized_power"], info["normalized_power_best"],
+               terminated]
+        return self._codec.flatten(state), jnp.concatenate([jnp.ravel(jnp.asarray(x, jnp.float32)) for x in out])
 
     def _decode(self, frame, position, npow, npow_best, outside) -> dict:
         """PV values of one observation frame (float64: the client re-encodes it exactly)."""
@@ -140,11 +149,12 @@ class Bench:
         action = np.where(np.isfinite(action), action, 0.0)
         self.command = self.command + action * self.scale
         self.t += 1
-        self.state, *out = self._step(self.state, action.astype(np.float32), self.t)
-        frame, position, npow, best, outside = jax.device_get(out)
+        self._packed, out = self._step(self._packed, action.astype(np.float32), self.t)
+        out = np.asarray(out)
+        frame, position, (npow, best, outside) = out[:-self.n - 3], out[-self.n - 3:-3], out[-3:]
         if not self.env.config.imperfect:
             position = self.command
-        self.frame = self._decode(frame, position, npow, best, outside)
+        self.frame = self._decode(frame, position, npow, best, outside != 0)
         return self.frame
 
 
