@@ -28,7 +28,8 @@ PVs (prefix first; lengths in wavelengths, wl):
   as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the tick count goes on.
 
 Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
-so a frame stamped after a setpoint write shows that write.
+so a frame stamped after a setpoint write shows that write. Every 1,000 ticks the IOC prints one line of their
+host time (the simulator step, then the PV writes: median and 99th percentile, ms) and the overruns so far.
 
 Random draws follow ``agents.evaluate``'s episode 0 for ``--seed``: ``reset`` as the
 ``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded by t.
@@ -56,6 +57,7 @@ from ops_jax.env import option_names
 from ops_jax.gym_codec import FlatCodec
 
 STATUS_OK, STATUS_OUTSIDE = "running", "outside window"
+TICK_REPORT = 1000  # ticks per line of the tick-time report on stdout
 
 
 def _literal(text: str):
@@ -209,9 +211,22 @@ class _BenchGroupBase:
 
     async def step(self):
         """One tick: the setpoints as they are now, one simulator step, its frame stamped with this moment."""
-        stamp = time.time()
+        stamp, t0 = time.time(), time.perf_counter()
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
-        await self.publish(self.bench.tick(setpoints), stamp)
+        values = self.bench.tick(setpoints)
+        t1 = time.perf_counter()
+        await self.publish(values, stamp)
+        self.tick_ms.append((1e3 * (t1 - t0), 1e3 * (time.perf_counter() - t1)))
+        if len(self.tick_ms) == TICK_REPORT:
+            self.report_ticks()
+
+    def report_ticks(self):
+        """One line on the last ``TICK_REPORT`` ticks' host time: the simulator step, then the PV writes (ms)."""
+        step, write = np.percentile(np.asarray(self.tick_ms), [50, 99], axis=0).T
+        print(f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 / p99 "
+              f"{step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} ms, overruns "
+              f"{self.overruns.value}", flush=True)
+        self.tick_ms = []
 
     async def clock(self):
         """Tick at ``rate`` Hz on the wall clock; late ticks are counted and caught up."""
@@ -257,7 +272,7 @@ def _group_class():
 
     class BenchGroup(_BenchGroupBase, PVGroup):
         def __init__(self, *args, bench, rate, lockstep, **kwargs):
-            self.bench, self.tick_rate, self.lockstep = bench, rate, lockstep
+            self.bench, self.tick_rate, self.lockstep, self.tick_ms = bench, rate, lockstep, []
             super().__init__(*args, **kwargs)
 
     return BenchGroup

@@ -254,6 +254,30 @@ def test_bench_without_length_readouts_serves_no_length_pvs():
     assert group.tick.value == sim.t == 1
 
 
+def test_ioc_reports_its_ticks_host_time(monkeypatch, capsys):
+    """Every TICK_REPORT ticks the IOC prints one line: the ticks covered, the step's and the writes' median and
+    99th percentile (ms), and the overruns; the ticks are those of the bench."""
+    import asyncio
+    import re
+
+    monkeypatch.setattr(ioc, "TICK_REPORT", 3)
+    sim = ioc.Bench(2, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
+    group = ioc.pv_group(sim, "TT:", 100.0, lockstep=True)
+
+    async def ticks(n):
+        for _ in range(n):
+            await group.step()
+
+    asyncio.run(ticks(7))
+    lines = [line for line in capsys.readouterr().out.splitlines() if "ticks" in line]
+    ms = r"([\d.]+) / ([\d.]+) ms"
+    pattern = rf"ops_jax.ioc: ticks (\d+)-(\d+): step p50 / p99 {ms}, publish {ms}, overruns 0"
+    found = [re.fullmatch(pattern, line) for line in lines]
+    assert all(found) and [m.group(1, 2) for m in found] == [("1", "3"), ("4", "6")]
+    assert all(float(m[3]) <= float(m[4]) and float(m[5]) <= float(m[6]) and float(m[3]) > 0 for m in found)
+    assert sim.t == 7 and len(group.tick_ms) == 1
+
+
 def test_ioc_socket_sends_without_nagle_delay():
     """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle on)."""
     import asyncio
