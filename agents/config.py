@@ -179,7 +179,6 @@ class TrimConfig(EscapeConfig):
     amp: float = field(DITHER)
     p_gate: float = field(Range(0, 1))
     release: float = field(Range(0, 1))
-    c_max: float | None = field(_optional(NONNEG), default=None)  # the largest |offset| (action units); None: unbounded
 
 
 @dataclasses.dataclass(frozen=True)

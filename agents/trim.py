@@ -5,8 +5,7 @@ Each control step, per instance (B of them), with pi the wrapped policy and c (B
 1. a = clip(pi(obs) + c, -1, 1), in the environment's action units;
 2. one probe P(tau + amp s) with random signs s (``agents.spgd.dither``) gives SPGD's one-probe
    gradient estimate g (``agents.spgd.slope``, 1/wl), so 2 measurements per control step as SPGD;
-3. while the measured P/Pmax >= ``p_gate``: c <- c + ki g; below it: c <- release c; then c is clipped to
-   [-``c_max``, ``c_max``] (unbounded by default);
+3. while the measured P/Pmax >= ``p_gate``: c <- c + ki g; below it: c <- release c;
 4. the stall escape (``agents.escape``, as SPGD's; ``jump = 0``: off): after ``patience`` steps below
    ``p_stall`` the probe tests jumps of a line or a pair of lines by ``jump`` wl instead of the dither, and
    a committed jump moves its lines at full action speed, the wrapped policy paused on those lines.
@@ -31,8 +30,6 @@ serves every ``TrimConfig``. The default preset's tuning: docs/learners.md.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 
@@ -48,8 +45,7 @@ def gains(hyper: dict | TrimConfig | None = None, action_scale: float = 0.01) ->
     """The trim's parameters (float32 scalars) from a ``TrimConfig`` or overrides of its default preset, plus
     ``action_scale`` (wl per unit action of the environment it runs in; the escape's move needs it)."""
     c = hyper if isinstance(hyper, TrimConfig) else TrimConfig.from_hyper(hyper)
-    bound = jnp.float32(jnp.inf if c.c_max is None else c.c_max)
-    return {**spgd.scaled(dataclasses.replace(c, c_max=None), action_scale), "c_max": bound}
+    return spgd.scaled(c, action_scale)
 
 
 def make_policy(policy: Policy, env_config: dict) -> Policy:
@@ -74,7 +70,7 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         p1 = probe(offsets)
         g = jnp.where(testing[:, None], 0.0, spgd.slope(p0, p1, s, p["amp"]))
         near = (p0 >= p["p_gate"])[:, None]
-        c = jnp.clip(jnp.where(near, carry["c"] + p["ki"] * g, p["release"] * carry["c"]), -p["c_max"], p["c_max"])
+        c = jnp.where(near, carry["c"] + p["ki"] * g, p["release"] * carry["c"])
         action, esc = escape.step(p, esc, cands, testing, p0, p1, jnp.clip(a + c, -1.0, 1.0))
         return action, {"policy": inner_carry, "c": c, **esc}
 
