@@ -2,13 +2,15 @@
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
+    python -m benchmarks.trim_loss --trims default guarded --offsets 0.001 -0.001 --envs "hard + lab"
 
 DroQ at its budget preset (20,000 env steps; the seeds in one vmapped call) on each environment, each policy
 evaluated alone and with each of the trim's presets (``TrimConfig``) on the same test episodes
 (``agents.evaluate``'s ``--eval-seed``: the same starts and the same noise; the trim's dither has a key stream of
 its own). Per (environment, seed, trim): the mean final P / P_best of both, the episodes the trim loses by more
-than ``--margin`` of P / P_best and those it gains by more, and the worst paired difference. Prints the table and
-writes ``trim_loss.json``.
+than ``--margin`` of P / P_best and those it gains by more, and the worst paired difference. ``--offsets``: the
+same comparison for the policy alone with every action shifted by a constant (no trim), the floor of what any
+perturbation of that size loses or gains episode by episode. Prints the table and writes ``trim_loss.json``.
 """
 
 from __future__ import annotations
@@ -35,9 +37,24 @@ def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
             "worst_trimmed": float(trimmed[diff.argmin()])}
 
 
+def shifted(result, offset: float):
+    """``(Policy, params)``: ``result``'s policy with every action shifted by ``offset`` (clipped to [-1, 1])."""
+    import jax.numpy as jnp
+
+    from agents.base import Policy
+
+    policy = result.policy()
+
+    def act(params, carry, obs, key, probe):
+        action, carry = policy.act(params, carry, obs, key, probe)
+        return jnp.clip(action + offset, -1.0, 1.0), carry
+
+    return Policy(policy.init, act), result.params
+
+
 def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int,
-            trims=("default",)) -> list[dict]:
-    """Train on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset."""
+            trims=("default",), offsets=()) -> list[dict]:
+    """Train on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset, then per seed and offset."""
     import agents
     from agents import trim
 
@@ -49,9 +66,10 @@ def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, 
     for seed, result in zip(seeds, results):
         final = lambda policy: agents.evaluate(policy, env, episodes=episodes, seed=eval_seed).normalized_power_best[:, -1]
         alone = final(result)
-        rows += [{"env": env_name, "seed": int(seed), "trim": name,
-                  **paired(alone, final(trim.trimmed(result, {"config": name})), margin), "train_s": train_s / len(seeds)}
-                 for name in trims]
+        variants = [(name, trim.trimmed(result, {"config": name})) for name in trims]
+        variants += [(f"none, action {offset:+g}", shifted(result, offset)) for offset in offsets]
+        rows += [{"env": env_name, "seed": int(seed), "trim": name, **paired(alone, final(policy), margin),
+                  "train_s": train_s / len(seeds)} for name, policy in variants]
     return rows
 
 
@@ -74,13 +92,18 @@ def main(argv=None) -> dict:
     ap.add_argument("--steps", type=int, default=20_000, help="env steps of training per seed")
     ap.add_argument("--trims", nargs="+", default=["default"], choices=sorted(TrimConfig.PRESETS),
                     help="the trim's presets (TrimConfig)")
+    ap.add_argument("--offsets", nargs="*", type=float, default=[], metavar="A",
+                    help="also the policy alone with every action shifted by A (action units, |A| < 1), no trim")
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.steps < 1 or not args.margin >= 0:
         ap.error("--episodes and --steps must be >= 1 and --margin >= 0")
+    if not all(abs(a) < 1 for a in args.offsets):
+        ap.error(f"--offsets must be numbers in (-1, 1) (action units), got {args.offsets}")
     rows = []
     for env_name in args.envs:
-        new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims)
+        new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims,
+                      args.offsets)
         print("\n".join(table(new, args.margin).splitlines()[2:]), flush=True)
         rows += new
     result = {"command": "python -m benchmarks.trim_loss", "args": {k: str(v) for k, v in vars(args).items()},

@@ -125,6 +125,27 @@ def test_trim_loss_pairs_the_same_episodes():
         [{**row, "env": "hard", "seed": 0, "trim": "guarded"}], 0.05)
 
 
+def test_trim_loss_offset_shifts_every_action_of_the_policy_alone():
+    """``benchmarks.trim_loss.shifted``: the policy's own action plus the offset, clipped; offset 0 is the policy."""
+    from benchmarks.trim_loss import shifted
+
+    result = agents.train("spgd", ENV, seed=1, curve_episodes=2)
+    obs = jnp.zeros((2, built(ENV)[0].observation_size))
+    key = jax.random.key(0)
+    own = result.policy()
+    probe = lambda offsets: jnp.ones(offsets.shape[0])
+    base, _ = own.act(result.params, own.init(key, obs), obs, key, probe)
+    for offset in (0.0, 0.3, -0.7):
+        policy, params = shifted(result, offset)
+        action, _ = policy.act(params, policy.init(key, obs), obs, key, probe)
+        np.testing.assert_allclose(action, np.clip(np.asarray(base) + offset, -1, 1), atol=1e-6)
+    a = agents.evaluate(result, ENV, episodes=4, seed=2, steps=30)
+    b = agents.evaluate(shifted(result, 0.0), ENV, episodes=4, seed=2, steps=30)
+    c = agents.evaluate(shifted(result, 0.5), ENV, episodes=4, seed=2, steps=30)
+    np.testing.assert_allclose(a.normalized_power, b.normalized_power, atol=1e-6)
+    assert not np.allclose(a.normalized_power, c.normalized_power)
+
+
 def test_guarded_preset_gates_and_releases():
     """The ``guarded`` preset is the default one with the gate at half of P_max and a decaying offset below it."""
     default, guarded = trim.gains(None), trim.gains({"config": "guarded"})
