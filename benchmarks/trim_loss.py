@@ -1,10 +1,12 @@
-"""Whether the trim (``agents.trim``) loses: learned policies alone and trimmed, on the same test episodes.
+"""Whether the trim (``agents.trim``) loses: policies alone and trimmed, on the same test episodes.
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
     python -m benchmarks.trim_loss --trims default guarded --offsets 0.001 -0.001 --envs "hard + lab"
+    python -m benchmarks.trim_loss --algo physics --config frames --envs "hard + 2x lab, frames only" --seeds 0
 
-DroQ at its budget preset (20,000 env steps; the seeds in one vmapped call) on each environment, each policy
+``--algo`` at its ``--config`` preset (DroQ at its budget preset by default: 20,000 env steps, the seeds in one
+vmapped call; a controller with nothing to learn, e.g. ``physics``, once per seed) on each environment, each policy
 evaluated alone and with each of the trim's presets (``TrimConfig``) on the same test episodes
 (``agents.evaluate``'s ``--eval-seed``: the same starts and the same noise; the trim's dither has a key stream of
 its own). Per (environment, seed, trim): the mean final P / P_best of both, the episodes the trim loses by more
@@ -25,7 +27,11 @@ import numpy as np
 from agents.config import TrimConfig
 
 ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
-        "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab")}
+        "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab"),
+        # the reality section's 2x lab, the detector's frames alone
+        "hard + 2x lab, frames only": dict(stages=5, mode="hard", model="phasor", imperfections="lab",
+                                          imperfection_scale=2.0, observe_lengths=False)}
+DEFAULT_ENVS = ("hard", "hard + lab")
 
 
 def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
@@ -53,14 +59,15 @@ def shifted(result, offset: float):
 
 
 def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int,
-            trims=("default",), offsets=()) -> list[dict]:
-    """Train on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset, then per seed and offset."""
+            trims=("default",), offsets=(), algo: str = "droq", config: str = "budget") -> list[dict]:
+    """Train ``algo`` (its ``config`` preset) on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset,
+    then per seed and offset."""
     import agents
     from agents import trim
 
     env = ENVS[env_name]
     t0 = time.perf_counter()
-    results = agents.train_seeds("droq", env, seeds=seeds, total_steps=steps, config="budget")
+    results = agents.train_seeds(algo, env, seeds=seeds, total_steps=steps, config=config)
     train_s = time.perf_counter() - t0
     rows = []
     for seed, result in zip(seeds, results):
@@ -68,7 +75,7 @@ def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, 
         alone = final(result)
         variants = [(name, trim.trimmed(result, {"config": name})) for name in trims]
         variants += [(f"none, action {offset:+g}", shifted(result, offset)) for offset in offsets]
-        rows += [{"env": env_name, "seed": int(seed), "trim": name, **paired(alone, final(policy), margin),
+        rows += [{"env": env_name, "algo": algo, "seed": int(seed), "trim": name, **paired(alone, final(policy), margin),
                   "train_s": train_s / len(seeds)} for name, policy in variants]
     return rows
 
@@ -84,7 +91,9 @@ def table(rows: list, margin: float) -> str:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.trim_loss", description=__doc__.split("\n")[0])
-    ap.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
+    ap.add_argument("--algo", default="droq", help="the policy's algorithm (agents.train's name)")
+    ap.add_argument("--config", default="budget", help="its preset")
+    ap.add_argument("--envs", nargs="+", default=list(DEFAULT_ENVS), choices=list(ENVS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
     ap.add_argument("--episodes", type=int, default=128)
     ap.add_argument("--eval-seed", type=int, default=4242)
@@ -100,10 +109,17 @@ def main(argv=None) -> dict:
         ap.error("--episodes and --steps must be >= 1 and --margin >= 0")
     if not all(abs(a) < 1 for a in args.offsets):
         ap.error(f"--offsets must be numbers in (-1, 1) (action units), got {args.offsets}")
+    from agents.registry import REGISTRY, get
+
+    if args.algo not in REGISTRY:
+        ap.error(f"--algo must be one of {sorted(REGISTRY)}, got {args.algo!r}")
+    if args.config not in get(args.algo).config.PRESETS:
+        ap.error(f"--config must be one of {args.algo}'s presets {sorted(get(args.algo).config.PRESETS)}, "
+                 f"got {args.config!r}")
     rows = []
     for env_name in args.envs:
         new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims,
-                      args.offsets)
+                      args.offsets, args.algo, args.config)
         print("\n".join(table(new, args.margin).splitlines()[2:]), flush=True)
         rows += new
     result = {"command": "python -m benchmarks.trim_loss", "args": {k: str(v) for k, v in vars(args).items()},

@@ -146,6 +146,17 @@ def test_trim_loss_offset_shifts_every_action_of_the_policy_alone():
     assert not np.allclose(a.normalized_power, c.normalized_power)
 
 
+@pytest.mark.parametrize("argv, needle", [(["--algo", "foo"], "--algo must be one of"),
+                                           (["--algo", "physics"], "--config must be one of physics's presets"),
+                                           (["--offsets", "1.5"], "--offsets must be numbers in (-1, 1)")])
+def test_trim_loss_refuses_bad_arguments_naming_them(argv, needle, capsys):
+    from benchmarks import trim_loss
+
+    with pytest.raises(SystemExit):
+        trim_loss.main(argv)
+    assert needle in capsys.readouterr().err
+
+
 def test_guarded_preset_gates_and_releases():
     """The ``guarded`` preset is the default one with the gate at half of P_max and a decaying offset below it."""
     default, guarded = trim.gains(None), trim.gains({"config": "guarded"})
