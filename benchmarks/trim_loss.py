@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from agents.config import TrimConfig
+from benchmarks.reality import LEVELS, level_env
 
 ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
         "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab"),
         # the reality section's 2x lab, the detector's frames alone
-        "hard + 2x lab, frames only": dict(stages=5, mode="hard", model="phasor", imperfections="lab",
-                                          imperfection_scale=2.0, observe_lengths=False)}
+        "hard + 2x lab, frames only": dict(level_env(dict(LEVELS)["2x lab"]), observe_lengths=False)}
 DEFAULT_ENVS = ("hard", "hard + lab")
 
 
