@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import base, bench_learn
-from agents.bench_devices import (MappingError, SafetyStop, check_mapping, connect, disconnect, load_mapping,
+from agents.bench_devices import (MappingError, SafetyStop, arm, check_mapping, connect, disconnect, load_mapping,
                                   make_bench, sim_mapping)
 from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
                                log, observes_lengths, reads_lengths)
@@ -210,7 +210,7 @@ def main(argv=None) -> int:
         bench_learn.mend_documents(out / "documents.jsonl")
     else:
         (out / "documents.jsonl").unlink(missing_ok=True)
-    bench.detector.arm()
+    arm(bench)
     learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
     steps = args.steps - learning.counts.env_steps if learning else args.steps
     loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)

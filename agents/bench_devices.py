@@ -151,6 +151,37 @@ def monitored(sig):
     return sig._readback
 
 
+class RawMonitor:
+    """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each value lands on
+    the signal as that monitor would leave it (``monitored``, ``.timestamp``), then ``hook(value=, timestamp=)``
+    runs, in caproto's callback thread. ophyd's dispatcher thread and its per-value metadata handling, most of
+    a Python client's time per frame, are skipped; alarm fields are not followed. Create after ``connect``."""
+
+    def __init__(self, sig):
+        read_pv = sig._read_pv
+        read_pv.clear_auto_monitor()  # ophyd's own monitor stops
+        sig._auto_monitor = False  # and does not start again on a reconnection
+        self.sig, self.hook = sig, None
+        pv = read_pv._caproto_pv
+        self._scalar = pv.channel.native_data_count == 1
+        self._sub = pv.subscribe(data_type="time")
+        self._sub.add_callback(self._on_value)  # held weakly by caproto: this object keeps it
+
+    @staticmethod
+    def serves(sig) -> bool:
+        """Whether caproto serves ``sig``'s monitor (not another control layer, not a fake signal)."""
+        read_pv = getattr(sig, "_read_pv", None)
+        return getattr(sig, "_auto_monitor", False) is True and hasattr(read_pv, "clear_auto_monitor") \
+            and getattr(read_pv, "_caproto_pv", None) is not None
+
+    def _on_value(self, sub, response):
+        value = response.data[0] if self._scalar else response.data
+        stamp = response.metadata.timestamp
+        self.sig._readback, self.sig._metadata["timestamp"] = value, stamp
+        if self.hook is not None:
+            self.hook(value=value, timestamp=stamp)
+
+
 class DelayLine(Device):
     """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
     step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a
@@ -194,11 +225,15 @@ class Detector(Device):
         self.tick_time = 0.0  # time.perf_counter() when the newest frame arrived
         super().__init__(prefix, **kwargs)
 
-    def arm(self):
-        """Start following the counter (after connection); the frame there now counts as new."""
+    def arm(self, raw: RawMonitor | None = None):
+        """Start following the counter (after connection; through ``raw`` when given); the frame there now
+        counts as new."""
         self._latest, self._used, self._stamp = self.tick.get(), None, self.tick.timestamp
         self.tick_time = time.perf_counter()
-        self.tick.subscribe(self._on_tick, run=False)
+        if raw is not None:
+            raw.hook = self._on_tick
+        else:
+            self.tick.subscribe(self._on_tick, run=False)
 
     def _usable(self) -> bool:
         return self._latest != self._used and self._stamp >= self._not_before
@@ -397,6 +432,13 @@ def signals(bench) -> dict:
             if getattr(sig, "setpoint_pvname", sig.pvname) != sig.pvname:
                 out[sig.setpoint_pvname] = sig
     return out
+
+
+def arm(bench) -> None:
+    """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto serves them
+    (ophyd's monitors elsewhere), the detector's frame counter from now on (``Detector.arm``)."""
+    bench.raw_monitors = {w.item.name: RawMonitor(w.item) for w in bench.walk_signals() if RawMonitor.serves(w.item)}
+    bench.detector.arm(bench.raw_monitors.get(bench.detector.tick.name))
 
 
 def connect(bench, timeout: float) -> None:

@@ -352,12 +352,13 @@ def test_light_imports_stay_light():
 
 @pytest.fixture(scope="module")
 def iocs(tmp_path_factory):
-    """Four simulated benches started together: lockstep (lab), free-running, one to kill, one to reset."""
+    """Simulated benches started together: lockstep (lab), free-running, one to kill, one to reset, one to read."""
     tmp = tmp_path_factory.mktemp("iocs")
     common = ["--stages", "3", "--mode", "hard", "--model", "phasor"]
     args = {"lockstep": ["--prefix", "LS:", "--imperfections", "lab", "--lockstep"],
             "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"],
-            "reset": ["--prefix", "RS:", "--imperfections", "lab", "--lockstep"]}
+            "reset": ["--prefix", "RS:", "--imperfections", "lab", "--lockstep"],
+            "raw": ["--prefix", "RW:", "--lockstep"]}
     started = {k: Process("ops_jax.ioc", common + a, ca_env(), tmp / f"{k}.log") for k, a in args.items()}
     try:
         yield {k: p.wait_for("serving", START_S) for k, p in started.items()}
@@ -531,18 +532,59 @@ def test_ioc_reset_pv_starts_the_bench_again(iocs, tmp_path):
     assert np.allclose(later["len"], reset["len"], atol=0.1), got  # held there (setpoints 0), drift aside
 
 
+RAW = """
+import json, sys, time
+import numpy as np
+from caproto.sync.client import read
+from agents.bench_devices import arm, check_mapping, connect, disconnect, make_bench, monitored, sim_mapping
+
+p = sys.argv[1]
+device, _ = make_bench(check_mapping({**sim_mapping(p, 3, lockstep=True), "safety": {"stale_s": 10.0}}))
+connect(device, 30)
+arm(device)
+raw = device.raw_monitors
+got = {"followed": sorted(raw), "ophyd_monitors": [k for k, m in raw.items() if m.sig._read_pv._auto_monitor_sub],
+       "frames": [], "same": []}
+for _ in range(3):
+    device.advance.set(1).wait(10)
+    got["frames"].append(device.detector.wait(10))
+    time.sleep(0.3)  # lockstep: nothing changes until the next advance
+    for name, m in raw.items():
+        r = read(m.sig.pvname, data_type="time", timeout=10, repeater=False)
+        got["same"].append([name, bool(np.array_equal(np.atleast_1d(monitored(m.sig)), r.data)),
+                            m.sig.timestamp == r.metadata.timestamp])
+disconnect(device)
+print(json.dumps(got), flush=True)
+"""
+
+
+def test_raw_monitors_leave_each_value_and_time_stamp_as_the_ioc_serves_them(iocs):
+    """Every monitored PV of the bench is followed by caproto directly (ophyd's own monitors off); after each
+    lockstep tick the detector sees a new frame and each signal holds the value and time stamp a fresh Channel
+    Access read returns."""
+    out = subprocess.run([sys.executable, "-c", RAW, "RW:"], env=iocs["raw"].env, cwd=ROOT, capture_output=True,
+                         text=True, timeout=START_S)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    assert got["followed"] == sorted(["bench_detector_power", "bench_detector_trace", "bench_detector_tick",
+                                      "bench_evaluation_p_pmax", "bench_evaluation_p_pbest",
+                                      *(f"bench_length{i}_value" for i in (1, 2, 3))]), got
+    assert got["ophyd_monitors"] == [] and got["frames"] == [True] * 3, got
+    assert len(got["same"]) == 3 * 8 and all(v and t for _, v, t in got["same"]), got
+
+
 INTERRUPTS = """
 import json, os, random, signal, sys, threading, time
 from pathlib import Path
 from agents import bench
-from agents.bench_devices import check_mapping, connect, disconnect, make_bench, sim_mapping
+from agents.bench_devices import arm, check_mapping, connect, disconnect, make_bench, sim_mapping
 
 prefix, out, runs = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
 mapping = check_mapping({**sim_mapping(prefix, 3, lengths=False), "safety": {"stale_s": 5.0}})
 agent, _, scale, window = bench.load_controller("spgd", mapping, {}, {}, seed=0)
 device, lines = make_bench(mapping)
 connect(device, 30)
-device.detector.arm()
+arm(device)
 rng = random.Random(0)
 for k in range(runs):
     loop = bench.Loop(device, lines, mapping, agent, scale, window, seconds=60, rate=100)
