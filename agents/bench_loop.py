@@ -15,7 +15,7 @@ from agents.bench_devices import Control, MappingError, SafetyStop, monitored, s
 from agents.bench_flyer import LoopFlyer, fly
 
 MAX_PROBES = 16  # probes per control step a controller may ask for
-FLUSH_S = 0.2  # the plan collects the loop's events this often (s)
+FLUSH_S = 0.2  # a page of the loop's events is due this often (s), collected after the step that ends it
 log = logging.getLogger("agents.bench")
 
 
@@ -299,13 +299,13 @@ class Loop:
         if (wait := self.deadline - now) > 0:
             time.sleep(wait)
 
-    def flyer(self) -> LoopFlyer:
-        """The loop as a Bluesky flyer: one event per step in the stream ``primary``."""
+    def flyer(self, page_s: float = FLUSH_S) -> LoopFlyer:
+        """The loop as a Bluesky flyer: one event per step in the stream ``primary``, a page due every ``page_s``."""
         control = Control(name="control")
         control.put(np.zeros(self.n), np.zeros(self.n), np.zeros(self.agent.probes), 0.0)
         keys = {**self.bench.describe(), **control.describe()}
         self.reads = [(k, sig) for k in self.bench.read() for sig in [self._signal(k)]]
-        return LoopFlyer("control_loop", keys, self.start, self.step, self.done)
+        return LoopFlyer("control_loop", keys, self.start, self.step, self.done, page_s=page_s)
 
     def _signal(self, name: str):
         return next(w.item for w in self.bench.walk_signals() if w.item.name == name)
@@ -328,16 +328,16 @@ class Loop:
 def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
     """The Bluesky plan: the control loop as a flyer (``agents.bench_flyer``) in its own thread, its events
     (one per control step: the bench's readings, the action, the setpoints sent, the probe readings and the
-    step's latency) collected in pages every ``flush_s`` s; ends by time, by the user or by the watchdog."""
+    step's latency) collected in pages, one due every ``flush_s`` s; ends by time, by the user or by the watchdog."""
     import bluesky.preprocessors as bpp
     from bluesky.utils import FailedStatus
 
-    flyer = loop.flyer()
+    flyer = loop.flyer(flush_s)
 
     @bpp.run_decorator(md=md)
     def run():
         try:
-            yield from fly(flyer, flush_s)
+            yield from fly(flyer)
         except FailedStatus:  # the loop ended on an exception (its events kept): fail the run
             if not isinstance(flyer.error, SafetyStop):  # a failure, not the watchdog: its traceback
                 log.error("the control loop failed", exc_info=flyer.error)

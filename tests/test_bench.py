@@ -152,21 +152,56 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
             time.sleep(0.01)
             return {"x": np.float64(len(threads)), "v": np.arange(2.0)}, {"x": time.time(), "v": time.time()}
 
-        flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(threads) >= 40)
+        flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(threads) >= 40, page_s=0.05)
         docs = []
         RE = RunEngine({}, context_managers=[])
         RE.subscribe(lambda name, doc: docs.append((name, doc)))
         if fail_at is None:
-            RE(bpp.run_wrapper(fly(flyer, 0.05)))
+            RE(bpp.run_wrapper(fly(flyer)))
         else:
             with pytest.raises(FailedStatus):
-                RE(bpp.run_wrapper(fly(flyer, 0.05)))
+                RE(bpp.run_wrapper(fly(flyer)))
         pages = [d for name, d in docs if name == "event_page"]
         x = [v for page in pages for v in page["data"]["x"]]
         assert set(threads) == {"loop-loop"} and len(pages) > (fail_at is None)  # several while it runs
         assert x == list(range(1, 41) if fail_at is None else range(1, fail_at))
         assert all(type(v) is float for v in x) and all(type(v) is list for page in pages for v in page["data"]["v"])
         assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
+
+
+def test_loop_flyer_pages_are_collected_between_steps():
+    """A page is due after the step that ends its period: the RunEngine collects it while the loop waits for
+    its next frame, not while a step works."""
+    import bluesky.preprocessors as bpp
+    from bluesky import RunEngine
+
+    from agents.bench_flyer import LoopFlyer, fly
+
+    keys = {"x": {"source": "loop", "dtype": "number", "shape": []}}
+    working, steps, during = threading.Event(), [], []
+
+    def step():
+        time.sleep(0.02)  # waiting for a frame
+        working.set()
+        time.sleep(0.01)  # the step's work
+        working.clear()
+        steps.append(1)
+        return {"x": float(len(steps))}, {"x": time.time()}
+
+    flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(steps) >= 30, page_s=0.05)
+    collect = flyer.collect_pages
+
+    def watched():
+        during.append(working.is_set())
+        yield from collect()
+
+    flyer.collect_pages = watched
+    RE = RunEngine({}, context_managers=[])
+    pages = []
+    RE.subscribe(lambda name, doc: pages.append(doc) if name == "event_page" else None)
+    RE(bpp.run_wrapper(fly(flyer)))
+    assert [x for page in pages for x in page["data"]["x"]] == list(range(1, 31))
+    assert len(during) >= 10 and sum(during) <= 1, during  # a third of the time is work: a timer would hit it
 
 
 def test_lines_wrap_by_one_period_near_a_soft_limit_and_never_back_and_forth():
