@@ -155,31 +155,41 @@ class RawMonitor:
     """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each value lands on
     the signal as that monitor would leave it (``monitored``, ``.timestamp``), then ``hook(value=, timestamp=)``
     runs, in caproto's callback thread. ophyd's dispatcher thread and its per-value metadata handling, most of
-    a Python client's time per frame, are skipped; alarm fields are not followed. Create after ``connect``."""
+    a Python client's time per frame, are skipped; alarm fields are not followed. Numeric PVs only; create after
+    ``connect``, once per signal."""
 
     def __init__(self, sig):
         read_pv = sig._read_pv
         read_pv.clear_auto_monitor()  # ophyd's own monitor stops
         sig._auto_monitor = False  # and does not start again on a reconnection
         self.sig, self.hook = sig, None
-        pv = read_pv._caproto_pv
-        self._scalar = pv.channel.native_data_count == 1
-        self._sub = pv.subscribe(data_type="time")
+        self._sub = read_pv._caproto_pv.subscribe(data_type="time")
         self._sub.add_callback(self._on_value)  # held weakly by caproto: this object keeps it
 
     @staticmethod
     def serves(sig) -> bool:
-        """Whether caproto serves ``sig``'s monitor (not another control layer, not a fake signal)."""
+        """Whether caproto serves ``sig``'s monitor and its PV is numeric (not another control layer, not a fake
+        signal, not a string)."""
         read_pv = getattr(sig, "_read_pv", None)
-        return getattr(sig, "_auto_monitor", False) is True and hasattr(read_pv, "clear_auto_monitor") \
-            and getattr(read_pv, "_caproto_pv", None) is not None
+        pv = getattr(read_pv, "_caproto_pv", None)
+        channel = getattr(pv, "channel", None)
+        if getattr(sig, "_auto_monitor", False) is not True or not hasattr(read_pv, "clear_auto_monitor") \
+                or channel is None:
+            return False
+        from caproto import ChannelType
+
+        return channel.native_data_type in (ChannelType.INT, ChannelType.FLOAT, ChannelType.LONG, ChannelType.DOUBLE)
 
     def _on_value(self, sub, response):
-        value = response.data[0] if self._scalar else response.data
-        stamp = response.metadata.timestamp
-        self.sig._readback, self.sig._metadata["timestamp"] = value, stamp
-        if self.hook is not None:
-            self.hook(value=value, timestamp=stamp)
+        try:
+            data = response.data
+            value = data[0] if len(data) == 1 else data
+            stamp = response.metadata.timestamp
+            self.sig._readback, self.sig._metadata["timestamp"] = value, stamp
+            if self.hook is not None:
+                self.hook(value=value, timestamp=stamp)
+        except Exception:  # caproto's executor would drop it unseen
+            log.exception("monitor of PV %s failed", self.sig.pvname)
 
 
 class DelayLine(Device):
@@ -437,7 +447,9 @@ def signals(bench) -> dict:
 def arm(bench) -> None:
     """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto serves them
     (ophyd's monitors elsewhere), the detector's frame counter from now on (``Detector.arm``)."""
-    bench.raw_monitors = {w.item.name: RawMonitor(w.item) for w in bench.walk_signals() if RawMonitor.serves(w.item)}
+    if not hasattr(bench, "raw_monitors"):  # once: a second call keeps the first's monitors
+        bench.raw_monitors = {w.item.name: RawMonitor(w.item) for w in bench.walk_signals()
+                              if RawMonitor.serves(w.item)}
     bench.detector.arm(bench.raw_monitors.get(bench.detector.tick.name))
 
 

@@ -8,7 +8,7 @@ import asyncio
 import collections
 import threading
 import time
-from concurrent.futures import Future
+from concurrent.futures import Future, InvalidStateError
 
 from ophyd.status import Status
 
@@ -48,7 +48,7 @@ class LoopFlyer:
                 if (now := time.monotonic()) >= due:
                     due = now + self.page_s
                     self._page_due(last=False)
-        except Exception as exc:  # handed to the plan through the completion status
+        except BaseException as exc:  # handed to the plan through the completion status
             self.error = exc
             self._complete.set_exception(exc)
         else:
@@ -60,8 +60,10 @@ class LoopFlyer:
         page = self._page
         if not last:
             self._page = Future()
-        if not page.done():
+        try:
             page.set_result(None)
+        except InvalidStateError:  # done already, or cancelled by the RunEngine (a halt)
+            pass
 
     def next_page(self):
         """An awaitable (in the RunEngine's event loop) done when a page is due: collected then, the page's work
@@ -97,8 +99,10 @@ def fly(flyer):
     group = short_uid("complete")
     complete = yield from bps.complete(flyer, group=group, wait=False)
     try:
-        while not complete.done:
+        done = False
+        while not done:
             yield from bps.wait_for([flyer.next_page])
+            done = complete.done  # read before collecting: a loop that ends meanwhile leaves its last steps for once more
             yield from bps.collect(flyer, return_payload=False)
         yield from bps.wait(group=group)
     except FailedStatus:
