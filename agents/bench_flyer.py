@@ -19,7 +19,7 @@ class LoopFlyer:
     the RunEngine: it sees the events only when it collects them. A page is due after the step that ends
     ``page_s`` s since the last one, and when the loop ends."""
 
-    def __init__(self, name: str, data_keys: dict, start, step, done, stream: str = "primary", page_s: float = 0.2):
+    def __init__(self, name: str, data_keys: dict, start, step, done, *, page_s: float, stream: str = "primary"):
         self.name, self.parent, self.stream = name, None, stream
         self._data_keys, self._start, self._step, self._done = data_keys, start, step, done
         self.page_s = page_s
