@@ -131,14 +131,24 @@ def test_detector_wait_blocks_for_a_new_frame_and_fails_after_the_watchdog():
         det.wait(1)
 
 
+def run_flyer(flyer, callback):
+    """Run ``flyer`` under ``fly`` in a fresh RunEngine, every document to ``callback(name, doc)``."""
+    import bluesky.preprocessors as bpp
+    from bluesky import RunEngine
+
+    from agents.bench_flyer import fly
+
+    RE = RunEngine({}, context_managers=[])
+    RE.subscribe(callback)
+    RE(bpp.run_wrapper(fly(flyer)))
+
+
 def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
     """A RunEngine kicks the flyer off and collects while it runs: every step an event, in pages of plain
     values; a step that raises fails the run, every step before it kept."""
-    import bluesky.preprocessors as bpp
-    from bluesky import RunEngine
     from bluesky.utils import FailedStatus
 
-    from agents.bench_flyer import LoopFlyer, fly
+    from agents.bench_flyer import LoopFlyer
 
     keys = {"x": {"source": "loop", "dtype": "number", "shape": []},
             "v": {"source": "loop", "dtype": "array", "shape": [2]}}
@@ -154,13 +164,11 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
 
         flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(threads) >= 40, page_s=0.05)
         docs = []
-        RE = RunEngine({}, context_managers=[])
-        RE.subscribe(lambda name, doc: docs.append((name, doc)))
         if fail_at is None:
-            RE(bpp.run_wrapper(fly(flyer)))
+            run_flyer(flyer, lambda name, doc: docs.append((name, doc)))
         else:
             with pytest.raises(FailedStatus):
-                RE(bpp.run_wrapper(fly(flyer)))
+                run_flyer(flyer, lambda name, doc: docs.append((name, doc)))
         pages = [d for name, d in docs if name == "event_page"]
         x = [v for page in pages for v in page["data"]["x"]]
         assert set(threads) == {"loop-loop"} and len(pages) > (fail_at is None)  # several while it runs
@@ -172,10 +180,7 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
 def test_loop_flyer_pages_are_collected_between_steps():
     """A page is due after the step that ends its period: the RunEngine collects it while the loop waits for
     its next frame, not while a step works."""
-    import bluesky.preprocessors as bpp
-    from bluesky import RunEngine
-
-    from agents.bench_flyer import LoopFlyer, fly
+    from agents.bench_flyer import LoopFlyer
 
     keys = {"x": {"source": "loop", "dtype": "number", "shape": []}}
     working, steps, during = threading.Event(), [], []
@@ -196,10 +201,8 @@ def test_loop_flyer_pages_are_collected_between_steps():
         yield from collect()
 
     flyer.collect_pages = watched
-    RE = RunEngine({}, context_managers=[])
     pages = []
-    RE.subscribe(lambda name, doc: pages.append(doc) if name == "event_page" else None)
-    RE(bpp.run_wrapper(fly(flyer)))
+    run_flyer(flyer, lambda name, doc: pages.append(doc) if name == "event_page" else None)
     assert [x for page in pages for x in page["data"]["x"]] == list(range(1, 31))
     assert len(during) >= 20 and sum(during) <= 2, during  # a fifth of the time is work: a timer would hit it
 
@@ -207,10 +210,7 @@ def test_loop_flyer_pages_are_collected_between_steps():
 def test_loop_flyer_keeps_the_steps_that_end_during_a_collection():
     """A loop that ends while the RunEngine still handles a page (a slow document callback): its last steps are
     collected too."""
-    import bluesky.preprocessors as bpp
-    from bluesky import RunEngine
-
-    from agents.bench_flyer import LoopFlyer, fly
+    from agents.bench_flyer import LoopFlyer
 
     keys = {"x": {"source": "loop", "dtype": "number", "shape": []}}
     steps = []
@@ -221,7 +221,6 @@ def test_loop_flyer_keeps_the_steps_that_end_during_a_collection():
         return {"x": float(len(steps))}, {"x": time.time()}
 
     flyer = LoopFlyer("loop", keys, lambda: None, step, lambda: len(steps) >= 6, page_s=0.025)
-    RE = RunEngine({}, context_managers=[])
     pages = []
 
     def slow(name, doc):
@@ -229,8 +228,7 @@ def test_loop_flyer_keeps_the_steps_that_end_during_a_collection():
             pages.append(doc)
             time.sleep(0.05)
 
-    RE.subscribe(slow)
-    RE(bpp.run_wrapper(fly(flyer)))
+    run_flyer(flyer, slow)
     assert [x for page in pages for x in page["data"]["x"]] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
 
 
