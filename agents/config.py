@@ -403,6 +403,9 @@ class TD3Config(ReplayConfig):
     observer: str = field(OBSERVER, default="none")
     # with observer="fit-residual": the fit's move plus this times the learner's action is sent
     residual_scale: float = field(UNIT, default=1.0)
+    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
+    fit_starts: int | None = field(_optional(COUNT), default=None)
+    fit_iters: int | None = field(_optional(COUNT), default=None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -447,3 +450,6 @@ class DroQConfig(ReplayConfig):
     observer: str = field(OBSERVER, default="none")
     # with observer="fit-residual": the fit's move plus this times the learner's action is sent
     residual_scale: float = field(UNIT, default=1.0)
+    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
+    fit_starts: int | None = field(_optional(COUNT), default=None)
+    fit_iters: int | None = field(_optional(COUNT), default=None)

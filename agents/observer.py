@@ -36,11 +36,14 @@ class Observer(NamedTuple):
     moved: Callable
 
 
-def fit_observer(env_config: dict, residual: bool = False, residual_scale: float = 1.0) -> Observer:
+def fit_observer(env_config: dict, residual: bool = False, residual_scale: float = 1.0, starts: int | None = None,
+                 iters: int | None = None) -> Observer:
     """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with ``residual``,
     ``residual_scale`` times the learner's action is a correction added to the fitted model's own move (the
-    physics-informed controller's, clipped to [-1, 1] after the sum)."""
-    estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames"))
+    physics-informed controller's, clipped to [-1, 1] after the sum). ``starts``, ``iters``: the fit's random starts
+    and Levenberg-Marquardt iterations per start (None: the "frames" preset's)."""
+    sizes = {k: v for k, v in (("starts", starts), ("iters", iters)) if v is not None}
+    estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames", **sizes))
     default = physics_informed.policy_params(env_config)
     env = built(env_config)[0]
     fit = physics_informed.fitted_stages(env.config)
@@ -65,10 +68,11 @@ def fit_observer(env_config: dict, residual: bool = False, residual_scale: float
 
 def of_learner(env_config: dict, h: dict) -> Observer | None:
     """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual"; None for
-    "none"; ``h["residual_scale"]``) on its training environment ``env_config``."""
+    "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``) on its training environment ``env_config``."""
     kind = h.get("observer", "none")
     return None if kind == "none" else fit_observer(env_config, residual=kind == "fit-residual",
-                                                    residual_scale=h.get("residual_scale", 1.0))
+                                                    residual_scale=h.get("residual_scale", 1.0),
+                                                    starts=h.get("fit_starts"), iters=h.get("fit_iters"))
 
 
 def policy(observer: Observer, act: Callable):

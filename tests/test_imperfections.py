@@ -372,3 +372,33 @@ def test_imperfection_levels_share_one_compiled_step():
         _, state = env.reset(jax.random.key(0), p)
         step(jax.random.key(1), state, p)
     assert len(traces) == 1
+
+
+def test_imperfection_groups_cover_every_scaled_error_and_remove_only_their_own():
+    """``benchmarks.imperfection_groups``: every error magnitude of the lab preset belongs to a group, and a bench
+    without a group has that group's fields at their ideal values and every other field as before."""
+    from benchmarks.imperfection_groups import GROUPS, bench, without
+
+    grouped = {k for fields in GROUPS.values() for k in fields}
+    lab = imperfections.preset("lab", 5)
+    assert {k for k in lab if k in imperfections.SCALED} <= grouped
+    env = bench(1011, 2.0, unseen=True, lengths=False)
+    for group, fields in GROUPS.items():
+        changed = without(env, group)
+        built = ops_jax.make(**changed)[1].lab
+        for k in fields:
+            assert np.all(np.asarray(getattr(built, k)) == np.asarray(getattr(imperfections.Imperfections(), k))), k
+        kept = ops_jax.make(**env)[1].lab
+        for k in imperfections.SCALED:
+            if k not in fields:
+                np.testing.assert_array_equal(np.asarray(getattr(built, k)), np.asarray(getattr(kept, k)), err_msg=k)
+
+
+@pytest.mark.parametrize("argv, needle", [(["--scale", "0"], "--scale"), (["--episodes", "0"], "--episodes"),
+                                          (["--set", "starts"], "key=value"), (["--policy", "/nonexistent"], "--policy")])
+def test_imperfection_groups_refuses_bad_arguments_naming_them(argv, needle, capsys):
+    from benchmarks import imperfection_groups
+
+    with pytest.raises(SystemExit):
+        imperfection_groups.main(argv)
+    assert needle in capsys.readouterr().err

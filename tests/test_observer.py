@@ -97,6 +97,27 @@ def test_observer_field_is_checked_and_stored_only_when_set():
     assert TD3Config.make(observer="fit-residual", residual_scale=0.25).to_hyper()["residual_scale"] == 0.25
     with pytest.raises(ValueError, match="residual_scale must be"):
         DroQConfig.make(residual_scale=0.0)
+    assert "fit_starts" not in DroQConfig.make(observer="fit").to_hyper()
+    assert TD3Config.make(observer="fit", fit_starts=4, fit_iters=3).to_hyper()["fit_iters"] == 3
+    with pytest.raises(ValueError, match="fit_starts must be"):
+        DroQConfig.make(fit_starts=0)
+
+
+def test_the_fits_size_reaches_the_observer():
+    """``fit_starts`` / ``fit_iters``: one Levenberg-Marquardt iteration from one random start reads a fresh frame's
+    offsets (up to their sign: one frame does not tell it) worse than the frames preset's 16 starts x 8 iterations."""
+    env, params = built(FRAMES)
+    obs, state = env.reset_batch(jax.random.split(jax.random.key(7), 32), params)
+    truth = np.asarray(state.deltas)[:, :4]
+
+    def error(h):
+        ob = observer.of_learner(FRAMES, dict(observer="fit", **h))
+        seen, _ = ob.observe(None, ob.init(None, obs), obs, jax.random.key(8))
+        z = np.asarray(seen[:, env.observation_size:])
+        return np.minimum(np.abs(np.asarray(wrap(z - truth))), np.abs(np.asarray(wrap(z + truth))))
+
+    small, preset = error({"fit_starts": 1, "fit_iters": 1}), error({})
+    assert np.median(small) > 2 * np.median(preset) + 1e-3, (np.median(small), np.median(preset))
 
 
 def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
