@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -71,14 +72,17 @@ def score(args, env_config: dict) -> float:
 
 def measure(args) -> list[dict]:
     """One row per bench: the score as it is and without each group."""
-    rows = []
-    for seed in args.benches:
+    rows, t_start = [], time.perf_counter()
+    for i, seed in enumerate(args.benches, 1):
         t0 = time.perf_counter()
         env = bench(seed, args.scale, args.unseen, args.lengths)
         row = {"bench": seed, "all": score(args, env), **{group: score(args, without(env, group)) for group in args.groups}}
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
         print(table(rows[-1:], args.groups).splitlines()[-1], flush=True)
+        elapsed = time.perf_counter() - t_start
+        print(f"bench {i}/{len(args.benches)} in {row['seconds']:.0f} s; about "
+              f"{elapsed / i * (len(args.benches) - i):.0f} s left", file=sys.stderr, flush=True)
     return rows
 
 
@@ -92,6 +96,7 @@ def table(rows: list, groups) -> str:
 
 def main(argv=None) -> dict:
     from agents.cli import parse_set
+    from agents.registry import get
 
     ap = argparse.ArgumentParser(prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", default="physics", choices=["physics", "spgd"], help="a controller with nothing to learn")
@@ -114,7 +119,9 @@ def main(argv=None) -> dict:
         ap.error(f"--policy must be a folder written by agents.save, got {args.policy}")
     try:
         args.sets = parse_set(args.set)
-    except ValueError as exc:
+        if args.policy is None:
+            get(args.algo).config.make(**args.sets)
+    except (TypeError, ValueError) as exc:
         ap.error(str(exc))
     rows = measure(args)
     result = {"command": "python -m benchmarks.imperfection_groups",

@@ -395,7 +395,8 @@ def test_imperfection_groups_cover_every_scaled_error_and_remove_only_their_own(
 
 
 @pytest.mark.parametrize("argv, needle", [(["--scale", "0"], "--scale"), (["--episodes", "0"], "--episodes"),
-                                          (["--set", "starts"], "key=value"), (["--policy", "/nonexistent"], "--policy")])
+                                          (["--set", "starts"], "key=value"), (["--policy", "/nonexistent"], "--policy"),
+                                          (["--set", "nonsense=1"], "nonsense")])
 def test_imperfection_groups_refuses_bad_arguments_naming_them(argv, needle, capsys):
     from benchmarks import imperfection_groups
 
