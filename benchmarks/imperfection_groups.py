@@ -36,17 +36,16 @@ GROUPS = {
     "optics": ("waveplate_error_deg", "pbs_leakage"),
     "length readout": ("readout_offset", "readout_gain_error"),
 }
-BASE = dict(stages=5, mode="hard", model="phasor")
 
 
 def bench(seed: int, scale: float, unseen: bool, lengths: bool) -> dict:
-    """The ``ops_jax.make`` options of bench ``seed``."""
+    """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0)."""
     from benchmarks.budget import unseen_bench
+    from benchmarks.reality import BASE_ENV, level_env
 
-    base = dict(BASE, observe_lengths=lengths)
     if unseen:
-        return unseen_bench(base, seed, scale)
-    return dict(base, imperfections="lab", imperfection_scale=scale)
+        return unseen_bench(dict(BASE_ENV, observe_lengths=lengths), seed, scale)
+    return dict(level_env(scale), observe_lengths=lengths)
 
 
 def without(env_config: dict, group: str) -> dict:
