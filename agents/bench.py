@@ -183,6 +183,11 @@ def _setup(args):
     mapping = check_mapping(mapping)
     if args.learn:
         return (mapping, *bench_learn.setup(args, mapping, checkpoint, parse_set(args.env), parse_set(args.set)))
+    # A controller's calls are small and each waits for its result: run them inline, without the hand-off to
+    # XLA's dispatch thread (set before JAX's first computation in the process; a learning run keeps it)
+    import jax
+
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
     agent, env_config, scale, window = load_controller(args.controller, mapping, parse_set(args.env),
                                                        parse_set(args.set), args.seed,
                                                        None if args.trim is None else parse_set(args.trim))
@@ -210,7 +215,7 @@ def main(argv=None) -> int:
         bench_learn.mend_documents(out / "documents.jsonl")
     else:
         (out / "documents.jsonl").unlink(missing_ok=True)
-    arm(bench)
+    arm(bench, lines)
     learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
     steps = args.steps - learning.counts.env_steps if learning else args.steps
     loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)

@@ -192,6 +192,39 @@ class RawMonitor:
             log.exception("monitor of PV %s failed", self.sig.pvname)
 
 
+class RawWriter:
+    """Setpoints written through caproto's client directly, every line's in one message per circuit: ophyd's
+    ``put`` (value checks, connection wait, its own callbacks) and one send per PV are skipped. Floating-point
+    PVs served by caproto only (``serves``); nothing waits for the IOC's confirmation, as with ``put``. The
+    ophyd signals' setpoint caches are not updated (``Lines`` keeps the setpoints sent)."""
+
+    def __init__(self, sigs):
+        self.pvs = [sig._write_pv._caproto_pv for sig in sigs]
+        self.names = [sig.setpoint_pvname for sig in sigs]
+
+    @staticmethod
+    def serves(sig) -> bool:
+        """Whether ``sig``'s setpoint PV is a floating-point PV that caproto serves (connected)."""
+        channel = getattr(getattr(getattr(sig, "_write_pv", None), "_caproto_pv", None), "channel", None)
+        if channel is None:
+            return False
+        from caproto import ChannelType
+
+        return channel.native_data_type in (ChannelType.FLOAT, ChannelType.DOUBLE)
+
+    def write(self, values) -> None:
+        """Write ``values`` (one per PV, the PVs' units); a PV not connected stops the run (``SafetyStop``)."""
+        circuits: dict = {}
+        for pv, name, value in zip(self.pvs, self.names, values):
+            channel, manager = pv.channel, pv.circuit_manager
+            if channel is None or manager is None or not pv.connected:
+                raise SafetyStop(f"lost connection to PV {name}")
+            command = channel.write((float(value),), ioid=manager._ioid_counter(), notify=False)
+            circuits.setdefault(id(manager), (manager, []))[1].append(command)
+        for manager, commands in circuits.values():
+            manager.send(*commands, extra={"pv": self.names})
+
+
 class DelayLine(Device):
     """One delay line: a setpoint (written) and its readback. Neither is monitored nor read at every
     step (the setpoints sent are recorded by the runner): a bench's monitor traffic is what a
@@ -340,6 +373,7 @@ class Lines(Device):
         self.wrap_wl = wrap_wl
         self.locked: str | None = None
         self._sent = None
+        self.raw: RawWriter | None = None  # set by ``arm`` where caproto serves every setpoint
         super().__init__(prefix, **kwargs)
 
     @property
@@ -386,8 +420,11 @@ class Lines(Device):
             self.clipped.put(self.clipped.get() + int(clipped.sum()))
             log.warning("move clipped to the safety limits: lines %s, asked %s wl, sent %s wl",
                         (np.flatnonzero(clipped) + 1).tolist(), np.round(targets, 6).tolist(), np.round(out, 6).tolist())
-        for line, value in zip(self._lines, out):
-            line.setpoint.put(float(value) * self.units_per_wl)
+        if self.raw is not None:
+            self.raw.write(out * self.units_per_wl)
+        else:
+            for line, value in zip(self._lines, out):
+                line.setpoint.put(float(value) * self.units_per_wl)
         self._sent = out
         return out.copy()
 
@@ -444,13 +481,17 @@ def signals(bench) -> dict:
     return out
 
 
-def arm(bench) -> None:
+def arm(bench, lines: Lines | None = None) -> None:
     """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto serves them
-    (ophyd's monitors elsewhere), the detector's frame counter from now on (``Detector.arm``)."""
+    (ophyd's monitors elsewhere), the detector's frame counter from now on (``Detector.arm``); ``lines`` (its
+    ``Lines``) write through ``RawWriter`` where caproto serves every setpoint (ophyd's ``put`` elsewhere)."""
     if not hasattr(bench, "raw_monitors"):  # once: a second call keeps the first's monitors
         bench.raw_monitors = {w.item.name: RawMonitor(w.item) for w in bench.walk_signals()
                               if RawMonitor.serves(w.item)}
     bench.detector.arm(bench.raw_monitors.get(bench.detector.tick.name))
+    setpoints = [line.setpoint for line in lines._lines] if lines is not None else []
+    if setpoints and all(RawWriter.serves(sig) for sig in setpoints):
+        lines.raw = RawWriter(setpoints)
 
 
 def connect(bench, timeout: float) -> None:

@@ -154,15 +154,15 @@ def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict)
     peak = physics.peak_intensity(n)
 
     def full(z):
-        return jnp.concatenate([z, jnp.zeros((n - fit,), z.dtype)])
+        return jnp.concatenate([z, jnp.zeros((*z.shape[:-1], n - fit), z.dtype)], axis=-1)
 
-    def model(z, th):  # z (fit,), theta (n_theta,) -> y (ny,)
+    def model(z, th):  # z (..., fit), theta (n_theta,) -> y (..., ny)
         if not identify:
             m = physics.measure(full(z), stages=n, model="phasor", detector=cfg.detector)
-            return jnp.concatenate([(2 * m.power / p_max - 1)[None], 2 * m.samples / peak - 1])
+            return jnp.concatenate([(2 * m.power / p_max - 1)[..., None], 2 * m.samples / peak - 1], axis=-1)
         m = optics.measure(full(z), np.pi / 4 + th[layout["rotation"]], th[layout["leak_amplitude"]] ** 2,
                            optics.ideal_pulses(n), stages=n, model="phasor", detector=cfg.detector)
-        v = jnp.concatenate([(m.power / p_max)[None], m.samples / peak])
+        v = jnp.concatenate([(m.power / p_max)[..., None], m.samples / peak], axis=-1)
         return 2 * ((1 + th[layout["detector_gain"]]) * v + th[layout["detector_offset"]]) - 1
 
     def moved(dz, th):
@@ -173,7 +173,8 @@ def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict)
         """Misfit of the latest frame ``y`` and, through the last move, of the one before it.
         ``hist``: (y_prev, the commanded move dz_prev, the drift estimate v, the history weight w)."""
         y_prev, dz_prev, v, w = hist
-        return jnp.concatenate([model(z, th) - y, w * (model(z - (moved(dz_prev, th) + v), th) - y_prev)])
+        now, before = model(jnp.stack([z, z - (moved(dz_prev, th) + v)]), th)  # one pass of the model for both
+        return jnp.concatenate([now - y, w * (before - y_prev)])
 
     def lm(z, th, y, hist):
         def body(z, _):

@@ -602,14 +602,18 @@ from caproto.sync.client import read
 from agents.bench_devices import arm, check_mapping, connect, disconnect, make_bench, monitored, sim_mapping
 
 p = sys.argv[1]
-device, _ = make_bench(check_mapping({**sim_mapping(p, 3, lockstep=True), "safety": {"stale_s": 10.0}}))
+mapping = check_mapping({**sim_mapping(p, 3, lockstep=True), "safety": {"stale_s": 10.0}})
+device, lines = make_bench(mapping)
 connect(device, 30)
-arm(device)
+arm(device, lines)
 device.detector.use()  # the frame there now is not new
 raw = device.raw_monitors
 got = {"followed": sorted(raw), "ophyd_monitors": [k for k, m in raw.items() if m.sig._read_pv._auto_monitor_sub],
-       "frames": [], "same": []}
-for _ in range(3):
+       "raw_writer": lines.raw is not None, "frames": [], "same": [], "written": []}
+for k in range(3):
+    sent = lines.move(lines.position + 0.01 * (k + 1) * np.array([1.0, -2.0, 3.0]))
+    written = [read(line["setpoint"], timeout=10, repeater=False).data[0] for line in mapping["lines"]]
+    got["written"].append(bool(np.allclose(written, sent * mapping["units_per_wl"], rtol=0, atol=1e-9)))
     device.advance.set(1).wait(10)
     got["frames"].append(device.detector.wait(10))
     time.sleep(0.3)  # lockstep: nothing changes until the next advance
@@ -625,7 +629,7 @@ print(json.dumps(got), flush=True)
 def test_raw_monitors_leave_each_value_and_time_stamp_as_the_ioc_serves_them(iocs):
     """Every monitored PV of the bench is followed by caproto directly (ophyd's own monitors off); after each
     lockstep tick the detector sees a new frame and each signal holds the value and time stamp a fresh Channel
-    Access read returns."""
+    Access read returns. The setpoints go out through ``RawWriter``: each move's values are on the IOC's PVs."""
     out = subprocess.run([sys.executable, "-c", RAW, "RW:"], env=iocs["raw"].env, cwd=ROOT, capture_output=True,
                          text=True, timeout=START_S)
     assert out.returncode == 0, out.stderr
@@ -634,6 +638,7 @@ def test_raw_monitors_leave_each_value_and_time_stamp_as_the_ioc_serves_them(ioc
                                       "bench_evaluation_p_pmax", "bench_evaluation_p_pbest",
                                       *(f"bench_length{i}_value" for i in (1, 2, 3))]), got
     assert got["ophyd_monitors"] == [] and got["frames"] == [True] * 3, got
+    assert got["raw_writer"] and got["written"] == [True] * 3, got
     assert len(got["same"]) == 3 * 8 and all(v and t for _, v, t in got["same"]), got
 
 
@@ -648,7 +653,7 @@ mapping = check_mapping({**sim_mapping(prefix, 3, lengths=False), "safety": {"st
 agent, _, scale, window = bench.load_controller("spgd", mapping, {}, {}, seed=0)
 device, lines = make_bench(mapping)
 connect(device, 30)
-arm(device)
+arm(device, lines)
 rng = random.Random(0)
 for k in range(runs):
     loop = bench.Loop(device, lines, mapping, agent, scale, window, seconds=60, rate=100)
