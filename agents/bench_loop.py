@@ -339,9 +339,10 @@ def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
         try:
             yield from fly(flyer)
         except FailedStatus:  # the loop ended on an exception (its events kept): fail the run
-            if not isinstance(flyer.error, SafetyStop):  # a failure, not the watchdog: its traceback
+            stop = isinstance(flyer.error, SafetyStop)  # the watchdog, or a setpoint write that found its PV gone
+            if not stop:  # a failure: its traceback
                 log.error("the control loop failed", exc_info=flyer.error)
-            loop.trip(loop.stop_reason or f"error: {flyer.error!r}")
+            loop.trip(loop.stop_reason or (str(flyer.error) if stop else f"error: {flyer.error!r}"))
             raise SafetyStop(loop.stop_reason) from None
 
     return run()
