@@ -47,6 +47,7 @@ import numpy as np
 from agents import base, bench_learn
 from agents.bench_devices import (MappingError, SafetyStop, arm, check_mapping, connect, disconnect, load_mapping,
                                   make_bench, sim_mapping)
+from agents.bench_flyer import lean_page_checks
 from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
                                log, observes_lengths, reads_lengths)
 from agents.cli import parse_set
@@ -154,6 +155,9 @@ def parser() -> argparse.ArgumentParser:
                          "simulated bench); safety.wrap_wl of the mapping")
     ap.add_argument("--stale-s", type=float, default=None, help="the watchdog's limit on a reading's age and "
                     "on the wait for a frame (s; default: the mapping's, 0.5)")
+    ap.add_argument("--cpu", type=int, default=None, metavar="CORE",
+                    help="run the runner on this CPU core only (Linux): a controller's step costs less CPU on a core "
+                         "of its own, with the bench's other processes on the others")
     ap.add_argument("--out", required=True, help="folder for documents.jsonl, power.png, summary.json")
     return ap
 
@@ -169,6 +173,8 @@ def _setup(args):
         raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
     if (args.controller is None) == (args.learn is None):
         raise ValueError("give one of --controller (run a controller) and --learn (learn on the bench)")
+    if args.cpu is not None:  # before JAX and its thread pools start
+        pin(args.cpu)
     checkpoint = bench_learn.check_args(args) if args.learn else None
     saved = args.controller not in ("spgd", "physics", None)
     if saved and not Path(args.controller).is_dir():
@@ -192,6 +198,20 @@ def _setup(args):
                                                        parse_set(args.set), args.seed,
                                                        None if args.trim is None else parse_set(args.trim))
     return mapping, agent, env_config, scale, window
+
+
+def pin(core: int) -> None:
+    """Run this process's threads, and the threads they start, on CPU core ``core`` only (Linux)."""
+    if not hasattr(os, "sched_setaffinity"):
+        raise ValueError("--cpu needs Linux (os.sched_setaffinity); leave it out here")
+    allowed = sorted(os.sched_getaffinity(0))
+    if core not in allowed:
+        raise ValueError(f"--cpu must be one of the cores this process may run on, {allowed}, got {core}")
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), {core})
+        except ProcessLookupError:  # a thread that has ended meanwhile
+            pass
 
 
 def main(argv=None) -> int:
@@ -294,7 +314,8 @@ def _run(loop: Loop, md: dict, out: Path) -> float:
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:
-        RE(control_plan(loop, md))
+        with lean_page_checks():
+            RE(control_plan(loop, md))
     except Exception as exc:  # the watchdog (SafetyStop) or a failure: no further move, keep what was recorded
         if loop.stop_reason is None:
             loop.trip(f"error: {exc}")

@@ -154,9 +154,10 @@ def monitored(sig):
 class RawMonitor:
     """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each value lands on
     the signal as that monitor would leave it (``monitored``, ``.timestamp``), then ``hook(value=, timestamp=)``
-    runs, in caproto's callback thread. ophyd's dispatcher thread and its per-value metadata handling, most of
-    a Python client's time per frame, are skipped; alarm fields are not followed. Numeric PVs only; create after
-    ``connect``, once per signal."""
+    runs, in caproto's receiving thread as the value is read off the socket (``hook`` must not block). ophyd's
+    dispatcher thread, its per-value metadata handling and caproto's hand-off of each value to its callback
+    thread, most of a Python client's time per frame, are skipped; alarm fields are not followed. Numeric PVs
+    only; create after ``connect``, once per signal."""
 
     def __init__(self, sig):
         read_pv = sig._read_pv
@@ -164,7 +165,12 @@ class RawMonitor:
         sig._auto_monitor = False  # and does not start again on a reconnection
         self.sig, self.hook = sig, None
         self._sub = read_pv._caproto_pv.subscribe(data_type="time")
-        self._sub.add_callback(self._on_value)  # held weakly by caproto: this object keeps it
+        self._sub.add_callback(self._on_value)  # starts the subscription (and renews it on a reconnection)
+        self._sub.process = self._process  # each response handled inline instead of queued to the callback thread
+
+    def _process(self, response):
+        self._sub.most_recent_response = response
+        self._on_value(self._sub, response)
 
     @staticmethod
     def serves(sig) -> bool:

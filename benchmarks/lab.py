@@ -117,6 +117,11 @@ def _sets(values) -> list:
     return [x for v in values for x in ("--set", v)]
 
 
+def _cpu(core: int | None) -> list:
+    """The runner's ``--cpu CORE`` (none for None)."""
+    return [] if core is None else ["--cpu", core]
+
+
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
     run's first step, and ``wall_s``, the process's seconds from its start (imports and compiling included)."""
@@ -150,17 +155,18 @@ def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
-                   seed: int = 0, scale: float = 1.0, unseen: bool = False) -> dict:
+                   seed: int = 0, scale: float = 1.0, unseen: bool = False, cpu: int | None = None) -> dict:
     """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
     ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts; ``unseen``: as ``run_learning``),
-    started ``idle_s`` after the IOC serves; returns its summary.json with ``first_tick``."""
+    started ``idle_s`` after the IOC serves, the runner on core ``cpu`` (None: any); returns its summary.json with
+    ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen)
     try:
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
-        args += _sets(sets)
+        args += _sets(sets) + _cpu(cpu)
         return _run(out / "run", args, ioc.env, START_S + 2 * seconds + lockstep)
     finally:
         ioc.kill()
@@ -170,7 +176,8 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
                  frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0, seed: int = 0,
                  start_from: str | None = None, sets=(), scale: float = 1.0, unseen: bool = False,
                  kill_after: float | None = None, catch_up_s: float | None = None,
-                 learn_seconds: float | None = None, checkpoint_every: int | None = None) -> tuple[dict, dict]:
+                 learn_seconds: float | None = None, checkpoint_every: int | None = None,
+                 cpu: int | None = None) -> tuple[dict, dict]:
     """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder; ``sets``: its
     ``--set`` values) against a fresh IOC (the lab preset at ``scale``; ``unseen``: its per-stage errors re-drawn
     from ``seed``, ``unseen_args``) started ``idle_s`` before, then its
@@ -178,7 +185,8 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
     run is SIGKILLed that many seconds after its start, or once it has written its first checkpoint if later, and
     continued with ``--resume`` (the summary, the resumed run's, adds ``killed_after_s``); ``checkpoint_every``: the
     runner's ``--checkpoint-every`` (None: its default); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default);
-    ``learn_seconds``: the learning run's ``--seconds`` (it stops at ``steps`` or then, whichever comes first)."""
+    ``learn_seconds``: the learning run's ``--seconds`` (it stops at ``steps`` or then, whichever comes first);
+    ``cpu``: the checkpoint's run on that core (the learning run on any)."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, 0, frames_only, seed, scale, unseen)
     try:
@@ -204,8 +212,8 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
         learned = _run(out / "learn", learn, ioc.env, START_S + 10 * steps / rate)
         if kill_after is not None:
             learned["killed_after_s"] = killed_after
-        ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds], ioc.env,
-                   START_S + 2 * seconds)
+        ran = _run(out / "run", [*shared, "--controller", out / "learn" / "checkpoint", "--seconds", seconds,
+                                 *_cpu(cpu)], ioc.env, START_S + 2 * seconds)
         return learned, ran
     finally:
         ioc.kill()
@@ -277,6 +285,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
     ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
                     "as protocol (b)'s unseen benches (benchmarks.budget)")
+    ap.add_argument("--cpu", type=int, default=None, metavar="CORE",
+                    help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on any)")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []
@@ -288,7 +298,7 @@ def main(argv=None) -> dict:
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
                                         args.idle_s, seed, args.from_, args.learn_set, args.imperfection_scale,
                                         args.unseen, args.kill_learner_after, args.catch_up_s, args.learn_seconds,
-                                        args.checkpoint_every)
+                                        args.checkpoint_every, args.cpu)
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
                 rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
@@ -297,7 +307,8 @@ def main(argv=None) -> dict:
             for seed in args.seeds:
                 folder = args.out / (f"{name}-{rate:g}hz" + (f"-seed{seed}" if args.seeds != [0] else ""))
                 s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
-                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen)
+                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen,
+                                   args.cpu)
                 rows.append({**s, "controller": name, "settings": sets, "rate": rate, "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
@@ -307,7 +318,7 @@ def main(argv=None) -> dict:
               "learn": args.learn, "learn_steps": args.learn_steps, "learn_seconds": args.learn_seconds,
               "from": args.from_,
               "kill_learner_after": args.kill_learner_after, "checkpoint_every": args.checkpoint_every,
-              "catch_up_s": args.catch_up_s,
+              "catch_up_s": args.catch_up_s, "cpu": args.cpu,
               "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))

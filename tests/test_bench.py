@@ -5,6 +5,7 @@ subprocesses on free localhost ports (EPICS_CA_* set for both sides), each in it
 group, killed on teardown, every wait bounded."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -175,6 +176,57 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
         assert x == list(range(1, 41) if fail_at is None else range(1, fail_at))
         assert all(type(v) is float for v in x) and all(type(v) is list for page in pages for v in page["data"]["v"])
         assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
+
+
+def test_lean_page_checks_pass_what_the_schema_passes_and_reject_pages_that_do_not_line_up():
+    """Within ``lean_page_checks`` the flyer's pages are checked by their shape; each still passes event_model's
+    full JSON schema, a page whose lists do not line up fails, and the schema is back afterwards."""
+    from event_model import DocumentNames, EventModelValidationError, schema_validators
+
+    from agents.bench_flyer import LoopFlyer, lean_page_checks
+
+    full = schema_validators[DocumentNames.event_page]
+    keys = {"x": {"source": "loop", "dtype": "number", "shape": []},
+            "v": {"source": "loop", "dtype": "array", "shape": [3]}}
+    n = []
+
+    def step():
+        n.append(1)
+        time.sleep(0.005)
+        return {"x": float(len(n)), "v": [0.0, 1.0, 2.0]}, {"x": time.time(), "v": time.time()}
+
+    docs = []
+    with lean_page_checks():
+        assert schema_validators[DocumentNames.event_page] is not full
+        run_flyer(LoopFlyer("loop", keys, lambda: None, step, lambda: len(n) >= 30, page_s=0.02),
+                  lambda name, doc: docs.append((name, doc)))
+        pages = [d for name, d in docs if name == "event_page"]
+        bad = {**pages[0], "time": pages[0]["time"][:-1] + [1.0, 2.0]}
+        with pytest.raises(EventModelValidationError, match="time"):
+            schema_validators[DocumentNames.event_page].validate(bad)
+    assert schema_validators[DocumentNames.event_page] is full
+    assert sum(len(p["seq_num"]) for p in pages) == 30
+    for page in pages:
+        full.validate(page)
+    with pytest.raises(Exception):
+        full.validate({**pages[0], "seq_num": "not a list"})
+
+
+def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
+    """``--cpu``: the threads running before and those started after run on that core only."""
+    core = sorted(os.sched_getaffinity(0))[-1]
+    code = ("import os, threading; from agents.bench import pin\n"
+            "e = threading.Event(); t = threading.Thread(target=e.wait); t.start()\n"
+            f"pin({core})\n"
+            "u = threading.Thread(target=e.wait); u.start()\n"
+            "cores = {frozenset(os.sched_getaffinity(x.native_id)) for x in (t, u)}\n"
+            "print(sorted(cores | {frozenset(os.sched_getaffinity(0))}, key=sorted))\n"
+            "e.set()")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"[frozenset({{{core}}})]"
+    with pytest.raises(ValueError, match=r"--cpu must be one of the cores .* got 100000"):
+        runner.pin(100_000)
 
 
 def test_loop_flyer_pages_are_collected_between_steps():
@@ -470,11 +522,14 @@ def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
 
 
 def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
-    """SPGD over Channel Access for a few seconds, with a soft range tight enough to clip its probes."""
+    """SPGD over Channel Access for a few seconds, with a soft range tight enough to clip its probes, the runner
+    on one core; every document it wrote passes event_model's schema."""
+    from event_model import DocumentNames, schema_validators
+
     mapping = {**sim_mapping("FR:", 3), "safety": {"soft_range_wl": [-0.2, 0.2], "max_step_wl": 0.03, "stale_s": 5.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"), "--controller", "spgd",
-                               "--seconds", "3"))
+                               "--seconds", "3", "--cpu", str(max(os.sched_getaffinity(0)))))
     assert rc == 0, log
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["stopped_by"] == "time" and summary["steps"] > 10, summary
@@ -487,6 +542,8 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     sent_at = np.array([t["control_setpoint_wl"] for t in stamps[:-1]])
     assert np.all(frame_at > sent_at), "a step used a frame acquired before the last setpoints were sent"
     assert [d["name"] for d in docs[:2]] == ["start", "descriptor"] and docs[-1]["name"] == "stop"
+    for d in docs:
+        schema_validators[DocumentNames[d["name"]]].validate(d["doc"])
     events = [d["doc"]["data"] for d in docs if d["name"] == "event"]
     sent = np.array([e["control_setpoint_wl"] for e in events])
     assert np.all(np.abs(sent) <= 0.2 + 1e-9) and np.all(np.abs(np.diff(sent, axis=0)) <= 2 * 0.03 + 1e-9)
