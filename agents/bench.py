@@ -15,8 +15,9 @@ acquired ``settle_s`` or more after the write, by its time stamp), read it, buil
 exactly as the simulator does (power, oscilloscope samples, length readouts), decide, write the
 setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move: write the
 probed setpoints, wait for a frame that shows them, read the power; so each probe costs at least one
-frame and the step's action goes out after it. ``--rate`` caps the control steps per second. The loop
-runs in its own thread as a Bluesky flyer (``agents.bench_flyer``); the plan collects its events in pages.
+frame and the step's action goes out after it. ``--rate`` caps the control steps per second; ``--cpu CORE`` runs
+the runner on that core only. The loop runs in its own thread as a Bluesky flyer (``agents.bench_flyer``); the plan
+collects its events in pages.
 
 ``--learn NAME`` (an off-policy learner: droq, td3) learns on the bench instead (``agents.bench_learn``): it acts
 in the loop and learns from the bench's transitions for ``--steps`` env steps in all, from scratch or ``--from`` a
@@ -54,7 +55,7 @@ from agents.cli import parse_set
 from agents.io import write_json_atomic
 
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
-# waits at most this long for the interpreter lock held by another thread (the RunEngine's validating a page)
+# waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
 SWITCH_S = 0.0005
 EXIT_WATCHDOG = 3
 

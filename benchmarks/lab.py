@@ -64,13 +64,15 @@ def ca_env() -> dict:
 
 
 class Process:
-    """A ``python -m MODULE ARGS`` subprocess in its own process group, output to ``log``."""
+    """A ``python -m MODULE ARGS`` subprocess in its own process group, output to ``log``; ``cpus``: on these CPU
+    cores only (Linux; None: any)."""
 
-    def __init__(self, module: str, args, env: dict, log: Path):
+    def __init__(self, module: str, args, env: dict, log: Path, cpus: set | None = None):
         self.env, self.log = env, Path(log)
         with open(self.log, "w") as f:
             self.proc = subprocess.Popen([sys.executable, "-m", module, *map(str, args)], stdout=f,
-                                         stderr=subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True)
+                                         stderr=subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True,
+                                         preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus))
 
     def text(self) -> str:
         return self.log.read_text()
@@ -101,9 +103,9 @@ class Process:
         self.proc.wait(30)
 
 
-def start_ioc(out: Path, *args) -> Process:
-    """A simulated bench serving on a fresh port, once it serves."""
-    return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log").wait_for("serving")
+def start_ioc(out: Path, *args, cpus: set | None = None) -> Process:
+    """A simulated bench serving on a fresh port (on CPU cores ``cpus``; None: any), once it serves."""
+    return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log", cpus).wait_for("serving")
 
 
 def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | None) -> list:
@@ -120,6 +122,16 @@ def _sets(values) -> list:
 def _cpu(core: int | None) -> list:
     """The runner's ``--cpu CORE`` (none for None)."""
     return [] if core is None else ["--cpu", core]
+
+
+def _other_cores(core: int | None) -> set | None:
+    """The cores this process may use but ``core``: the simulated bench's when the runner has ``core`` (None: any)."""
+    if core is None:
+        return None
+    allowed = os.sched_getaffinity(0)
+    if core not in allowed:
+        raise ValueError(f"--cpu must be one of the cores this process may run on, {sorted(allowed)}, got {core}")
+    return (allowed - {core}) or None
 
 
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
@@ -146,11 +158,12 @@ def unseen_args(seed: int, scale: float) -> list:
     return [x for k, v in drawn.items() if isinstance(v, list) for x in (f"--{k.replace('_', '-')}", str(tuple(v)))]
 
 
-def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 1.0, unseen: bool = False) -> Process:
+def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 1.0, unseen: bool = False,
+         cpus: set | None = None) -> Process:
     clock = ["--lockstep"] if lockstep else ["--rate", 100]
     drawn = unseen_args(seed, scale) if unseen else []
     return start_ioc(out, "--prefix", "OPS:", *clock, *IOC_ARGS, "--imperfection-scale", scale, *drawn, "--seed", seed,
-                     *(FRAMES_ONLY if frames_only else []))
+                     *(FRAMES_ONLY if frames_only else []), cpus=cpus)
 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
@@ -158,10 +171,10 @@ def run_controller(out: Path, controller: str, sets, seconds: float, rate: float
                    seed: int = 0, scale: float = 1.0, unseen: bool = False, cpu: int | None = None) -> dict:
     """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
     ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts; ``unseen``: as ``run_learning``),
-    started ``idle_s`` after the IOC serves, the runner on core ``cpu`` (None: any); returns its summary.json with
-    ``first_tick``."""
+    started ``idle_s`` after the IOC serves, the runner on core ``cpu`` and the IOC on the others (None: any);
+    returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen)
+    ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen, _other_cores(cpu))
     try:
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
@@ -186,9 +199,9 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
     continued with ``--resume`` (the summary, the resumed run's, adds ``killed_after_s``); ``checkpoint_every``: the
     runner's ``--checkpoint-every`` (None: its default); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default);
     ``learn_seconds``: the learning run's ``--seconds`` (it stops at ``steps`` or then, whichever comes first);
-    ``cpu``: the checkpoint's run on that core (the learning run on any)."""
+    ``cpu``: the checkpoint's run on that core (the learning run on any), the IOC on the others."""
     out.mkdir(parents=True, exist_ok=True)
-    ioc = _ioc(out, 0, frames_only, seed, scale, unseen)
+    ioc = _ioc(out, 0, frames_only, seed, scale, unseen, _other_cores(cpu))
     try:
         time.sleep(idle_s)
         shared = _bench_args(stale_s, rate, frames_only, wrap)
@@ -286,7 +299,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
                     "as protocol (b)'s unseen benches (benchmarks.budget)")
     ap.add_argument("--cpu", type=int, default=None, metavar="CORE",
-                    help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on any)")
+                    help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on any), the "
+                         "simulated bench on the others")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     rows = []

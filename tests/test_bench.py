@@ -779,6 +779,27 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
     assert "| spgd | 3 |" in lab.table(result["rows"])
 
 
+def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):
+    """``benchmarks.lab --cpu CORE``: a started process (the IOC) runs on the other cores; a core out of reach fails
+    naming ``--cpu``."""
+    from benchmarks import lab
+
+    cores = os.sched_getaffinity(0)
+    core = max(cores)
+    assert lab._other_cores(None) is None
+    others = lab._other_cores(core)
+    assert others == ((cores - {core}) or None)
+    with pytest.raises(ValueError, match=r"--cpu must be one of the cores .* got 100000"):
+        lab._other_cores(100_000)
+    proc = lab.Process("http.server", ["0", "--bind", "127.0.0.1"], dict(os.environ), tmp_path / "http.log",
+                       cpus={core})
+    try:
+        proc.wait_for("Serving", 60)
+        assert os.sched_getaffinity(proc.proc.pid) == {core}
+    finally:
+        proc.kill()
+
+
 def test_unseen_bench_reaches_the_ioc_as_the_budget_section_draws_it():
     """``benchmarks.lab --unseen``: the IOC's options give the bench of ``benchmarks.budget.unseen_bench``."""
     from benchmarks.budget import unseen_bench
