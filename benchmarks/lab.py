@@ -69,10 +69,12 @@ class Process:
 
     def __init__(self, module: str, args, env: dict, log: Path, cpus: set | None = None):
         self.env, self.log = env, Path(log)
+        run = ["-m", module] if cpus is None else [  # the child sets its cores before it starts a thread
+            "-c", f"import os, runpy; os.sched_setaffinity(0, {sorted(cpus)}); "
+                  f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"]
         with open(self.log, "w") as f:
-            self.proc = subprocess.Popen([sys.executable, "-m", module, *map(str, args)], stdout=f,
-                                         stderr=subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True,
-                                         preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus))
+            self.proc = subprocess.Popen([sys.executable, *run, *map(str, args)], stdout=f, stderr=subprocess.STDOUT,
+                                         cwd=ROOT, env=env, start_new_session=True)
 
     def text(self) -> str:
         return self.log.read_text()

@@ -761,12 +761,14 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
 
 
 def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path):
-    """``benchmarks.lab --frames-only --wrap --idle-s --seeds``: a bench serving no length readouts, a runner mapping
-    none, started after the idle time; the row names the bench's seed and the tick of the first step."""
+    """``benchmarks.lab --frames-only --wrap --idle-s --seeds --cpu``: a bench serving no length readouts, a runner
+    mapping none, started after the idle time, on a core of its own; the row names the bench's seed and the tick of
+    the first step."""
     from benchmarks import lab
 
     result = lab.main(["--seconds", "3", "--controllers", "spgd", "--frames-only", "--wrap", "0.5", "--idle-s", "2",
-                       "--seeds", "3", "--no-kill", "--stale-s", "5", "--out", str(tmp_path)])
+                       "--seeds", "3", "--no-kill", "--stale-s", "5", "--cpu", str(max(os.sched_getaffinity(0))),
+                       "--out", str(tmp_path)])
     (row,) = result["rows"]
     assert row["stopped_by"] == "time" and row["bench_seed"] == 3 and row["steps"] > 10, row
     assert row["first_tick"] >= 150 and "wrapped_moves" in row  # at least the 2 s of idling at 100 ticks/s
