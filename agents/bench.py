@@ -201,13 +201,19 @@ def _setup(args):
     return mapping, agent, env_config, scale, window
 
 
-def pin(core: int) -> None:
-    """Run this process's threads, and the threads they start, on CPU core ``core`` only (Linux)."""
+def usable_cores(core: int) -> set:
+    """The CPU cores this process may run on; ``ValueError`` naming ``--cpu`` unless ``core`` is one (Linux)."""
     if not hasattr(os, "sched_setaffinity"):
         raise ValueError("--cpu needs Linux (os.sched_setaffinity); leave it out here")
-    allowed = sorted(os.sched_getaffinity(0))
+    allowed = os.sched_getaffinity(0)
     if core not in allowed:
-        raise ValueError(f"--cpu must be one of the cores this process may run on, {allowed}, got {core}")
+        raise ValueError(f"--cpu must be one of the cores this process may run on, {sorted(allowed)}, got {core}")
+    return allowed
+
+
+def pin(core: int) -> None:
+    """Run this process's threads, and the threads they start, on CPU core ``core`` only (Linux)."""
+    usable_cores(core)
     for tid in os.listdir("/proc/self/task"):
         try:
             os.sched_setaffinity(int(tid), {core})

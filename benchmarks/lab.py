@@ -130,10 +130,9 @@ def _other_cores(core: int | None) -> set | None:
     """The cores this process may use but ``core``: the simulated bench's when the runner has ``core`` (None: any)."""
     if core is None:
         return None
-    allowed = os.sched_getaffinity(0)
-    if core not in allowed:
-        raise ValueError(f"--cpu must be one of the cores this process may run on, {sorted(allowed)}, got {core}")
-    return (allowed - {core}) or None
+    from agents.bench import usable_cores
+
+    return (usable_cores(core) - {core}) or None
 
 
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
@@ -305,6 +304,10 @@ def main(argv=None) -> dict:
                          "simulated bench on the others")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
+    try:
+        _other_cores(args.cpu)
+    except ValueError as exc:
+        ap.error(str(exc))
     rows = []
     controllers = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
     runs = [] if args.learn else controllers  # --learn: the learners' runs instead
