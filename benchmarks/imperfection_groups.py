@@ -9,8 +9,11 @@ length readouts; ``--lengths`` to observe them); with ``--unseen`` each bench's 
 seed as protocol (b)'s unseen benches (``benchmarks.budget.unseen_bench``). The controller: ``--algo`` (one with
 nothing to learn: ``physics`` or ``spgd``) with ``--set`` overrides, or ``--policy DIR`` (an ``agents.save``
 folder). Score: the final step's P / P_best, mean over ``--episodes`` test episodes (``--eval-seed``), P_best of
-the bench as changed. Prints the table (a column per group: the score without it) and writes
-``imperfection_groups.json``.
+the bench as changed. ``--ceiling`` adds two columns for the bench as it is: "held", P / P_best with the lines
+held at the P_best offsets through the vibration and the pulses' noise (the most a controller that tracks the
+drift exactly but does not foresee the vibration can hold), and "predicted", the same less the vibration's exact
+one-step prediction (``ops_jax.imperfections.held_power``). Prints the table (a column per group: the score without
+it) and writes ``imperfection_groups.json``.
 """
 
 from __future__ import annotations
@@ -75,21 +78,42 @@ def measure(args) -> list[dict]:
     for i, seed in enumerate(args.benches, 1):
         t0 = time.perf_counter()
         env = bench(seed, args.scale, args.unseen, args.lengths)
-        row = {"bench": seed, "all": score(args, env), **{group: score(args, without(env, group)) for group in args.groups}}
+        row = {"bench": seed, "all": score(args, env), **(ceiling(env, args.eval_seed) if args.ceiling else {}),
+               **{group: score(args, without(env, group)) for group in args.groups}}
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
-        print(table(rows[-1:], args.groups).splitlines()[-1], flush=True)
+        print(table(rows[-1:], columns(args)).splitlines()[-1], flush=True)
         elapsed = time.perf_counter() - t_start
         print(f"bench {i}/{len(args.benches)} in {row['seconds']:.0f} s; about "
               f"{elapsed / i * (len(args.benches) - i):.0f} s left", file=sys.stderr, flush=True)
     return rows
 
 
-def table(rows: list, groups) -> str:
-    head = "| bench | all | " + " | ".join(f"no {g}" for g in groups) + " |\n" + "|---" * (len(groups) + 2) + "|"
-    body = [f"| {r['bench']} | {r['all']:.4f} | " + " | ".join(f"{r[g]:.4f}" for g in groups) + " |" for r in rows]
+def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
+    """P / P_best of lines held at the P_best offsets on bench ``env_config``: "held" through the vibration, and
+    "predicted" with the vibration's one-step prediction taken off (``ops_jax.imperfections.held_power``)."""
+    import jax
+
+    import ops_jax
+    from ops_jax.imperfections import held_power
+
+    env, params = ops_jax.make(**env_config)
+    p_best, key = float(params.lab.p_best), jax.random.key(seed)
+    return {k: held_power(env.config, params.lab, key, samples, predict=k == "predicted") / p_best
+            for k in ("held", "predicted")}
+
+
+def columns(args) -> list:
+    """The table's score columns: the bench as it is, its ceilings (``--ceiling``), then without each group."""
+    return ["all", *(["held", "predicted"] if args.ceiling else []), *args.groups]
+
+
+def table(rows: list, cols) -> str:
+    title = lambda c: c if c in ("all", "held", "predicted") else f"no {c}"
+    head = "| bench | " + " | ".join(map(title, cols)) + " |\n" + "|---" * (len(cols) + 1) + "|"
+    body = [f"| {r['bench']} | " + " | ".join(f"{r[c]:.4f}" for c in cols) + " |" for r in rows]
     if len(rows) > 1:
-        body.append("| mean | " + " | ".join(f"{np.mean([r[k] for r in rows]):.4f}" for k in ["all", *groups]) + " |")
+        body.append("| mean | " + " | ".join(f"{np.mean([r[c] for r in rows]):.4f}" for c in cols) + " |")
     return "\n".join([head, *body])
 
 
@@ -105,7 +129,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--unseen", action="store_true", help="per-stage errors re-drawn from each bench's seed")
     ap.add_argument("--lengths", action="store_true", help="benches with the length readouts in the observation")
     ap.add_argument("--benches", nargs="+", type=int, default=[1011, 1012, 1013], help="the benches' seeds")
-    ap.add_argument("--groups", nargs="+", default=list(GROUPS), choices=list(GROUPS))
+    ap.add_argument("--groups", nargs="*", default=list(GROUPS), choices=list(GROUPS),
+                    help="groups to take away one at a time (none: the bench as it is only)")
+    ap.add_argument("--ceiling", action="store_true", help="add the held and predicted ceilings of each bench")
     ap.add_argument("--episodes", type=int, default=32)
     ap.add_argument("--eval-seed", type=int, default=4242)
     ap.add_argument("--out", type=Path, default=Path("results/imperfection_groups"))
@@ -128,7 +154,7 @@ def main(argv=None) -> dict:
               "date": time.strftime("%Y-%m-%d"), "rows": rows}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "imperfection_groups.json").write_text(json.dumps(result, indent=1))
-    print(table(rows, args.groups))
+    print(table(rows, columns(args)))
     return result
 
 

@@ -251,6 +251,65 @@ def test_p_best_is_a_local_maximum():
     assert float(jnp.max(f(probes))) <= float(lab.p_best) * (1 + 1e-5)
 
 
+def test_p_best_is_reached_at_its_offsets():
+    env, params = ops_jax.make(3, "hard", imperfections="lab", imperfection_scale=4.0, model="phasor")
+    lab = params.lab
+    x = imperfections.best_offsets(env.config, lab)
+    p = optics.measure(jnp.asarray(x), optics.rotation(lab.waveplate_error_deg), lab.pbs_leakage,
+                       optics.ideal_pulses(3), stages=3, model="phasor").power
+    assert x.shape == (3,) and np.any(x != 0)  # the wave plate errors move the optimum off the ideal one
+    assert float(p) == pytest.approx(float(lab.p_best), rel=1e-6)
+
+
+def _held_bench(**values):
+    """A 3-stage phasor bench with only ``values`` set."""
+    return ops_jax.make(3, "hard", model="phasor", waveplate_error_deg=[2.0, -1.5, 1.0], **values)
+
+
+def test_held_power_is_p_best_without_vibration_or_pulse_noise():
+    env, params = _held_bench(backlash_wl=0.01, detector_gain_error=0.1, actuator_gain_error=0.2)
+    for predict in (False, True):
+        held = imperfections.held_power(env.config, params.lab, jax.random.key(0), 64, predict=predict)
+        assert held == pytest.approx(float(params.lab.p_best), rel=1e-5)
+
+
+def test_held_power_matches_lines_shaken_by_the_vibrations_law():
+    """Held lines: P averaged over each line displaced by the vibration's stationary Gaussian law (total RMS);
+    with the prediction taken off, by its one-step innovation alone (the background's first tap and each
+    resonance's innovation)."""
+    env, params = _held_bench(vib_rms=0.02, resonance_rms=[0.015, 0.01])
+    lab = params.lab
+    x = jnp.asarray(imperfections.best_offsets(env.config, lab))
+    f = jax.vmap(lambda y: optics.measure(y, optics.rotation(lab.waveplate_error_deg), lab.pbs_leakage,
+                                          optics.ideal_pulses(3), stages=3, model="phasor").power)
+    z = jax.random.normal(jax.random.key(1), (20000, 3))
+    _, _, gamma0, _ = vibration.ar2(jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q))
+    res = np.asarray(lab.resonance_rms)
+    total = np.sqrt(float(lab.vib_rms) ** 2 + np.sum(res**2))
+    innovation = np.sqrt(float(vibration.fir_taps(lab.vib_alpha, lab.vib_rms)[0]) ** 2 + np.sum(res**2 / np.asarray(gamma0)))
+    key = jax.random.key(2)
+    held = imperfections.held_power(env.config, lab, key, 20000)
+    predicted = imperfections.held_power(env.config, lab, key, 20000, predict=True)
+    assert held == pytest.approx(float(jnp.mean(f(x + total * z))), rel=2e-3)
+    assert predicted == pytest.approx(float(jnp.mean(f(x + innovation * z))), rel=2e-3)
+    assert held < 0.97 * float(lab.p_best) and held < predicted < float(lab.p_best)
+
+
+@pytest.mark.parametrize("options, samples, match", [
+    (dict(randomize=0.5), 8, "randomize"), (dict(), 0, "samples"), (dict(), 2.5, "samples")])
+def test_held_power_refuses_what_it_cannot_hold(options, samples, match):
+    env, params = _held_bench(vib_rms=0.01, **options)
+    with pytest.raises(ValueError, match=match):
+        imperfections.held_power(env.config, params.lab, jax.random.key(0), samples)
+
+
+def test_held_power_refuses_a_batch_of_benches():
+    env, params = _held_bench(vib_rms=0.01)
+    batched = jax.tree.map(lambda v: np.stack([v, v]), params.lab)
+    with pytest.raises(ValueError, match="one bench"):
+        imperfections.held_power(env.config, batched, jax.random.key(0), 8)
+
+
 @pytest.mark.parametrize("bad, match", [
     (dict(pbs_leakage=0.7), "pbs_leakage"),
     (dict(vib_alpha=2.5), "vib_alpha"),
@@ -403,3 +462,15 @@ def test_imperfection_groups_refuses_bad_arguments_naming_them(argv, needle, cap
     with pytest.raises(SystemExit):
         imperfection_groups.main(argv)
     assert needle in capsys.readouterr().err
+
+
+def test_imperfection_groups_ceiling_columns(tmp_path, capsys):
+    """``--ceiling``: each bench's held and predicted ceilings, in its row and in the table."""
+    from benchmarks import imperfection_groups
+
+    result = imperfection_groups.main(["--algo", "spgd", "--benches", "1011", "--episodes", "1", "--groups",
+                                       "--ceiling", "--out", str(tmp_path)])
+    (row,) = result["rows"]
+    assert 0.9 < row["held"] < row["predicted"] < 1.0
+    assert "| bench | all | held | predicted |" in capsys.readouterr().out
+    assert (tmp_path / "imperfection_groups.json").is_file()
