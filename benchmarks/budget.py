@@ -148,11 +148,14 @@ def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
     return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
 
 
-def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
+def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None) -> list[dict]:
     """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
-    seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them."""
+    seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
+    protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    if bench_scale is not None and not (isinstance(bench_scale, (int, float)) and 0 < bench_scale <= 10):
+        raise ValueError(f"bench_scale must be a number in (0, 10], got {bench_scale!r}")
     p = PRESETS[preset]
     learners, references = controllers(preset)
     adapt = p.get("adapt")
@@ -176,7 +179,8 @@ def cells(preset: str, only=None, seeds=None, envs=None) -> list[dict]:
     if adapt and (envs is None or BENCH in envs):
         for seed in (p["seeds"] if seeds is None else seeds):
             bench_seed = int(seed) + adapt["bench_seed_offset"]
-            on_bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench_env"], bench_seed, adapt["scale"]),
+            scale = adapt["scale"] if bench_scale is None else bench_scale
+            on_bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench_env"], bench_seed, scale),
                             bench_seed=bench_seed, seed=int(seed), checkpoints=list(adapt["checkpoints"]),
                             episodes=p["episodes"], eval_seed=p["eval_seed"])
             if only is None or adapt["algo"] in only:
@@ -307,11 +311,16 @@ def main(argv=None) -> str:
     ap.add_argument("--only", nargs="+", default=None, help="controllers (default: all of the preset)")
     ap.add_argument("--seeds", nargs="+", type=int, default=None, help="training seeds (default: the preset's)")
     ap.add_argument("--envs", nargs="+", default=None, help="environments by name (default: all of the preset)")
+    ap.add_argument("--bench-scale", type=float, default=None, metavar="X",
+                    help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the preset's)")
     args = ap.parse_args(argv)
     from benchmarks.cells import CellStore
 
+    try:
+        plan = cells(args.preset, args.only, args.seeds, args.envs, args.bench_scale)
+    except ValueError as exc:
+        ap.error(str(exc).replace("bench_scale", "--bench-scale"))
     store = CellStore(args.out / "cells")
-    plan = cells(args.preset, args.only, args.seeds, args.envs)
     records = []
     for i, cell in enumerate(plan):
         label = f"{cell['env']}-{cell['algo']}-s{cell['seed']}"

@@ -171,13 +171,22 @@ def test_budget_plan_cells_and_report(tmp_path):
     assert (tmp_path / "budget.png").stat().st_size > 5000 and (tmp_path / "budget.json").exists()
 
 
-def test_budget_plan_simulator_to_bench(tmp_path):
+def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and worst seed."""
     adapt = [c for c in budget.cells("default") if c["kind"] == "adapt"]
     assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len({c["bench_seed"] for c in adapt}) == 5
     assert all(c["pretrain_env"]["randomize"] == c["pretrain_env"]["randomize_layout"] == 1.0
                and c["checkpoints"][-1] <= 5000 for c in adapt)
     assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
+    at_lab = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_scale=1.0)
+    assert {c["env_config"]["imperfection_scale"] for c in at_lab} == {1.0} != {adapt[0]["env_config"]["imperfection_scale"]}
+    assert at_lab[0]["env_config"] == budget.unseen_bench(budget.PRESETS["default"]["adapt"]["bench_env"], 1011, 1.0)
+    for bad in (0, -1.0, 11.0, "2"):
+        with pytest.raises(ValueError, match="bench_scale must be a number in"):
+            budget.cells("default", bench_scale=bad)
+    with pytest.raises(SystemExit):
+        budget.main(["--bench-scale", "0", "--out", str(tmp_path)])
+    assert "--bench-scale must be a number in (0, 10]" in capsys.readouterr().err and not (tmp_path / "cells").exists()
     assert not [c for c in budget.cells("full", only=["td3"]) if c["kind"] in ("adapt", "bench reference")]
     on_bench = [c for c in budget.cells("default") if c["kind"] == "bench reference"]
     assert sorted((c["algo"], c["bench_seed"]) for c in on_bench) == sorted(
