@@ -10,8 +10,8 @@ seed as protocol (b)'s unseen benches (``benchmarks.budget.unseen_bench``). The 
 nothing to learn: ``physics`` or ``spgd``) with ``--set`` overrides, or ``--policy DIR`` (an ``agents.save``
 folder). Score: the final step's P / P_best, mean over ``--episodes`` test episodes (``--eval-seed``), P_best of
 the bench as changed. ``--ceiling`` adds two columns for the bench as it is: "held", P / P_best with the lines
-held at the P_best offsets through the vibration and the pulses' noise (the most a controller that tracks the
-drift exactly but does not foresee the vibration can hold), and "predicted", the same less the vibration's exact
+held at the P_best offsets through the vibration and the pulses' noise (the most a controller that follows the
+drift exactly but not the vibration can hold), and "predicted", the same less the vibration's exact
 one-step prediction (``ops_jax.imperfections.held_power``). Prints the table (a column per group: the score without
 it) and writes ``imperfection_groups.json``.
 """

@@ -292,8 +292,8 @@ def _best(config, lab: Imperfections):
 
 def held_power(config, lab: Imperfections, key, samples: int = 4096, predict: bool = False) -> float:
     """Mean P (units of P) with the lines held at the ``best_offsets``, over ``samples`` draws of the vibration
-    and the input pulses from their stationary law: the most that a controller can hold which tracks the drift
-    exactly but does not foresee the vibration. ``predict``: the lines held at those offsets less the
+    and the input pulses from their stationary law: the most that a controller can hold which follows the drift
+    exactly but not the vibration. ``predict``: the lines held at those offsets less the
     vibration's one-step prediction from its exact past, so that only its new innovation is left: the most
     that a controller can hold which also predicts the vibration perfectly. The lines sit where they are put
     (no actuator errors); the detector plays no part (P is the true stacked power). One bench: an unbatched
