@@ -304,10 +304,10 @@ def held_power(config, lab: Imperfections, key, samples: int = 4096, predict: bo
     if float(lab.randomize) or float(lab.randomize_layout):
         raise ValueError("lab must not be randomised (randomize = randomize_layout = 0), got "
                          f"randomize={float(lab.randomize)}, randomize_layout={float(lab.randomize_layout)}")
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
-    offsets = jnp.asarray(best_offsets(config, lab).reshape(n))
-    keys = jax.random.split(key, samples)
+    offsets = jnp.asarray(best_offsets(config, lab))
+    keys = jax.random.split(key, int(samples))
     return float(jnp.mean(_held_power_fn(config, bool(predict))(keys, lab, offsets)))
 
 
