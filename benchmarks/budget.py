@@ -154,7 +154,8 @@ def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None) -> li
     protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
-    if bench_scale is not None and not (isinstance(bench_scale, (int, float)) and 0 < bench_scale <= 10):
+    if bench_scale is not None and (isinstance(bench_scale, bool) or not isinstance(bench_scale, (int, float))
+                                    or not 0 < bench_scale <= 10):
         raise ValueError(f"bench_scale must be a number in (0, 10], got {bench_scale!r}")
     p = PRESETS[preset]
     learners, references = controllers(preset)
