@@ -8,10 +8,12 @@ State estimation (every control step, batched over B instances, jitted, no learn
 - Unknowns: the offsets of the interferometric stages, modulo the wl/2 period (all N stages with
   detector "polariser"; stages 1..N-1 with "total", whose last stage's carrier phase is invisible:
   P does not depend on it, so the controller leaves it alone).
-- Residual r(z) = [f(z) - y_t, w_hist (f(z - dx_{t-1}) - y_{t-1})], where dx_{t-1} is the move the
-  controller itself commanded before y_t (carried). The second block resolves the ambiguities of a
-  single snapshot (the intensity pattern is nearly invariant under x -> -x): no probe is needed, so
-  the controller makes 1 measurement per step.
+- Residual r(z) = [f(z) - y_t, w_hist (f(z - dx_{t-1}) - y_{t-1}), ..., w_hist (f(z - dx_{t-1} - ... - dx_{t-H})
+  - y_{t-H})], where dx_{t-k} is the move the controller itself commanded before y_{t-k+1} (carried) and H is
+  ``history`` (1: the frame before the latest alone). The history blocks resolve the ambiguities of a single
+  snapshot (the intensity pattern is nearly invariant under x -> -x): no probe is needed, so the controller
+  makes 1 measurement per step. Under vibration, which moves the lines between frames, more frames
+  (``history`` 2-3) average that motion out of the comparison: docs/imperfections.md ("Frames compared").
 - Gauss-Newton / Levenberg-Marquardt from ``starts`` random points on the period torus plus the
   tracked prediction (last estimate + last move), ``iters`` iterations each (Jacobian by jacfwd);
   the start with the lowest residual wins.
@@ -170,11 +172,13 @@ def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict)
         return dz * (1 + th[layout["actuator_gain"]]) if identify else dz
 
     def residual(z, th, y, hist):
-        """Misfit of the latest frame ``y`` and, through the last move, of the one before it.
-        ``hist``: (y_prev, the commanded move dz_prev, the drift estimate v, the history weight w)."""
+        """Misfit of the latest frame ``y`` and, through the moves since, of the H frames before it.
+        ``hist``: (their frames y_prev (H, ny), newest first; the moves commanded after each dz_prev (H, fit);
+        the drift estimate v (fit,); their weights w (H,))."""
         y_prev, dz_prev, v, w = hist
-        now, before = model(jnp.stack([z, z - (moved(dz_prev, th) + v)]), th)  # one pass of the model for both
-        return jnp.concatenate([now - y, w * (before - y_prev)])
+        back = jnp.cumsum(jax.vmap(moved, in_axes=(0, None))(dz_prev, th) + v, axis=0)  # length change since each
+        out = model(jnp.concatenate([z[None], z[None] - back]), th)  # one pass of the model for all
+        return jnp.concatenate([out[0] - y, (w[:, None] * (out[1:] - y_prev)).ravel()])
 
     def lm(z, th, y, hist):
         def body(z, _):
@@ -272,6 +276,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
     readout = identify and h["use_lengths"]
     layout = _theta_layout(n, fit)
+    older = h["history"] - 1  # frames kept beyond the one before the latest
     column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
     theta0, theta_lo, theta_hi = column(0), column(2), column(3)
     n_theta = theta0.size
@@ -288,6 +293,9 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         carry = {"y_prev": jnp.zeros((b, ny), jnp.float32), "dz_prev": jnp.zeros((b, fit), jnp.float32),
                  "z": jnp.zeros((b, fit), jnp.float32), "v": jnp.zeros((b, fit), jnp.float32),
                  "valid": jnp.zeros((b,), jnp.float32)}
+        if older:
+            carry.update(y_older=jnp.zeros((b, older, ny), jnp.float32), dz_older=jnp.zeros((b, older, fit), jnp.float32),
+                         valid_older=jnp.zeros((b, older), jnp.float32))
         if identify:
             carry.update(theta=jnp.broadcast_to(theta0, (b, n_theta)),
                          info=jnp.broadcast_to(prior, (b, n_theta, n_theta)))
@@ -307,11 +315,18 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
         move = jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]  # length change + estimated drift since y_prev
         z_pred = wrap(carry["z"] + move)
+        frames, moves, valid_hist = carry["y_prev"][:, None], carry["dz_prev"][:, None], carry["valid"][:, None]
+        if older:  # newest first; ``dz_prev`` is read here, so that an observer may record the move really sent
+            frames = jnp.concatenate([frames, carry["y_older"]], axis=1)
+            moves = jnp.concatenate([moves, carry["dz_older"]], axis=1)
+            valid_hist = jnp.concatenate([valid_hist, carry["valid_older"]], axis=1)
         new = {}
+        if older:
+            new.update(y_older=frames[:, :older], dz_older=moves[:, :older], valid_older=valid_hist[:, :older])
         if h["lengths_only"] or fit == 0:
             z = wrap(x_len[:, :fit])
         else:
-            hist = (carry["y_prev"], carry["dz_prev"], carry["v"], h["w_hist"] * carry["valid"])
+            hist = (frames, moves, carry["v"], h["w_hist"] * valid_hist)
             keys = jax.random.split(key, b)
             z = jax.vmap(estimate_one)(keys, th, y, hist, z_pred, wrap(x_len[:, :fit]))
             if identify:
