@@ -35,8 +35,10 @@ IOC_ARGS = ["--stages", "5", "--mode", "hard", "--imperfections", "lab"]
 # between two frames (docs/lab.md).
 CONTROLLERS = {"spgd": ("spgd", []), "spgd-bench": ("spgd", ["delta=0.01", "kp_min=0.05"]),
                "physics": ("physics", ["identify=True", "use_lengths=True", "starts=8", "iters=6"]),
-               # the detector's frames alone: the ideal model's fit, or the fit that identifies the imperfections
+               # the detector's frames alone: the ideal model's fit (comparing the latest frame with the one before
+               # it, or with the three before it), or the fit that identifies the imperfections
                "physics-frames": ("physics", ["config=frames", "starts=8", "iters=6"]),
+               "physics-frames-history": ("physics", ["config=frames", "history=3", "starts=8", "iters=6"]),
                "physics-frames-identify": ("physics", ["config=frames", "identify=True", "starts=8", "iters=6"])}
 FRAMES_ONLY = ["--observe-lengths", "False"]
 START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)

@@ -1,6 +1,6 @@
 """Physics-informed controller: beats a threshold fast, ignores the length channel unless asked,
 deterministic, one measurement per step, validated hyperparameters; online identification of
-detector and actuator errors and of the length readout's calibration."""
+detector and actuator errors and of the length readout's calibration; earlier frames compared."""
 
 import jax
 import jax.numpy as jnp
@@ -45,7 +45,7 @@ def test_same_seed_same_result():
     ({"starts": -1}, "starts"), ({"iters": 0}, "iters"), ({"gain": -0.5}, "gain"),
     ({"use_lengths": "yes"}, "use_lengths"), ({"damping": float("nan")}, "damping"),
     ({"starts": 0, "use_lengths": False}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"),
-    ({"forget": 1.5}, "forget"),
+    ({"forget": 1.5}, "forget"), ({"history": 0}, "history"), ({"history": 17}, "history"), ({"history": 2.5}, "history"),
 ])
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
@@ -98,3 +98,45 @@ def test_calibrated_length_readout_lifts_the_lab_preset():
     read, carry = _identified(env_config, {**fit, "use_lengths": True})
     assert set(carry) >= {"cal_info", "cal_vec", "fit_var"}
     assert read.mean() > 0.985 and read.mean() > fitted.mean() + 0.005
+
+
+def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
+    """With ``history`` H the fit's misfit holds the latest frame and the H before it, each through the sum of the
+    moves commanded since: zero at the true offsets, and each earlier frame's block weighted by its own weight."""
+    n, fit, history = 3, 2, 3
+    h = agents.config.PhysicsConfig.make("frames", history=history).to_hyper()
+    cfg = ops_jax.make(**ENV)[0].config
+    _, residual, _ = pi._fit_functions(n, fit, cfg, False, pi._theta_layout(n, fit), h)
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.uniform(-0.2, 0.2, fit), jnp.float32)
+    moves = jnp.asarray(rng.uniform(-0.05, 0.05, (history, fit)), jnp.float32)  # newest first
+    back = jnp.cumsum(moves, axis=0)
+
+    def frame(z):
+        m = ops_jax.physics.measure(jnp.append(z, 0.0), stages=n, model="phasor", detector=cfg.detector)
+        return jnp.concatenate([(2 * m.power / ops_jax.physics.p_max(n, cfg.detector) - 1)[None],
+                                2 * m.samples / ops_jax.physics.peak_intensity(n) - 1])
+
+    y, earlier = frame(x), jnp.stack([frame(x - b) for b in back])
+    zero = jnp.zeros(fit, jnp.float32)
+    r = residual(x, None, y, (earlier, moves, zero, jnp.ones(history)))
+    assert r.shape == ((history + 1) * y.size,) and float(jnp.abs(r).max()) < 1e-5
+    off = x + 0.02
+    r_off = residual(off, None, y, (earlier, moves, zero, jnp.ones(history))).reshape(history + 1, -1)
+    for k in range(history):  # each block is the model at the offsets less the moves since, against that frame
+        np.testing.assert_allclose(r_off[k + 1], frame(off - back[k]) - earlier[k], atol=1e-5)
+    weights = jnp.array([1.0, 0.0, 2.0])
+    r_w = residual(off, None, y, (earlier, moves, zero, weights)).reshape(history + 1, -1)
+    np.testing.assert_allclose(r_w[1:], weights[:, None] * r_off[1:], atol=1e-6)
+
+
+def test_more_frames_compared_win_back_what_the_vibration_takes():
+    """Twice the lab preset's imperfections, frames only: the vibration moves the lines between the frames that the
+    fit compares; comparing three earlier frames instead of one acquires sooner and holds more."""
+    env_config = dict(ENV, imperfections="lab", imperfection_scale=2.0, observe_lengths=False)
+    held = {}
+    for history in (1, 3):
+        pol = pi.make_policy(env_config, {"config": "frames", "starts": 4, "iters": 4, "history": history})
+        res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
+        held[history] = (np.asarray(res.normalized_power_best)[:, -20:].mean(), res.summary["steps_to_0p9_median"])
+    assert held[3][0] > held[1][0] + 0.01 and held[3][1] < held[1][1]
