@@ -316,12 +316,11 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         move = jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]  # length change + estimated drift since y_prev
         z_pred = wrap(carry["z"] + move)
         frames, moves, valid_hist = carry["y_prev"][:, None], carry["dz_prev"][:, None], carry["valid"][:, None]
+        new = {}
         if older:  # newest first; ``dz_prev`` is read here, so that an observer may record the move really sent
             frames = jnp.concatenate([frames, carry["y_older"]], axis=1)
             moves = jnp.concatenate([moves, carry["dz_older"]], axis=1)
             valid_hist = jnp.concatenate([valid_hist, carry["valid_older"]], axis=1)
-        new = {}
-        if older:
             new.update(y_older=frames[:, :older], dz_older=moves[:, :older], valid_older=valid_hist[:, :older])
         if h["lengths_only"] or fit == 0:
             z = wrap(x_len[:, :fit])
