@@ -189,10 +189,10 @@ class PhysicsConfig(AlgoConfig):
     DEFAULT_PRESET: ClassVar[str] = "default"
     PRESETS: ClassVar[dict] = {
         "default": dict(  # identifies the imperfections and reads the calibrated length readout
-            starts=16, iters=8, damping=1e-3, w_hist=1.0, history=1, gain=1.0, drift_gain=0.0, use_lengths=True,
+            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=True,
             lengths_only=False, identify=True, forget=0.98),
         "frames": dict(  # the detector's frames alone, the ideal model: no identification, no length readout
-            starts=16, iters=8, damping=1e-3, w_hist=1.0, history=1, gain=1.0, drift_gain=0.0, use_lengths=False,
+            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
             lengths_only=False, identify=False, forget=0.98),
     }
 
@@ -200,13 +200,14 @@ class PhysicsConfig(AlgoConfig):
     iters: int = field(Range(1, 1000, integer=True))
     damping: float = field(Range(0, 1e6))
     w_hist: float = field(Range(0, 1e6))
-    history: int = field(Range(1, 16, integer=True))
     gain: float = field(Range(0, 10))
     drift_gain: float = field(Range(0, 1))
     use_lengths: bool = field(_flag)
     lengths_only: bool = field(_flag)
     identify: bool = field(_flag)
     forget: float = field(Range(0, 1, lo_open=True))
+    # the earlier frames the fit compares with the latest, through the moves since (1: the frame before it)
+    history: int = field(Range(1, 16, integer=True), default=1)
 
     def check(self):
         if self.starts == 0 and not self.use_lengths:

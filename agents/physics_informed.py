@@ -263,7 +263,8 @@ def _calibrate_function(h: dict):
 def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
-    h = (hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)).to_hyper()
+    config = hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)
+    h = config.to_hyper()
     env, _ = built(env_config)
     cfg, obs_layout = env.config, env.layout
     n = cfg.stages
@@ -276,7 +277,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
     readout = identify and h["use_lengths"]
     layout = _theta_layout(n, fit)
-    older = h["history"] - 1  # frames kept beyond the one before the latest
+    older = config.history - 1  # frames kept beyond the one before the latest
     column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
     theta0, theta_lo, theta_hi = column(0), column(2), column(3)
     n_theta = theta0.size
