@@ -43,7 +43,7 @@ what that step tells about theta alone (the Schur complement of the offsets), di
 as well, each fitted line's length readout is calibrated against the fit (readout = (1 + g) x + o,
 recursive least squares, discounted by ``forget``) and, once the calibrated length is known to
 CAL_TRUST, averaged with the fitted offset (``fuse``): the readout sees the length at once and has no sign
-ambiguity, where the fit, near the optimum, has to tell +x from -x through the last move; the fit is
+ambiguity, where the fit, near the optimum, has to tell +x from -x through the moves since earlier frames; the fit is
 sharper where the model holds.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and

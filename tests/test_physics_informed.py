@@ -102,7 +102,8 @@ def test_calibrated_length_readout_lifts_the_lab_preset():
 
 def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
     """With ``history`` H the fit's misfit holds the latest frame and the H before it, each through the sum of the
-    moves commanded since: zero at the true offsets, and each earlier frame's block weighted by its own weight."""
+    moves commanded since and of the drift estimate's steps: zero at the true offsets, and each earlier frame's
+    block weighted by its own weight."""
     n, fit, history = 3, 2, 3
     h = agents.config.PhysicsConfig.make("frames", history=history).to_hyper()
     cfg = ops_jax.make(**ENV)[0].config
@@ -110,7 +111,8 @@ def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.uniform(-0.2, 0.2, fit), jnp.float32)
     moves = jnp.asarray(rng.uniform(-0.05, 0.05, (history, fit)), jnp.float32)  # newest first
-    back = jnp.cumsum(moves, axis=0)
+    v = jnp.array([0.003, -0.002], jnp.float32)  # the drift estimate: added to every step's move
+    back = jnp.cumsum(moves + v, axis=0)
 
     def frame(z):
         m = ops_jax.physics.measure(jnp.append(z, 0.0), stages=n, model="phasor", detector=cfg.detector)
@@ -118,15 +120,14 @@ def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
                                 2 * m.samples / ops_jax.physics.peak_intensity(n) - 1])
 
     y, earlier = frame(x), jnp.stack([frame(x - b) for b in back])
-    zero = jnp.zeros(fit, jnp.float32)
-    r = residual(x, None, y, (earlier, moves, zero, jnp.ones(history)))
+    r = residual(x, None, y, (earlier, moves, v, jnp.ones(history)))
     assert r.shape == ((history + 1) * y.size,) and float(jnp.abs(r).max()) < 1e-5
     off = x + 0.02
-    r_off = residual(off, None, y, (earlier, moves, zero, jnp.ones(history))).reshape(history + 1, -1)
+    r_off = residual(off, None, y, (earlier, moves, v, jnp.ones(history))).reshape(history + 1, -1)
     for k in range(history):  # each block is the model at the offsets less the moves since, against that frame
         np.testing.assert_allclose(r_off[k + 1], frame(off - back[k]) - earlier[k], atol=1e-5)
     weights = jnp.array([1.0, 0.0, 2.0])
-    r_w = residual(off, None, y, (earlier, moves, zero, weights)).reshape(history + 1, -1)
+    r_w = residual(off, None, y, (earlier, moves, v, weights)).reshape(history + 1, -1)
     np.testing.assert_allclose(r_w[1:], weights[:, None] * r_off[1:], atol=1e-6)
 
 
