@@ -304,6 +304,32 @@ def test_lines_wrap_by_one_period_near_a_soft_limit_and_never_back_and_forth():
     assert np.allclose(plain.position, 3.0) and plain.clipped.get() > 0 and plain.wraps.get() == 0
 
 
+def test_closing_channel_access_drops_only_caprotos_network_errors():
+    """While the circuits close, a caproto thread's send on the socket closed under it is dropped (it would
+    print a traceback after the runner's one line); any other thread's error still reaches the hook before."""
+    from agents.bench_devices import _closing_socket_hook
+
+    seen = []
+    hook = _closing_socket_hook(seen.append)
+    caproto_code = {"__name__": "caproto.threading.client"}
+    exec("def send():\n    raise OSError(9, 'Bad file descriptor')\n"
+         "def parse():\n    raise ValueError('not a network error')\n", caproto_code)
+
+    def ours():
+        raise OSError(9, "Bad file descriptor")
+
+    for target in (caproto_code["send"], caproto_code["parse"], ours):
+        previous, threading.excepthook = threading.excepthook, hook
+        try:
+            thread = threading.Thread(target=target)
+            thread.start()
+            thread.join(10)
+        finally:
+            threading.excepthook = previous
+    assert [type(a.exc_value) for a in seen] == [ValueError, OSError]
+    assert seen[1].thread.name != seen[0].thread.name
+
+
 def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
     """The rate cap's deadlines are one period apart, so a late wake-up does not delay the next step; after a
     stall of more than a period the schedule starts again."""
