@@ -118,7 +118,7 @@ def _skip_if_extra_missing(module: str) -> None:
 
 def test_the_docs_hold_the_commands_this_test_expects():
     names = {_name(argv) for _, argv in python_commands()}
-    assert "python -m benchmarks.sweep" in names and "python -m pytest -q" in names
+    assert "python -m benchmarks.sweep" in names and "python -m pytest -q -n 2" in names
     assert set(STARTED) <= names, set(STARTED) - names
     python = "".join(body for _, body in fenced("python"))
     assert all(big in python for big in SHRINK), [big for big in SHRINK if big not in python]
