@@ -113,6 +113,11 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
             assert (out / result["checkpoint"] / "params.msgpack").stat().st_size > 0, label
         assert data["hostname"] and len(data["node_id"]) >= 16, label
     assert len({data["node_id"] for data in cells.values()}) == 2  # computed on both nodes
+    (adapt,) = [d for d in cells.values() if d["config"].get("kind") == "adapt"]  # protocol (b), end to end
+    result = adapt["result"]
+    assert set(result["scores"]) == {"300", "600"} and 0.0 < result["before"] <= 1.0
+    assert result["pretrain_steps"] <= adapt["config"]["pretrain_steps"]
+    assert set(result["trimmed"]) == {"0", "300", "600"} and all(0.0 < v <= 1.0 for v in result["trimmed"].values())
     td3 = [d for label, d in cells.items() if label.startswith("table1-") and "-td3-" in label]
     assert len(td3) == 6 and all(d["result"]["wall_time"]["seeds_in_call"] == 2 for d in td3)
     summary = (out / "summary.md").read_text()
