@@ -59,6 +59,8 @@ def field(check, **default):
 
 
 DITHER = Range(1e-6, 0.25, unit="wl")  # a dither's amplitude (SPGD, the trim)
+# the earlier frames the physics-informed fit compares with the latest, through the moves since (1: the frame before it)
+HISTORY = Range(1, 16, integer=True)
 COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
 POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
 # the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
@@ -206,8 +208,7 @@ class PhysicsConfig(AlgoConfig):
     lengths_only: bool = field(_flag)
     identify: bool = field(_flag)
     forget: float = field(Range(0, 1, lo_open=True))
-    # the earlier frames the fit compares with the latest, through the moves since (1: the frame before it)
-    history: int = field(Range(1, 16, integer=True), default=1)
+    history: int = field(HISTORY, default=1)
 
     def check(self):
         if self.starts == 0 and not self.use_lengths:
@@ -408,6 +409,8 @@ class TD3Config(ReplayConfig):
     # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
     fit_starts: int | None = field(_optional(COUNT), default=None)
     fit_iters: int | None = field(_optional(COUNT), default=None)
+    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
+    fit_history: int | None = field(_optional(HISTORY), default=None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -455,3 +458,5 @@ class DroQConfig(ReplayConfig):
     # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
     fit_starts: int | None = field(_optional(COUNT), default=None)
     fit_iters: int | None = field(_optional(COUNT), default=None)
+    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
+    fit_history: int | None = field(_optional(HISTORY), default=None)

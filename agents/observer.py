@@ -5,8 +5,9 @@ its state estimation alone) appended to the learner's observation, so that a lea
 ``observer="fit-residual"`` the learner's action is also a correction added to the fit's own move.
 
 The appended entries: the fitted stages' offsets from the nearest optimum (wl, in [-0.25, 0.25)), estimated from
-the newest frame and, through the move the learner commanded before it, the frame before. On the first frame of an
-episode (or of a bench run) the fit has no history. Training (``Observed``) and the stored policy
+the newest frame and, through the move the learner commanded before it, the frame before (``fit_history`` H: the H
+frames before, through the moves since each). On the first frame of an episode (or of a bench run) the fit has no
+history. Training (``Observed``) and the stored policy
 (``Learner.make_policy``) run the same estimate, so a checkpoint acts on the raw observation of the env or bench.
 """
 
@@ -37,12 +38,12 @@ class Observer(NamedTuple):
 
 
 def fit_observer(env_config: dict, residual: bool = False, residual_scale: float = 1.0, starts: int | None = None,
-                 iters: int | None = None) -> Observer:
+                 iters: int | None = None, history: int | None = None) -> Observer:
     """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with ``residual``,
     ``residual_scale`` times the learner's action is a correction added to the fitted model's own move (the
-    physics-informed controller's, clipped to [-1, 1] after the sum). ``starts``, ``iters``: the fit's random starts
-    and Levenberg-Marquardt iterations per start (None: the "frames" preset's)."""
-    sizes = {k: v for k, v in (("starts", starts), ("iters", iters)) if v is not None}
+    physics-informed controller's, clipped to [-1, 1] after the sum). ``starts``, ``iters``, ``history``: the fit's
+    random starts, Levenberg-Marquardt iterations per start and earlier frames compared (None: the "frames" preset's)."""
+    sizes = {k: v for k, v in (("starts", starts), ("iters", iters), ("history", history)) if v is not None}
     estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames", **sizes))
     default = physics_informed.policy_params(env_config)
     env = built(env_config)[0]
@@ -68,11 +69,13 @@ def fit_observer(env_config: dict, residual: bool = False, residual_scale: float
 
 def of_learner(env_config: dict, h: dict) -> Observer | None:
     """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual"; None for
-    "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``) on its training environment ``env_config``."""
+    "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``, ``h["fit_history"]``) on its training
+    environment ``env_config``."""
     kind = h.get("observer", "none")
     return None if kind == "none" else fit_observer(env_config, residual=kind == "fit-residual",
                                                     residual_scale=h.get("residual_scale", 1.0),
-                                                    starts=h.get("fit_starts"), iters=h.get("fit_iters"))
+                                                    starts=h.get("fit_starts"), iters=h.get("fit_iters"),
+                                                    history=h.get("fit_history"))
 
 
 def policy(observer: Observer, act: Callable):

@@ -32,6 +32,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
     python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
     python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames   # a smaller correction
+    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames  # its fit on 4 frames
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -95,6 +96,13 @@ PRESETS["frames-residual-bounded"] = dict(PRESETS["frames"], adapt=dict(
     PRESETS["frames-residual"]["adapt"],
     pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_BOUNDED),
     hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_BOUNDED)))
+# the same, the fit comparing the newest frame with the three before it (``fit_history=3``; the physics-informed
+# reference with ``history=3``, the controller the learner corrects)
+_HISTORY = {k: v for k, v in get("droq").sweep.lab_budget["frames-residual-history"].items() if k != "config"}
+PRESETS["frames-residual-history"] = dict(PRESETS["frames"], adapt=dict(
+    PRESETS["frames-residual"]["adapt"],
+    pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_HISTORY),
+    hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_HISTORY)))
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),

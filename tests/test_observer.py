@@ -98,9 +98,40 @@ def test_observer_field_is_checked_and_stored_only_when_set():
     with pytest.raises(ValueError, match="residual_scale must be"):
         DroQConfig.make(residual_scale=0.0)
     assert "fit_starts" not in DroQConfig.make(observer="fit").to_hyper()
+    assert "fit_history" not in DroQConfig.make(observer="fit").to_hyper()
     assert TD3Config.make(observer="fit", fit_starts=4, fit_iters=3).to_hyper()["fit_iters"] == 3
+    assert DroQConfig.make(observer="fit", fit_history=3).to_hyper()["fit_history"] == 3
     with pytest.raises(ValueError, match="fit_starts must be"):
         DroQConfig.make(fit_starts=0)
+    for bad in (0, 17, 2.5):
+        with pytest.raises(ValueError, match="fit_history must be"):
+            TD3Config.make(fit_history=bad)
+
+
+def test_the_fits_history_holds_the_frames_and_the_moves_really_sent():
+    """``fit_history=3``: the fit's carry keeps the frames it compares the next one with (the newest and the two before
+    it) and the moves the residual learner really sent after each (the fit's move plus its correction, clipped),
+    newest first."""
+    env, params = built(FRAMES)
+    ob = observer.of_learner(FRAMES, {"observer": "fit-residual", "fit_history": 3})
+    key = jax.random.key(11)
+    obs, state = env.reset_batch(jax.random.split(key, 4), params)
+    carry, frames, sent, observe = ob.init(key, obs), [], [], jax.jit(ob.observe)
+    for t in range(4):
+        _, carry = observe(None, carry, obs, jax.random.fold_in(key, t))
+        frames.append(np.asarray(env.layout.detector(obs)))
+        sent.append(np.asarray(ob.command(carry, jax.random.uniform(jax.random.fold_in(key, 10 + t), (4, 5),
+                                                                    minval=-1, maxval=1))))
+        carry = ob.moved(None, carry, jnp.asarray(sent[-1]))
+        obs, state, *_ = env.step_batch(jax.random.split(jax.random.fold_in(key, 20 + t), 4), state,
+                                        jnp.asarray(sent[-1]), params)
+    fit, scale = ob.size, float(params.action_scale)
+    np.testing.assert_allclose(np.asarray(carry["y_prev"]), frames[3], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(carry["y_older"]), np.stack([frames[2], frames[1]], axis=1), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(carry["dz_prev"]), sent[3][:, :fit] * scale, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(carry["dz_older"]), np.stack([sent[2], sent[1]], axis=1)[..., :fit] * scale,
+                               atol=1e-6)
+    assert "y_older" not in observer.of_learner(FRAMES, {"observer": "fit"}).init(key, obs)
 
 
 def test_the_fits_size_reaches_the_observer():
