@@ -197,6 +197,8 @@ class PhysicsConfig(AlgoConfig):
             starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
             lengths_only=False, identify=False, forget=0.98),
     }
+    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step)
+    PRESETS["frames-hold"] = dict(PRESETS["frames"], hold=0.85)
 
     starts: int = field(Range(0, 4096, integer=True))
     iters: int = field(Range(1, 1000, integer=True))
@@ -209,6 +211,9 @@ class PhysicsConfig(AlgoConfig):
     identify: bool = field(_flag)
     forget: float = field(Range(0, 1, lo_open=True))
     history: int = field(HISTORY, default=1)
+    # the measured P/Pmax at and above which SPGD's proportional step from one dither probe (its preset's gains)
+    # moves the lines instead of the fit (None: the fit's move throughout, 1 measurement per step)
+    hold: float | None = field(_optional(Range(0, 1)), default=None)
 
     def check(self):
         if self.starts == 0 and not self.use_lengths:

@@ -21,6 +21,12 @@ State estimation (every control step, batched over B instances, jitted, no learn
 Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0 elsewhere
 (``wrap`` maps to the nearest optimum, [-wl/4, wl/4)).
 
+The hold (``hold``, preset "frames-hold"): where the measured P/Pmax is at or above ``hold``, the move is SPGD's
+proportional step instead (``agents.spgd``, its preset's gain schedule and fine dither, one probe per step: 2
+measurements per step), and the fit follows the lines through the moves really sent. The fit acquires from
+anywhere (no trap of a hill climber), the dither reads the slope at every step, where the fit compares frames
+that the vibration has moved apart: docs/imperfections.md ("The hold").
+
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
 adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
@@ -58,9 +64,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ops_jax import optics, physics
+from agents import spgd
 from agents.base import Policy, TrainResult, evaluated_result
 from agents.config import PhysicsConfig
 from agents.envs import built, check_env_config
+
+HOLD_STREAM = 1  # the hold's dither: the step's key folded with this, apart from the fit's random starts
+
 
 def params_template(env_config, hyper):
     del env_config, hyper
@@ -284,6 +294,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
     max_step = 0.1 * (theta_hi - theta_lo)  # per control step
 
+    hold, hold_gains = h.get("hold"), spgd.gains({})
     moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
     identify_one = _identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
     calibrate_one = _calibrate_function(h)
@@ -305,8 +316,18 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
                          fit_var=jnp.full((b, fit), FIT_VAR0, jnp.float32))
         return carry
 
+    def held(action, obs, key, probe):
+        """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step elsewhere."""
+        if probe is None:
+            raise ValueError("hold needs a probe (one more detector reading per step): run the controller "
+                             "through agents.evaluate or agents.bench, or set hold=None")
+        s = spgd.dither(jax.random.fold_in(key, HOLD_STREAM), action.shape)
+        p0 = obs_layout.power(obs)
+        g = spgd.slope(p0, probe(hold_gains["delta"] * s), s, hold_gains["delta"])
+        step = jnp.clip(spgd.proportional_gain(hold_gains, p0) * g, -1.0, 1.0)
+        return jnp.where((p0 >= hold)[:, None], step, action)
+
     def act(params, carry, obs, key, probe):
-        del probe
         p = default if params is None else params
         scale, window = p["action_scale"], p["window"]
         b = obs.shape[0]
@@ -342,7 +363,9 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         per_unit = scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale  # wl moved per action unit
         a_fit = jnp.clip(-(h["gain"] * z + v) / per_unit, -1.0, 1.0)
         action = jnp.concatenate([a_fit, jnp.zeros((b, n - fit), jnp.float32)], axis=1)
-        dz = a_fit * scale
+        if hold is not None:
+            action = held(action, obs, key, probe)
+        dz = action[:, :fit] * scale
         return action, {"y_prev": y, "dz_prev": dz, "z": z, "v": v, "valid": jnp.ones((b,), jnp.float32), **new}
 
     return Policy(init, act)

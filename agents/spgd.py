@@ -53,6 +53,11 @@ def slope(p0, p1, s, amp) -> jax.Array:
     return ((p1 - p0)[:, None] * s / amp).astype(jnp.float32)
 
 
+def proportional_gain(p: dict, p0) -> jax.Array:
+    """Kp(P) = kp_min + (kp - kp_min) (1 - P)^kp_pow (B, 1) at the measured P/Pmax ``p0`` (B,): the gain schedule."""
+    return p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
+
+
 def gains(hyper: dict | SPGDConfig, action_scale: float = 0.01) -> dict:
     """The controller's parameters (float32 scalars) from hyperparameters (a ``SPGDConfig`` or
     overrides of its default preset), plus ``action_scale`` (wl per unit action of the environment
@@ -100,7 +105,7 @@ def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
         p1 = probe(offsets)  # one probe either way
         g = jnp.where(testing[:, None], 0.0, slope(p0, p1, s, amp))
         i = p["leak"] * carry["i"] + g
-        kp = p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
+        kp = proportional_gain(p, p0)
         u = jnp.clip(kp * g + p["ki"] * i + p["kd"] * (g - carry["g_prev"]), -1.0, 1.0)
         action, esc = escape.step(p, escape.of(carry), cands, testing, p0, p1, u)
         return action, {"i": i, "g_prev": g, "t": carry["t"] + 1, **esc}

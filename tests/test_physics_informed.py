@@ -1,6 +1,6 @@
 """Physics-informed controller: beats a threshold fast, ignores the length channel unless asked,
 deterministic, one measurement per step, validated hyperparameters; online identification of
-detector and actuator errors and of the length readout's calibration; earlier frames compared."""
+detector and actuator errors and of the length readout's calibration; earlier frames compared; the dither's hold."""
 
 import jax
 import jax.numpy as jnp
@@ -46,6 +46,7 @@ def test_same_seed_same_result():
     ({"use_lengths": "yes"}, "use_lengths"), ({"damping": float("nan")}, "damping"),
     ({"starts": 0, "use_lengths": False}, "starts"), ({"identify": 1}, "identify"), ({"forget": 0.0}, "forget"),
     ({"forget": 1.5}, "forget"), ({"history": 0}, "history"), ({"history": 17}, "history"), ({"history": 2.5}, "history"),
+    ({"hold": 1.5}, "hold"), ({"hold": -0.1}, "hold"),
 ])
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
@@ -141,3 +142,43 @@ def test_more_frames_compared_win_back_what_the_vibration_takes():
         res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
         held[history] = (np.asarray(res.normalized_power_best)[:, -20:].mean(), res.summary["steps_to_0p9_median"])
     assert held[3][0] > held[1][0] + 0.01 and held[3][1] < held[1][1]
+
+
+def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the_moves_sent():
+    """At or above ``hold`` the move is SPGD's proportional step up the slope that one probe reads (a slope along
+    line 1 alone: line 1 steps up it, each other line by as much with the dither's sign), and the fit's carry holds
+    that move; above every measured P the move is the fit's own; without a probe the hold raises ValueError."""
+    env, params = ops_jax.make(**ENV)
+    obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 8), params)
+    key, slope = jax.random.key(1), 3.0  # dP/dx along line 1, 1/wl
+    p0 = env.layout.power(obs)
+    probe = lambda offsets: p0 + slope * offsets[:, 0]  # noqa: E731
+
+    def act(hyper, probe):
+        pol = pi.make_policy(ENV, dict(config="frames", starts=1, iters=1, **hyper))
+        return pol.act(None, pol.init(key, obs), obs, key, probe)
+
+    action, carry = act({"hold": 0.0}, probe)
+    step = np.clip(np.asarray(agents.spgd.proportional_gain(agents.spgd.gains({}), p0))[:, 0] * slope, -1, 1)
+    np.testing.assert_allclose(np.asarray(action[:, 0]), step, rtol=1e-4)
+    np.testing.assert_allclose(np.abs(np.asarray(action[:, 1:])), np.broadcast_to(step[:, None], (8, 2)), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(carry["dz_prev"]), np.asarray(action[:, :2]) * float(params.action_scale),
+                               rtol=1e-6)
+    fit_only, _ = act({}, None)
+    np.testing.assert_allclose(np.asarray(act({"hold": 1.0}, probe)[0]), np.asarray(fit_only), atol=1e-6)
+    assert not np.allclose(np.asarray(action), np.asarray(fit_only))
+    with pytest.raises(ValueError, match="hold needs a probe"):
+        act({"hold": 0.9}, None)
+
+
+def test_the_hold_keeps_more_than_the_fit_where_the_vibration_moves_the_lines():
+    """Twice the lab preset's imperfections, frames only: the fit acquires, the dither then holds more than the
+    fit's own moves do (2 measurements per step)."""
+    env_config = dict(ENV, imperfections="lab", imperfection_scale=2.0, observe_lengths=False)
+    held = {}
+    for hold in (None, 0.85):
+        pol = pi.make_policy(env_config, {"config": "frames", "starts": 4, "iters": 4, "hold": hold})
+        res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
+        held[hold] = (np.asarray(res.normalized_power_best)[:, -20:].mean(), res.summary["measurements_per_step"])
+    assert held[None][1] == 1 and held[0.85][1] == 2
+    assert held[0.85][0] > held[None][0] + 0.01, held
