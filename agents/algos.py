@@ -15,7 +15,7 @@ register(Algo("spgd", "agents.spgd", SPGDConfig, "SPGD", cost=CostModel(fixed_s=
               sweep=SweepPresets(budgets={"quick": 0, "default": 0, "paper": 0},
                                  lab_budget={"quick": {}, "default": {}, "full": {}, "frames": {}, "frames-fit": {},
                                              "frames-residual": {}, "frames-residual-bounded": {},
-                                             "frames-residual-history": {}})))
+                                             "frames-residual-history": {}, "frames-residual-hold": {}})))
 register(Algo("physics", "agents.physics_informed", PhysicsConfig, "Physics",
               cost=CostModel(fixed_s=6.0, stage_growth=3.5, eval_s=6.0),
               sweep=SweepPresets(budgets={"quick": 0, "default": 0, "paper": 0},
@@ -26,7 +26,7 @@ register(Algo("physics", "agents.physics_informed", PhysicsConfig, "Physics",
                                              "frames-residual": {"config": "frames"},
                                              "frames-residual-bounded": {"config": "frames"},
                                              "frames-residual-history": {"config": "frames", "history": 3},
-                                             "full": {}})))
+                                             "frames-residual-hold": {"config": "frames-hold"}, "full": {}})))
 register(Algo("ppo", "agents.ppo", PPOConfig, "PPO", cost=CostModel(s_per_step=9.9e-6, s_per_update=2.38e-3),
               sweep=SweepPresets(budgets={"quick": 32_768, "default": 2_000_000, "paper": 200_000},
                                  hyper={"quick": {"num_evals": 2, "num_eval_envs": 16, "hidden": [64, 64],
@@ -61,4 +61,6 @@ register(Algo("droq", "agents.droq", DroQConfig, "DroQ", vmaps_seeds=True, off_p
                                              "frames-residual-bounded": {"config": "budget", "observer": "fit-residual",
                                                                          "residual_scale": 0.25},
                                              "frames-residual-history": {"config": "budget", "observer": "fit-residual",
-                                                                         "residual_scale": 0.25, "fit_history": 3}})))
+                                                                         "residual_scale": 0.25, "fit_history": 3},
+                                             "frames-residual-hold": {"config": "budget", "observer": "fit-residual",
+                                                                      "residual_scale": 0.25, "fit_history": 3}})))

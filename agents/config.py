@@ -181,6 +181,9 @@ class TrimConfig(EscapeConfig):
     amp: float = field(DITHER)
     p_gate: float = field(Range(0, 1))
     release: float = field(Range(0, 1))
+    # the measured P/Pmax at and above which SPGD's proportional step up the probed slope replaces the move
+    # (``agents.spgd.held``; None: never)
+    hold: float | None = field(_optional(Range(0, 1)), default=None)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,9 @@ Each control step, per instance (B of them), with pi the wrapped policy and c (B
 2. one probe P(tau + amp s) with random signs s (``agents.spgd.dither``) gives SPGD's one-probe
    gradient estimate g (``agents.spgd.slope``, 1/wl), so 2 measurements per control step as SPGD;
 3. while the measured P/Pmax >= ``p_gate``: c <- c + ki g; below it: c <- release c;
-4. the stall escape (``agents.escape``, as SPGD's; ``jump = 0``: off): after ``patience`` steps below
+4. with ``hold``: where the measured P/Pmax is at or above it, the move is SPGD's proportional step up g
+   (``agents.spgd.held``) instead of a: the wrapped policy acquires, the dither holds;
+5. the stall escape (``agents.escape``, as SPGD's; ``jump = 0``: off): after ``patience`` steps below
    ``p_stall`` the probe tests jumps of a line or a pair of lines by ``jump`` wl instead of the dither, and
    a committed jump moves its lines at full action speed, the wrapped policy paused on those lines.
 
@@ -45,7 +47,7 @@ def gains(hyper: dict | TrimConfig | None = None, action_scale: float = 0.01) ->
     """The trim's parameters (float32 scalars) from a ``TrimConfig`` or overrides of its default preset, plus
     ``action_scale`` (wl per unit action of the environment it runs in; the escape's move needs it)."""
     c = hyper if isinstance(hyper, TrimConfig) else TrimConfig.from_hyper(hyper)
-    return spgd.scaled(c, action_scale)
+    return {**spgd.scaled(c, action_scale), "hold": jnp.float32(jnp.inf if c.hold is None else c.hold)}
 
 
 def make_policy(policy: Policy, env_config: dict) -> Policy:
@@ -71,7 +73,8 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         g = jnp.where(testing[:, None], 0.0, spgd.slope(p0, p1, s, p["amp"]))
         near = (p0 >= p["p_gate"])[:, None]
         c = jnp.where(near, carry["c"] + p["ki"] * g, p["release"] * carry["c"])
-        action, esc = escape.step(p, esc, cands, testing, p0, p1, jnp.clip(a + c, -1.0, 1.0))
+        action = spgd.held(jnp.clip(a + c, -1.0, 1.0), p0, g, p["hold"])
+        action, esc = escape.step(p, esc, cands, testing, p0, p1, action)
         return action, {"policy": inner_carry, "c": c, **esc}
 
     return Policy(init, act)

@@ -33,6 +33,7 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
     python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames   # a smaller correction
     python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames  # its fit on 4 frames
+    python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames  # with the hold as its trim
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
 
@@ -103,6 +104,10 @@ PRESETS["frames-residual-history"] = dict(PRESETS["frames"], adapt=dict(
     PRESETS["frames-residual"]["adapt"],
     pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_HISTORY),
     hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_HISTORY)))
+# the same, its trim the hold alone (``agents.trim``: SPGD's step in place of the policy's move at and above a
+# measured P/Pmax of 0.85, no integral); the physics-informed reference the fit with the same hold
+PRESETS["frames-residual-hold"] = dict(PRESETS["frames-residual-history"], adapt=dict(
+    PRESETS["frames-residual-history"]["adapt"], trim={"ki": 0.0, "hold": 0.85}))
 PRESETS["quick"]["adapt"] = dict(
     algo="droq", pretrain_env=dict(PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0,
                                    randomize_layout=1.0),

@@ -160,6 +160,7 @@ def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the
 
     action, carry = act({"hold": 0.0}, probe)
     step = np.clip(np.asarray(agents.spgd.proportional_gain(agents.spgd.gains({}), p0))[:, 0] * slope, -1, 1)
+    assert np.all(step > 0.01)
     np.testing.assert_allclose(np.asarray(action[:, 0]), step, rtol=1e-4)
     np.testing.assert_allclose(np.abs(np.asarray(action[:, 1:])), np.broadcast_to(step[:, None], (8, 2)), rtol=1e-4)
     np.testing.assert_allclose(np.asarray(carry["dz_prev"]), np.asarray(action[:, :2]) * float(params.action_scale),

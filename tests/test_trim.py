@@ -1,5 +1,5 @@
 """The extremum-seeking trim: removes a policy's static bias, is the policy itself at ki = 0, leaves the local
-maxima a hill climber stops on, one compiled program for every gain, gated, validated."""
+maxima a hill climber stops on, one compiled program for every gain, gated, holds near the top, validated."""
 
 import jax
 import jax.numpy as jnp
@@ -83,9 +83,29 @@ def test_gate_holds_the_trim_below_it_and_release_clears_it():
     np.testing.assert_allclose(c[1], 0.25)
 
 
+def test_hold_replaces_the_move_at_and_above_it_and_climbs_from_a_biased_policy():
+    policy = trim.make_policy(_biased_policy(ENV), ENV)
+    env, _ = built(ENV)
+    obs = jnp.zeros((2, env.observation_size), jnp.float32).at[:, -env.frame_size].set(jnp.array([0.6, -0.6]))
+    probe = lambda offsets: jnp.array([0.8001, 0.2001], jnp.float32)  # a slope of 0.05 / wl along the dither
+    key = jax.random.key(0)
+    act = lambda hyper: np.asarray(policy.act({"policy": None, "trim": trim.gains(hyper)}, policy.init(None, obs), obs,
+                                              key, probe)[0])  # noqa: E731
+    plain, held = act({"ki": 0.0}), act({"ki": 0.0, "hold": 0.5})
+    # instance 0 reads P/Pmax 0.8 >= 0.5: SPGD's step, Kp(0.8) x 0.05 on every line; instance 1 reads 0.2: the policy's
+    kp = float(agents.spgd.proportional_gain(agents.spgd.gains({}), jnp.array([0.8]))[0, 0])
+    np.testing.assert_allclose(np.abs(held[0]), kp * 0.0001 / 0.002, rtol=1e-3)
+    np.testing.assert_array_equal(held[1], plain[1])
+    assert not np.allclose(held[0], plain[0])
+    climbed = agents.evaluate(trim.trimmed((_biased_policy(ENV), None), {"ki": 0.0, "hold": 0.5}, env_config=ENV), ENV,
+                              episodes=16, seed=3, steps=200)
+    assert _final(climbed) > 0.97  # the biased policy acquires to about 0.6, the hold climbs from there
+
+
 @pytest.mark.parametrize("hyper, word", [
     ({"ki": -0.1}, "ki"), ({"ki": 2.0}, "ki"), ({"amp": 0.0}, "amp"), ({"p_gate": 1.5}, "p_gate"),
     ({"release": -1.0}, "release"), ({"ki": "x"}, "ki"), ({"jump": 0.6}, "jump"), ({"patience": 0.0}, "patience"),
+    ({"hold": 1.5}, "hold"),
 ])
 def test_bad_trim_settings_raise_naming_the_field(hyper, word):
     with pytest.raises(ValueError, match=word):
