@@ -58,6 +58,9 @@ def proportional_gain(p: dict, p0) -> jax.Array:
     return p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
 
 
+_PRESET = {k: np.float32(v) for k, v in SPGDConfig.PRESETS["default"].items()}  # the hold's gain schedule
+
+
 def held(action, p0, g, hold) -> jax.Array:
     """The hold of the physics-informed controller and the trim: ``action`` (B, N) where the measured P/Pmax ``p0``
     (B,) is under ``hold``, at or above it the proportional step up the probed slope ``g`` (B, N), 1/wl, with the
@@ -78,9 +81,6 @@ def scaled(config, action_scale: float) -> dict:
     if isinstance(action_scale, bool) or not isinstance(action_scale, (int, float, np.number)) or not action_scale > 0:
         raise ValueError(f"action_scale must be a number > 0 (wl per unit action), got {action_scale!r}")
     return {**{k: jnp.float32(v) for k, v in config.to_hyper().items()}, "action_scale": jnp.float32(action_scale)}
-
-
-_PRESET = {k: np.float32(v) for k, v in SPGDConfig.PRESETS["default"].items()}  # the hold's gain schedule
 
 
 def params_template(env_config, hyper):

@@ -39,6 +39,8 @@ CONTROLLERS = {"spgd": ("spgd", []), "spgd-bench": ("spgd", ["delta=0.01", "kp_m
                # it, or with the three before it), or the fit that identifies the imperfections
                "physics-frames": ("physics", ["config=frames", "starts=8", "iters=6"]),
                "physics-frames-history": ("physics", ["config=frames", "history=3", "starts=8", "iters=6"]),
+               # the fit to acquire, SPGD's dither step to hold near the top (one probe per step)
+               "physics-frames-hold": ("physics", ["config=frames-hold", "starts=8", "iters=6"]),
                "physics-frames-identify": ("physics", ["config=frames", "identify=True", "starts=8", "iters=6"])}
 FRAMES_ONLY = ["--observe-lengths", "False"]
 START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
