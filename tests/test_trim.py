@@ -64,7 +64,9 @@ def test_gains_are_traced_one_program_for_every_config():
     policy = trim.make_policy(_biased_policy(ENV, traces=traces), ENV)
     scores = [_final(agents.evaluate((policy, {"policy": None, "trim": trim.gains({"ki": ki})}), ENV, episodes=8,
                                      seed=5, steps=100)) for ki in (0.0, 0.003, 0.01)]
-    assert len(traces) == 1  # traced once, whatever the gains
+    agents.evaluate((policy, {"policy": None, "trim": trim.gains({"ki": 0.0, "hold": 0.85})}), ENV, episodes=8, seed=5,
+                    steps=100)
+    assert len(traces) == 1  # traced once, whatever the gains, with or without the hold
     assert scores[1] > scores[0] + 0.1
 
 
