@@ -48,6 +48,9 @@ register(Algo("td3", "agents.td3", TD3Config, "TD3", vmaps_seeds=True, off_polic
                                  hyper={"quick": {"learning_starts": 1024, "eval_every": 1000, "eval_episodes": 4},
                                         "default": {"eval_every": 5000}},
                                  lab_budget={"full": {"config": "budget"}})))
+# DroQ's bounded residual on a fit comparing four frames (the budget presets "frames-residual-history" and
+# "frames-residual-hold", which differ in the trim only)
+_RESIDUAL_HISTORY = {"config": "budget", "observer": "fit-residual", "residual_scale": 0.25, "fit_history": 3}
 register(Algo("droq", "agents.droq", DroQConfig, "DroQ", vmaps_seeds=True, off_policy=True,
               cost=CostModel(fixed_s=25.0, s_per_update=4.5e-4),
               sweep=SweepPresets(budgets={},  # in the sweep's lab-budget section only
@@ -60,7 +63,5 @@ register(Algo("droq", "agents.droq", DroQConfig, "DroQ", vmaps_seeds=True, off_p
                                              "frames-residual": {"config": "budget", "observer": "fit-residual"},
                                              "frames-residual-bounded": {"config": "budget", "observer": "fit-residual",
                                                                          "residual_scale": 0.25},
-                                             "frames-residual-history": {"config": "budget", "observer": "fit-residual",
-                                                                         "residual_scale": 0.25, "fit_history": 3},
-                                             "frames-residual-hold": {"config": "budget", "observer": "fit-residual",
-                                                                      "residual_scale": 0.25, "fit_history": 3}})))
+                                             "frames-residual-history": _RESIDUAL_HISTORY,
+                                             "frames-residual-hold": _RESIDUAL_HISTORY})))

@@ -66,7 +66,7 @@ import numpy as np
 from ops_jax import optics, physics
 from agents import spgd
 from agents.base import Policy, TrainResult, evaluated_result
-from agents.config import PhysicsConfig, SPGDConfig
+from agents.config import PhysicsConfig
 from agents.envs import built, check_env_config
 
 HOLD_STREAM = 1  # the hold's dither: the step's key folded with this, apart from the fit's random starts
@@ -294,7 +294,7 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
     max_step = 0.1 * (theta_hi - theta_lo)  # per control step
 
-    hold, amp = h.get("hold"), SPGDConfig.PRESETS["default"]["delta"]  # the hold's dither (wl)
+    hold, amp = h.get("hold"), spgd.HOLD["delta"]  # the hold's dither (wl)
     moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
     identify_one = _identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
     calibrate_one = _calibrate_function(h)

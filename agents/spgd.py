@@ -58,14 +58,14 @@ def proportional_gain(p: dict, p0) -> jax.Array:
     return p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
 
 
-_PRESET = {k: np.float32(v) for k, v in SPGDConfig.PRESETS["default"].items()}  # the hold's gain schedule
+HOLD = {k: np.float32(v) for k, v in SPGDConfig.PRESETS["default"].items()}  # the hold's dither (delta) and gains
 
 
 def held(action, p0, g, hold) -> jax.Array:
     """The hold of the physics-informed controller and the trim: ``action`` (B, N) where the measured P/Pmax ``p0``
     (B,) is under ``hold``, at or above it the proportional step up the probed slope ``g`` (B, N), 1/wl, with the
     preset's gain schedule."""
-    step = jnp.clip(proportional_gain(_PRESET, p0) * g, -1.0, 1.0)
+    step = jnp.clip(proportional_gain(HOLD, p0) * g, -1.0, 1.0)
     return jnp.where((p0 >= hold)[:, None], step, action)
 
 
