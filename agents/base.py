@@ -281,16 +281,19 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: b
         def body(c, t):
             obs, states, carry = c
             k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
+            now = [states]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
 
             def probe(offsets):
                 probes[0] += 1
-                return jax.vmap(env.probe, in_axes=(0, 0, None))(states, offsets, env_params)
+                keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.fold_in(k_env, probes[0]), ids)
+                p, now[0] = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(keys, now[0], offsets, env_params)
+                return p
 
             probes[0] = 0
             action, carry = policy.act(params, carry, obs, k_act, probe)
             keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
             obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
-                keys, states, action, env_params)
+                keys, now[0], action, env_params)
             out = (info["normalized_power"], term) + ((states.deltas,) if trajectory else ())
             return (obs, states, carry), out
 

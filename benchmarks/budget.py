@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.registry import get
+from ops_jax.env import PROBES
 from benchmarks.budget_report import BENCH, TARGET, report, steps_to_target  # noqa: F401
 
 CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
@@ -161,12 +162,15 @@ def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
     return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
 
 
-def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None) -> list[dict]:
+def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None, bench_probe=None) -> list[dict]:
     """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
     seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
-    protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level."""
+    protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
+    ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default)."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    if bench_probe is not None and bench_probe not in PROBES:
+        raise ValueError(f"bench_probe must be one of {list(PROBES)}, got {bench_probe!r}")
     if bench_scale is not None and (isinstance(bench_scale, bool) or not isinstance(bench_scale, (int, float))
                                     or not 0 < bench_scale <= 10):
         raise ValueError(f"bench_scale must be a number in (0, 10], got {bench_scale!r}")
@@ -194,7 +198,8 @@ def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None) -> li
         for seed in (p["seeds"] if seeds is None else seeds):
             bench_seed = int(seed) + adapt["bench_seed_offset"]
             scale = adapt["scale"] if bench_scale is None else bench_scale
-            on_bench = dict(env=BENCH, env_config=unseen_bench(adapt["bench_env"], bench_seed, scale),
+            probe = {} if bench_probe is None else {"probe": bench_probe}
+            on_bench = dict(env=BENCH, env_config=dict(unseen_bench(adapt["bench_env"], bench_seed, scale), **probe),
                             bench_seed=bench_seed, seed=int(seed), checkpoints=list(adapt["checkpoints"]),
                             episodes=p["episodes"], eval_seed=p["eval_seed"])
             if only is None or adapt["algo"] in only:
@@ -327,11 +332,14 @@ def main(argv=None) -> str:
     ap.add_argument("--envs", nargs="+", default=None, help="environments by name (default: all of the preset)")
     ap.add_argument("--bench-scale", type=float, default=None, metavar="X",
                     help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the preset's)")
+    ap.add_argument("--bench-probe", choices=PROBES, default=None,
+                    help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a bench "
+                         "(ops_jax EnvConfig.probe; default: the simulator's, instant)")
     args = ap.parse_args(argv)
     from benchmarks.cells import CellStore
 
     try:
-        plan = cells(args.preset, args.only, args.seeds, args.envs, args.bench_scale)
+        plan = cells(args.preset, args.only, args.seeds, args.envs, args.bench_scale, args.bench_probe)
     except ValueError as exc:
         ap.error(str(exc).replace("bench_scale", "--bench-scale"))
     store = CellStore(args.out / "cells")

@@ -41,14 +41,15 @@ GROUPS = {
 }
 
 
-def bench(seed: int, scale: float, unseen: bool, lengths: bool) -> dict:
-    """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0)."""
+def bench(seed: int, scale: float, unseen: bool, lengths: bool, probe: str = "instant") -> dict:
+    """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0), its probes
+    measured as ``probe`` says (``ops_jax.env.PROBES``)."""
     from benchmarks.budget import unseen_bench
     from benchmarks.reality import BASE_ENV, level_env
 
     if unseen:
-        return unseen_bench(dict(BASE_ENV, observe_lengths=lengths), seed, scale)
-    return dict(level_env(scale), observe_lengths=lengths)
+        return dict(unseen_bench(dict(BASE_ENV, observe_lengths=lengths), seed, scale), probe=probe)
+    return dict(level_env(scale), observe_lengths=lengths, probe=probe)
 
 
 def without(env_config: dict, group: str) -> dict:
@@ -77,7 +78,7 @@ def measure(args) -> list[dict]:
     rows, t_start = [], time.perf_counter()
     for i, seed in enumerate(args.benches, 1):
         t0 = time.perf_counter()
-        env = bench(seed, args.scale, args.unseen, args.lengths)
+        env = bench(seed, args.scale, args.unseen, args.lengths, args.probe)
         row = {"bench": seed, "all": score(args, env), **(ceiling(env, args.eval_seed) if args.ceiling else {}),
                **{group: score(args, without(env, group)) for group in args.groups}}
         row["seconds"] = time.perf_counter() - t0
@@ -120,6 +121,7 @@ def table(rows: list, cols) -> str:
 def main(argv=None) -> dict:
     from agents.cli import parse_set
     from agents.registry import get
+    from ops_jax.env import PROBES
 
     ap = argparse.ArgumentParser(prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", default="physics", choices=["physics", "spgd"], help="a controller with nothing to learn")
@@ -131,6 +133,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--benches", nargs="+", type=int, default=[1011, 1012, 1013], help="the benches' seeds")
     ap.add_argument("--groups", nargs="*", default=list(GROUPS), choices=list(GROUPS),
                     help="groups to take away one at a time (none: the bench as it is only)")
+    ap.add_argument("--probe", choices=PROBES, default="instant",
+                    help="how a probe is measured: instant (the default) or frame (a frame later, as on a bench)")
     ap.add_argument("--ceiling", action="store_true", help="add the held and predicted ceilings of each bench")
     ap.add_argument("--episodes", type=int, default=32)
     ap.add_argument("--eval-seed", type=int, default=4242)

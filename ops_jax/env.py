@@ -41,6 +41,7 @@ INT32_MAX = 2**31 - 1  # step counters are int32
 
 MODES = ("easy", "medium", "hard", "custom")
 REWARDS = ("paper", "reference", "linear")
+PROBES = ("instant", "frame")  # EnvConfig.probe: how a dither probe (``OPSEnv.probe_step``) is measured
 
 # Reference values of the difficulty modes (physics.md section 5).
 MODE_PARAMS = {
@@ -60,6 +61,10 @@ class EnvConfig:
     stacked. observe_lengths: the N length readouts in the observation (False: the detector's frames
 only). include_noise: append the noise state to the observation. imperfect: apply
     ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
+    probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed offsets in the
+    same instant as the last frame: nothing moves, no time passes) | "frame" (as on a bench: the lines move
+    to the probed offsets through the actuators, one frame passes, the detector reads P; the next step's
+    move starts from there).
     """
 
     stages: int = 5
@@ -72,6 +77,7 @@ only). include_noise: append the noise state to the observation. imperfect: appl
     include_noise: bool = False
     imperfect: bool = False
     observe_lengths: bool = True
+    probe: str = "instant"
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -109,9 +115,11 @@ class EnvParams:
 @dataclasses.dataclass(frozen=True)
 class EnvState:
     """deltas: offsets (N,) wl. mu_episode: per-episode free-running mean (N,) wl. knots: the
-    current drift segment's start and end knots (2, N). t: step in episode. episode: resets so
-    far. p_init: P at the first reset (reference reward). frames: stacked observations. lab: the
-    imperfections' state (``imperfections.LabState``; () when the config is ideal)."""
+    current drift segment's start and end knots (2, N). t: step in episode (frames, probes included, with
+    ``probe="frame"``). episode: resets so far. p_init: P at the first reset (reference reward). frames:
+    stacked observations. probed: the probe offsets (N,) wl the lines hold since the last step (zero
+    but between a "frame" probe and the next step). lab: the imperfections' state
+    (``imperfections.LabState``; () when the config is ideal)."""
 
     deltas: jax.Array
     mu_episode: jax.Array
@@ -120,6 +128,7 @@ class EnvState:
     episode: jax.Array
     p_init: jax.Array
     frames: jax.Array
+    probed: jax.Array
     lab: Any = ()
 
 
@@ -135,6 +144,7 @@ def _validate_config(cfg: EnvConfig) -> None:
     physics._check_choice("model", cfg.model, physics.MODELS)
     physics._check_choice("detector", cfg.detector, physics.DETECTORS)
     physics._check_choice("reward", cfg.reward, REWARDS)
+    physics._check_choice("probe", cfg.probe, PROBES)
     for name, accepted in ranges(cfg).items():
         accepted(name, getattr(cfg, name))
     for name in ("observe_lengths", "include_noise", "imperfect"):
@@ -222,7 +232,7 @@ class OPSEnv:
         frames = jnp.zeros((self.config.frame_stack, self.frame_size), jnp.float32)
         lab = imperfections.reset(d["key"], n, params.lab) if self.config.imperfect else ()
         return EnvState(deltas, mu_episode, knots, jnp.int32(0), jnp.asarray(episode, jnp.int32),
-                        jnp.asarray(p_init, jnp.float32), frames, lab)
+                        jnp.asarray(p_init, jnp.float32), frames, jnp.zeros((n,), jnp.float32), lab)
 
     def _observe_reset(self, z, state, params):
         _, m, x_seen = self._sense(state.deltas, state.lab)
@@ -244,17 +254,15 @@ class OPSEnv:
         if jnp.shape(action)[-1:] != (n,):
             raise ValueError(f"action must have shape ({n},) for stages={n}, got {jnp.shape(action)}")
 
-    def step_env(self, key, state: EnvState, action, params: EnvParams):
-        """One control period without auto-reset: free run, action, measurement."""
+    def _tick(self, key, state: EnvState, move, params: EnvParams):
+        """One frame: free run, the lines moved by ``move`` (N,) wl through the actuators, the drift's
+        clock advanced, the detector read. Returns (state, true measurement, detected measurement, frame)."""
         c = self.config
         d = noise.draws(key, normal={"run": (c.feedback_k, c.stages), "obs": (self.frame_size,)},
                         uniform={"knot": (c.stages,)})
-        action = jnp.asarray(action, jnp.float32)
-        finite = jnp.isfinite(action)
-        action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
         mu = self._mu(state, params)
         deltas = state.deltas + noise.free_run(d["run"], mu, params.step_sigma)
-        move, lab = action * params.action_scale, state.lab
+        lab = state.lab
         if c.imperfect:
             lab, move = imperfections.advance(key, lab, move)
         deltas = deltas + move
@@ -265,15 +273,26 @@ class OPSEnv:
         knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
         m_true, m, x_seen = self._sense(deltas, lab)
         frame = self._frame(d["obs"], m, x_seen, mu, params)
+        return dataclasses.replace(state, deltas=deltas, knots=knots, t=t, lab=lab), m_true, m, frame
+
+    def step_env(self, key, state: EnvState, action, params: EnvParams):
+        """One control period without auto-reset: free run, action, measurement. After a "frame" probe
+        the move also takes the lines back from the probed offsets."""
+        c = self.config
+        action = jnp.asarray(action, jnp.float32)
+        finite = jnp.isfinite(action)
+        action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
+        move = action * params.action_scale - state.probed
+        state, m_true, m, frame = self._tick(key, state, move, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
-        state = dataclasses.replace(state, deltas=deltas, knots=knots, t=t, frames=frames, lab=lab)
-        terminated = jnp.any(jnp.abs(deltas) > params.window)
-        truncated = (t >= c.max_steps) & ~terminated
+        state = dataclasses.replace(state, frames=frames, probed=jnp.zeros_like(state.probed))
+        terminated = jnp.any(jnp.abs(state.deltas) > params.window)
+        truncated = (state.t >= c.max_steps) & ~terminated
         info = {
             "power": m_true.power,
             "normalized_power": m_true.power / self.p_max,
             "normalized_power_best": m_true.power / jnp.where(params.lab.p_best > 0, params.lab.p_best, self.p_max),
-            "deltas_wl": deltas,
+            "deltas_wl": state.deltas,
             "action_nonfinite": ~jnp.all(finite),
         }
         reward = self.reward(m.power, state.p_init).astype(jnp.float32)
@@ -307,10 +326,21 @@ class OPSEnv:
         return new_obs, new_state, reward, terminated, truncated, info
 
     def probe(self, state: EnvState, offsets, params: EnvParams):
-        """P / P_max measured at the current lengths plus ``offsets`` (N,) wl, without moving them:
-        one extra detector reading (a dither probe, e.g. SPGD's). Agents count each call."""
+        """P / P_max read at the current lengths plus ``offsets`` (N,) wl in the same instant, nothing moved."""
         del params
-        return self._sense(state.deltas + offsets, state.lab)[1].power / self.p_max
+        return self._sense(state.deltas + offsets - state.probed, state.lab)[1].power / self.p_max
+
+    def probe_step(self, key, state: EnvState, offsets, params: EnvParams):
+        """A dither probe (e.g. SPGD's): (P / P_max read with the lines at ``offsets`` (N,) wl from where the
+        last step left them, the state after it). ``EnvConfig.probe`` "instant": ``probe``, the state
+        unchanged; "frame": the lines move there through the actuators and one frame passes (free run,
+        vibration, drift, the episode's clock), as a bench measures it; the next step's move starts there.
+        Agents count each call as a measurement."""
+        if self.config.probe == "instant":
+            return self.probe(state, offsets, params), state
+        move = jnp.asarray(offsets, jnp.float32) - state.probed
+        state, _, m, _ = self._tick(key, state, move, params)
+        return m.power / self.p_max, dataclasses.replace(state, probed=jnp.asarray(offsets, jnp.float32))
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""

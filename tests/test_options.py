@@ -29,6 +29,7 @@ ROWS = {
     "frame_stack": ([1, 4], [(0, ValueError, f"frame_stack must be {INT_RANGE}"), (-2, ValueError, INT_RANGE)]),
     "include_noise": ([False, True], [(1, TypeError, "include_noise must be a bool")]),
     "observe_lengths": ([False, True], [(1, TypeError, "observe_lengths must be a bool")]),
+    "probe": (["instant", "frame"], [("later", ValueError, "probe must be one of")]),
     "init_spread": ([0.0, 1.0], [(-0.1, ValueError, "init_spread must be a finite number in [0, 1] wl"),
                                  (1.5, ValueError, "[0, 1] wl"), (math.nan, ValueError, "[0, 1] wl")]),
     "step_sigma": ([0.0, 0.1], [(-1e-4, ValueError, "step_sigma must be a finite number in [0, 0.1] wl"),
