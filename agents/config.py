@@ -200,7 +200,8 @@ class PhysicsConfig(AlgoConfig):
             starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
             lengths_only=False, identify=False, forget=0.98),
     }
-    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step)
+    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step); it gains over
+    # "frames" only where a probe is read in the frame's instant (ops_jax EnvConfig.probe; docs/imperfections.md)
     PRESETS["frames-hold"] = dict(PRESETS["frames"], hold=0.85)
 
     starts: int = field(Range(0, 4096, integer=True))

@@ -282,7 +282,9 @@ class OPSEnv:
         action = jnp.asarray(action, jnp.float32)
         finite = jnp.isfinite(action)
         action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
-        move = action * params.action_scale - state.probed
+        move = action * params.action_scale
+        if c.probe == "frame":  # back from the probed offsets (static: an instant probe never moves the lines)
+            move = move - state.probed
         state, m_true, m, frame = self._tick(key, state, move, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
         state = dataclasses.replace(state, frames=frames, probed=jnp.zeros_like(state.probed))
@@ -328,7 +330,7 @@ class OPSEnv:
     def probe(self, state: EnvState, offsets, params: EnvParams):
         """P / P_max read at the current lengths plus ``offsets`` (N,) wl in the same instant, nothing moved."""
         del params
-        return self._sense(state.deltas + offsets - state.probed, state.lab)[1].power / self.p_max
+        return self._sense(state.deltas + offsets, state.lab)[1].power / self.p_max
 
     def probe_step(self, key, state: EnvState, offsets, params: EnvParams):
         """A dither probe (e.g. SPGD's): (P / P_max read with the lines at ``offsets`` (N,) wl from where the
