@@ -4,6 +4,7 @@
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
     python -m benchmarks.trim_loss --trims default guarded --offsets 0.001 -0.001 --envs "hard + lab"
     python -m benchmarks.trim_loss --algo physics --config frames --envs "hard + 2x lab, frames only" --seeds 0
+    python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7 --probe frame
 
 ``--algo`` at its ``--config`` preset (DroQ at its budget preset by default: 20,000 env steps, the seeds in one
 vmapped call; a controller with nothing to learn, e.g. ``physics``, once per seed) on each environment, each policy
@@ -12,7 +13,9 @@ evaluated alone and with each of the trim's presets (``TrimConfig``) on the same
 its own). Per (environment, seed, trim): the mean final P / P_best of both, the episodes the trim loses by more
 than ``--margin`` of P / P_best and those it gains by more, and the worst paired difference. ``--offsets``: the
 same comparison for the policy alone with every action shifted by a constant (no trim), the floor of what any
-perturbation of that size loses or gains episode by episode. Prints the table and writes ``trim_loss.json``.
+perturbation of that size loses or gains episode by episode. ``--probe frame``: the test episodes read the trim's
+probe a frame later, as a bench does (``ops_jax`` ``EnvConfig.probe``; training is the same). Prints the table and
+writes ``trim_loss.json``.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.config import TrimConfig
+from ops_jax.env import PROBES
 from benchmarks.reality import LEVELS, level_env
 
 ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
@@ -59,9 +63,10 @@ def shifted(result, offset: float):
 
 
 def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int,
-            trims=("default",), offsets=(), algo: str = "droq", config: str = "budget") -> list[dict]:
+            trims=("default",), offsets=(), algo: str = "droq", config: str = "budget",
+            probe: str = "instant") -> list[dict]:
     """Train ``algo`` (its ``config`` preset) on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset,
-    then per seed and offset."""
+    then per seed and offset, the test episodes' probes read as ``probe`` says (``ops_jax.env.PROBES``)."""
     import agents
     from agents import trim
 
@@ -71,7 +76,8 @@ def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, 
     train_s = time.perf_counter() - t0
     rows = []
     for seed, result in zip(seeds, results):
-        final = lambda policy: agents.evaluate(policy, env, episodes=episodes, seed=eval_seed).normalized_power_best[:, -1]
+        final = lambda policy: agents.evaluate(policy, dict(env, probe=probe), episodes=episodes,
+                                               seed=eval_seed).normalized_power_best[:, -1]
         alone = final(result)
         variants = [(name, trim.trimmed(result, {"config": name})) for name in trims]
         variants += [(f"none, action {offset:+g}", shifted(result, offset)) for offset in offsets]
@@ -103,6 +109,8 @@ def main(argv=None) -> dict:
                     help="the trim's presets (TrimConfig)")
     ap.add_argument("--offsets", nargs="*", type=float, default=[], metavar="A",
                     help="also the policy alone with every action shifted by A (action units, |A| < 1), no trim")
+    ap.add_argument("--probe", choices=PROBES, default="instant",
+                    help="how the test episodes read a probe: instant (the default) or frame (a frame later, as on a bench)")
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.steps < 1 or not args.margin >= 0:
@@ -119,7 +127,7 @@ def main(argv=None) -> dict:
     rows = []
     for env_name in args.envs:
         new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims,
-                      args.offsets, args.algo, args.config)
+                      args.offsets, args.algo, args.config, args.probe)
         print("\n".join(table(new, args.margin).splitlines()[2:]), flush=True)
         rows += new
     result = {"command": "python -m benchmarks.trim_loss", "args": {k: str(v) for k, v in vars(args).items()},
