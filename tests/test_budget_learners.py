@@ -184,6 +184,10 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     for bad in (0, -1.0, 11.0, "2"):
         with pytest.raises(ValueError, match="bench_scale must be a number in"):
             budget.cells("default", bench_scale=bad)
+    framed = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_probe="frame")
+    assert {c["env_config"]["probe"] for c in framed} == {"frame"} and "probe" not in adapt[0]["env_config"]
+    with pytest.raises(ValueError, match=r"bench_probe must be one of \['instant', 'frame'\]"):
+        budget.cells("default", bench_probe="later")
     with pytest.raises(SystemExit):
         budget.main(["--bench-scale", "0", "--out", str(tmp_path)])
     assert "--bench-scale must be a number in (0, 10]" in capsys.readouterr().err and not (tmp_path / "cells").exists()
