@@ -442,6 +442,7 @@ def test_imperfection_groups_cover_every_scaled_error_and_remove_only_their_own(
     lab = imperfections.preset("lab", 5)
     assert {k for k in lab if k in imperfections.SCALED} <= grouped
     env = bench(1011, 2.0, unseen=True, lengths=False)
+    assert env["probe"] == "instant" and bench(1011, 2.0, True, False, "frame") == dict(env, probe="frame")
     for group, fields in GROUPS.items():
         changed = without(env, group)
         built = ops_jax.make(**changed)[1].lab
@@ -455,7 +456,7 @@ def test_imperfection_groups_cover_every_scaled_error_and_remove_only_their_own(
 
 @pytest.mark.parametrize("argv, needle", [(["--scale", "0"], "--scale"), (["--episodes", "0"], "--episodes"),
                                           (["--set", "starts"], "key=value"), (["--policy", "/nonexistent"], "--policy"),
-                                          (["--set", "nonsense=1"], "nonsense")])
+                                          (["--set", "nonsense=1"], "nonsense"), (["--probe", "later"], "--probe")])
 def test_imperfection_groups_refuses_bad_arguments_naming_them(argv, needle, capsys):
     from benchmarks import imperfection_groups
 
