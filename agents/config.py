@@ -152,6 +152,9 @@ class SPGDConfig(EscapeConfig):
     PRESETS: ClassVar[dict] = {"default": dict(
         delta=0.002, delta0=0.04, anneal=20.0, kp=16.0, kp_min=0.1, kp_pow=2.0, ki=0.0, kd=0.0, leak=0.9,
         jump=0.25, patience=10.0, p_stall=0.9, margin=0.005)}
+    # for probes read a frame later, as on a bench (ops_jax EnvConfig.probe="frame"): a dither above the
+    # frame-to-frame change of P, a lower gain (docs/imperfections.md)
+    PRESETS["bench"] = dict(PRESETS["default"], delta=0.01, kp=8.0, kp_min=0.05)
 
     delta: float = field(DITHER)
     delta0: float = field(DITHER)

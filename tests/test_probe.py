@@ -52,7 +52,7 @@ def test_a_frame_probe_is_the_frame_a_still_step_shows_through_the_vibration():
     assert abs(float(p) - instant) > 1e-4  # a frame later the vibration has moved the lines
 
 
-def test_evaluate_with_frame_probes_is_deterministic_and_spgds_fine_dither_drowns_in_frame_noise():
+def test_evaluate_with_frame_probes_is_deterministic_and_spgds_fine_dither_drowns_in_frame_noise_its_bench_one_not():
     policy = base.algo_module("spgd").make_policy(_config("frame"), None)
     small = agents.evaluate((policy, None), _config("frame"), episodes=2, seed=7)
     large = agents.evaluate((policy, None), _config("frame"), episodes=6, seed=7)
@@ -63,6 +63,10 @@ def test_evaluate_with_frame_probes_is_deterministic_and_spgds_fine_dither_drown
     # the preset's dither (delta) is under the frame-to-frame change of P: its slope estimate is noise there
     assert spgd.HOLD["delta"] == pytest.approx(0.002)
     assert large.summary["final_mean_best"] < instant.summary["final_mean_best"] - 0.2
+    # the bench preset's dither is above it
+    bench = base.algo_module("spgd").make_policy(_config("frame"), {"config": "bench"})
+    above = agents.evaluate((bench, None), _config("frame"), episodes=6, seed=7)
+    assert above.summary["final_mean_best"] > large.summary["final_mean_best"] + 0.2
 
 
 def _config(probe):
