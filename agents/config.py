@@ -179,6 +179,9 @@ class TrimConfig(EscapeConfig):
     # integrates only above half of P_max and lets the offset decay below: a trim that led a line off the top is
     # undone (docs/learners.md, "Does the trim ever lose?")
     PRESETS["guarded"] = dict(PRESETS["default"], p_gate=0.5, release=0.9)
+    # the guarded trim with a dither above the frame-to-frame change of P, for probes read a frame later (a bench;
+    # ops_jax ``EnvConfig.probe="frame"``, docs/learners.md)
+    PRESETS["bench"] = dict(PRESETS["guarded"], amp=0.005)
 
     ki: float = field(Range(0, 1))
     amp: float = field(DITHER)

@@ -36,6 +36,8 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames  # with the hold as its trim
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
+    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" --only droq \
+        --bench-probe frame --bench-trim bench --out results/budget-frames   # probes a frame later, the bench trim
 
 Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
 """
@@ -48,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.config import TrimConfig
 from agents.registry import get
 from ops_jax.env import PROBES
 from benchmarks.budget_report import BENCH, TARGET, report, steps_to_target  # noqa: F401
@@ -162,15 +165,19 @@ def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
     return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
 
 
-def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None, bench_probe=None) -> list[dict]:
+def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None, bench_probe=None,
+          bench_trim=None) -> list[dict]:
     """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
     seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
     protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
-    ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default)."""
+    ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default);
+    ``bench_trim`` (a ``TrimConfig`` preset) the trim around the adapted policies (None: the preset's)."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     if bench_probe is not None and bench_probe not in PROBES:
         raise ValueError(f"bench_probe must be one of {list(PROBES)}, got {bench_probe!r}")
+    if bench_trim is not None and bench_trim not in TrimConfig.PRESETS:
+        raise ValueError(f"bench_trim must be one of {sorted(TrimConfig.PRESETS)}, got {bench_trim!r}")
     if bench_scale is not None and (isinstance(bench_scale, bool) or not isinstance(bench_scale, (int, float))
                                     or not 0 < bench_scale <= 10):
         raise ValueError(f"bench_scale must be a number in (0, 10], got {bench_scale!r}")
@@ -205,7 +212,8 @@ def cells(preset: str, only=None, seeds=None, envs=None, bench_scale=None, bench
             if only is None or adapt["algo"] in only:
                 out.append(dict(kind="adapt", algo=adapt["algo"], hyper=dict(adapt["hyper"]), **on_bench,
                                 pretrain_env=dict(adapt["pretrain_env"]), pretrain_steps=adapt["pretrain_steps"],
-                                pretrain_hyper=dict(adapt["pretrain_hyper"]), trim=dict(adapt["trim"]),
+                                pretrain_hyper=dict(adapt["pretrain_hyper"]),
+                                trim=dict(adapt["trim"]) if bench_trim is None else {"config": bench_trim},
                                 settings=[get(adapt["algo"]).settings(adapt[k]) for k in ("pretrain_hyper", "hyper")]))
             out += [dict(kind="bench reference", algo=algo, hyper=dict(hyper), **on_bench,
                          settings=get(algo).settings(hyper)) for algo, hyper in references.items()
@@ -335,11 +343,15 @@ def main(argv=None) -> str:
     ap.add_argument("--bench-probe", choices=PROBES, default=None,
                     help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a bench "
                          "(ops_jax EnvConfig.probe; default: the simulator's, instant)")
+    ap.add_argument("--bench-trim", choices=sorted(TrimConfig.PRESETS), default=None,
+                    help="the trim's preset (agents.config.TrimConfig) around protocol (b)'s adapted policies "
+                         "(default: the preset's)")
     args = ap.parse_args(argv)
     from benchmarks.cells import CellStore
 
     try:
-        plan = cells(args.preset, args.only, args.seeds, args.envs, args.bench_scale, args.bench_probe)
+        plan = cells(args.preset, args.only, args.seeds, args.envs, args.bench_scale, args.bench_probe,
+                     args.bench_trim)
     except ValueError as exc:
         ap.error(str(exc).replace("bench_scale", "--bench-scale"))
     store = CellStore(args.out / "cells")

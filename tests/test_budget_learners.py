@@ -188,6 +188,10 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     assert {c["env_config"]["probe"] for c in framed} == {"frame"} and "probe" not in adapt[0]["env_config"]
     with pytest.raises(ValueError, match=r"bench_probe must be one of \['instant', 'frame'\]"):
         budget.cells("default", bench_probe="later")
+    trimmed = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_trim="bench")
+    assert [c["trim"] for c in trimmed if c["kind"] == "adapt"] == [{"config": "bench"}] and adapt[0]["trim"] == {}
+    with pytest.raises(ValueError, match=r"bench_trim must be one of \[.*'guarded'\], got 'coarse'"):
+        budget.cells("default", bench_trim="coarse")
     with pytest.raises(SystemExit):
         budget.main(["--bench-scale", "0", "--out", str(tmp_path)])
     assert "--bench-scale must be a number in (0, 10]" in capsys.readouterr().err and not (tmp_path / "cells").exists()

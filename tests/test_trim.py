@@ -32,6 +32,10 @@ def _final(ev):
     return float(ev.normalized_power[:, -10:].mean())
 
 
+def _final_best(ev):
+    return float(ev.normalized_power_best[:, -10:].mean())
+
+
 def test_trim_removes_a_static_bias():
     policy = _biased_policy(ENV)
     alone = agents.evaluate(policy, ENV, episodes=16, seed=3, steps=200)
@@ -184,3 +188,17 @@ def test_guarded_preset_gates_and_releases():
     default, guarded = trim.gains(None), trim.gains({"config": "guarded"})
     assert float(guarded["p_gate"]) == 0.5 and float(guarded["release"]) == pytest.approx(0.9)
     assert float(default["p_gate"]) == 0.0 and float(guarded["ki"]) == float(default["ki"])
+
+
+def test_bench_preset_climbs_with_probes_read_a_frame_later():
+    """Read a frame later (``probe="frame"``), the guarded trim's 0.002 wl dither is under the frame-to-frame change
+    of P; the ``bench`` preset, the guarded trim with a larger dither, still removes the bias."""
+    env = {"stages": 3, "mode": "hard", "model": "phasor", "imperfections": "lab", "probe": "frame"}
+    bench, guarded = trim.gains({"config": "bench"}), trim.gains({"config": "guarded"})
+    assert float(bench["amp"]) > float(guarded["amp"]) and float(bench["p_gate"]) == float(guarded["p_gate"])
+    policy = _biased_policy(env)
+    wrapped = trim.make_policy(policy, env)
+    score = lambda pair: _final_best(agents.evaluate(pair, env, episodes=16, seed=3, steps=200))
+    alone = score(policy)
+    fine, coarse = (score((wrapped, {"policy": None, "trim": gains})) for gains in (guarded, bench))
+    assert alone < 0.85 and coarse > 0.95 and coarse > fine + 0.02
