@@ -2,9 +2,11 @@
 
 A controller is a ``Policy``: ``init(key, obs) -> carry`` and
 ``act(params, carry, obs, key, probe) -> (actions, carry)`` on a batch (obs (B, D), actions
-(B, N) in [-1, 1]). ``probe(offsets (B, N) wl) -> P / P_max (B,)`` is an extra detector reading at
-the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``evaluate`` counts
-every probe as a measurement. Learned policies ignore carry and probe.
+(B, N) in [-1, 1]). ``probe(offsets (B, N) wl, active=None) -> P / P_max (B,)`` is an extra detector reading
+at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,) bool, None: all,
+leaves it out where False (nothing moves, no frame passes, the result is NaN there). ``evaluate`` counts every
+probe call as a measurement (so ``measurements_per_step`` is at most that with ``active``). Learned policies
+ignore carry and probe.
 
 Each algorithm module (``agents.spgd``, ``agents.ppo``, ...; registered in ``agents.registry``,
 its interface ``agents.registry.AlgoModule``) provides
@@ -283,11 +285,16 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: b
             k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
             now = [states]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
 
-            def probe(offsets):
+            def probe(offsets, active=None):
                 probes[0] += 1
                 keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.fold_in(k_env, probes[0]), ids)
-                p, now[0] = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(keys, now[0], offsets, env_params)
-                return p
+                p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(keys, now[0], offsets, env_params)
+                if active is None:
+                    now[0] = probed
+                    return p
+                now[0] = jax.tree.map(lambda a, b: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b),
+                                      probed, now[0])
+                return jnp.where(active, p, jnp.nan)
 
             probes[0] = 0
             action, carry = policy.act(params, carry, obs, k_act, probe)

@@ -61,10 +61,14 @@ EXIT_WATCHDOG = 3
 
 
 def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
-    """``summary.json``: the score (last 80 % of the run), achieved rates, latencies, how it ended."""
+    """``summary.json``: the score (the last 80 % of the run: of its time, in lockstep of its frames, so that a
+    lockstep score does not depend on the host's pace), achieved rates, latencies, how it ended."""
     rec = {k: np.asarray(v, float) for k, v in loop.rec.items()}
     steps, t = len(rec["time_s"]), rec["time_s"]
-    tail = t >= 0.2 * elapsed
+    if loop.advance is not None and steps:
+        tail = rec["tick"] >= rec["tick"][0] + 0.2 * (rec["tick"][-1] - rec["tick"][0])
+    else:
+        tail = t >= 0.2 * elapsed
     pct = lambda v, q: float(np.percentile(v, q)) if v.size else float("nan")
     mean = lambda v: float(np.mean(v)) if v.size else float("nan")
     frames = float(rec["tick"][-1] - rec["tick"][0]) if steps > 1 else 0.0

@@ -44,21 +44,23 @@ class Agent:
         self.carry, self.t = None, 0
 
     def _act(self, params, carry, obs, key, results, calls):
-        def probe(offsets):
-            calls.append(offsets)
+        def probe(offsets, active=None):
+            calls.append((offsets, jnp.ones(offsets.shape[:1], bool) if active is None else active))
             if len(calls) > results.shape[0]:
                 raise ValueError(f"the controller asks for more than {MAX_PROBES} probes per step")
             return results[len(calls) - 1].astype(jnp.float32)
 
         action, carry = self.policy.act(params, carry, obs, key, probe)
-        offsets = jnp.stack(calls) if calls else jnp.zeros((0, *action.shape), jnp.float32)
-        return action, carry, offsets
+        offsets = jnp.stack([c[0] for c in calls]) if calls else jnp.zeros((0, *action.shape), jnp.float32)
+        active = jnp.stack([c[1] for c in calls]) if calls else jnp.zeros((0, action.shape[0]), bool)
+        return action, carry, (offsets, active)
 
     def _step(self, params, carry, obs, t, results):
-        """Step ``t``'s (action (N,), carry, probe offsets (K, N)) from obs (D,) and probe results (K,)."""
+        """Step ``t``'s (action (N,), carry, (probe offsets (K, N), probes made (K,))) from obs (D,) and probe
+        results (K,)."""
         key = jax.random.split(jax.random.fold_in(self._k_run, t))[0]
-        action, carry, offsets = self._act(params, carry, obs[None], key, results[:, None], [])
-        return action[0], carry, offsets[:, 0]
+        action, carry, (offsets, active) = self._act(params, carry, obs[None], key, results[:, None], [])
+        return action[0], carry, (offsets[:, 0], active[:, 0])
 
     def start(self, obs):
         """The controller's state from the first observation."""
@@ -67,9 +69,10 @@ class Agent:
     def _call(self, obs, results):
         return self._run(self.params, self.carry, np.asarray(obs, np.float32), self.t, np.asarray(results, np.float32))
 
-    def offsets(self, obs, results, i: int) -> np.ndarray:
-        """Probe i's offsets (N,) wl, given the results of probes 0..i-1."""
-        return np.asarray(self._call(obs, results)[2][i], np.float64)
+    def offsets(self, obs, results, i: int) -> np.ndarray | None:
+        """Probe i's offsets (N,) wl, given the results of probes 0..i-1; None where the controller leaves it out."""
+        offsets, active = self._call(obs, results)[2]
+        return np.asarray(offsets[i], np.float64) if bool(active[i]) else None
 
     def act(self, obs, results) -> np.ndarray:
         """The step's action (N,) in [-1, 1]; advances the controller's state."""
@@ -266,6 +269,9 @@ class Loop:
             t = time.perf_counter()
             offsets = self.agent.offsets(obs, results, i)
             decide += time.perf_counter() - t
+            if offsets is None:  # left out: no move, no frame
+                results[i] = np.nan
+                continue
             self.lines.move(base_wl + offsets)
             latency.append(1e3 * (time.perf_counter() - t_frame))
             self.moved()

@@ -69,9 +69,9 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         p0 = layout.power(obs)
         esc = escape.of(carry)
         offsets, testing = escape.probe_offsets(p, esc, cands, p["amp"] * s)
-        p1 = probe(offsets)
-        g = jnp.where(testing[:, None], 0.0, spgd.slope(p0, p1, s, p["amp"]))
         near = (p0 >= p["p_gate"])[:, None]
+        p1 = probe(offsets, near[:, 0] | testing | (p0 >= p["hold"]))  # none where its reading would go unused
+        g = jnp.where(testing[:, None], 0.0, spgd.slope(p0, p1, s, p["amp"]))
         c = jnp.where(near, carry["c"] + p["ki"] * g, p["release"] * carry["c"])
         action = spgd.held(jnp.clip(a + c, -1.0, 1.0), p0, g, p["hold"])
         action, esc = escape.step(p, esc, cands, testing, p0, p1, action)

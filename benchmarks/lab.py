@@ -4,12 +4,15 @@ Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
 
     python -m benchmarks.lab --seconds 60 --rates 100 50 25 --out results/lab [--policy DIR ...]
     python -m benchmarks.lab --frames-only --wrap 0.5 --idle-s 10 --seeds 1 2 3 --controllers physics-frames
+    python -m benchmarks.lab --lockstep 600 --controllers --policy DIR --trims none guarded bench --seeds 1 2 3
 
 ``--frames-only``: the bench serves no length readouts (``--observe-lengths False``) and the runner maps none;
 ``--wrap WL``: the runner's ``--wrap``; ``--idle-s``: the bench runs uncontrolled this long before the runner
 starts (its own start-up comes on top: the summary's ``first_tick`` is the tick of its first step);
 ``--seeds``: the benches' seeds (``--seed`` of the IOC), a run per seed; ``--learn ALGO``: learn on each bench, then
-run the checkpoint (``--kill-learner-after S``: the learning run SIGKILLed after S seconds and resumed).
+run the checkpoint (``--kill-learner-after S``: the learning run SIGKILLed after S seconds and resumed);
+``--trims``: each controller run alone ("none") and wrapped in each named preset of the extremum-seeking trim
+(``agents.trim``: the runner's ``--trim config=NAME``).
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
 step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
@@ -19,6 +22,7 @@ time per step (all its threads), mean P / P_best over the last 80 % of the run.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import signal
@@ -173,18 +177,19 @@ def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 
 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
-                   seed: int = 0, scale: float = 1.0, unseen: bool = False, cpu: int | None = None) -> dict:
+                   seed: int = 0, scale: float = 1.0, unseen: bool = False, cpu: int | None = None,
+                   trim: str | None = None) -> dict:
     """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
     ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts; ``unseen``: as ``run_learning``),
-    started ``idle_s`` after the IOC serves, the runner on core ``cpu`` and the IOC on the others (None: any);
-    returns its summary.json with ``first_tick``."""
+    started ``idle_s`` after the IOC serves, the runner on core ``cpu`` and the IOC on the others (None: any), the
+    controller wrapped in the trim's preset ``trim`` (None: alone); returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen, _other_cores(cpu))
     try:
         time.sleep(idle_s)
         args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
-        args += _sets(sets) + _cpu(cpu)
+        args += _sets(sets) + _cpu(cpu) + ([] if trim is None else ["--trim", f"config={trim}"])
         return _run(out / "run", args, ioc.env, START_S + 2 * seconds + lockstep)
     finally:
         ioc.kill()
@@ -273,6 +278,8 @@ def table(rows: list) -> str:
 
 
 def main(argv=None) -> dict:
+    from agents.config import TrimConfig
+
     ap = argparse.ArgumentParser(prog="python -m benchmarks.lab", description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0], help="the runner's control rate caps (Hz)")
@@ -300,6 +307,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--checkpoint-every", type=int, default=None, metavar="M",
                     help="--learn: the runner's --checkpoint-every (env steps)")
     ap.add_argument("--catch-up-s", type=float, default=None, metavar="S", help="--learn: the runner's --catch-up-s")
+    ap.add_argument("--trims", nargs="+", default=["none"], choices=["none", *sorted(TrimConfig.PRESETS)],
+                    metavar="NAME", help="each controller alone (none) and wrapped in each of these presets of the "
+                    "trim (agents.config.TrimConfig: %(choices)s)")
     ap.add_argument("--imperfection-scale", type=float, default=1.0, help="the benches' lab imperfections, x the preset")
     ap.add_argument("--unseen", action="store_true", help="each bench's per-stage errors re-drawn from its seed, "
                     "as protocol (b)'s unseen benches (benchmarks.budget)")
@@ -325,14 +335,17 @@ def main(argv=None) -> dict:
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
                 rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
-    for name, controller, sets in runs:
+    trims = [(None, "") if t == "none" else (t, f" + trim {t}") for t in args.trims]
+    for (name, controller, sets), (trim, suffix) in itertools.product(runs, trims):
         for rate in args.rates:
             for seed in args.seeds:
-                folder = args.out / (f"{name}-{rate:g}hz" + (f"-seed{seed}" if args.seeds != [0] else ""))
+                folder = args.out / (f"{name}{'' if trim is None else '-trim-' + trim}-{rate:g}hz"
+                                     + (f"-seed{seed}" if args.seeds != [0] else ""))
                 s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
                                    args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen,
-                                   args.cpu)
-                rows.append({**s, "controller": name, "settings": sets, "rate": rate, "bench_seed": seed})
+                                   args.cpu, trim)
+                rows.append({**s, "controller": name + suffix, "settings": sets, "rate": rate, "bench_seed": seed,
+                             "trim": trim})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
     ioc += ["--imperfection-scale", str(args.imperfection_scale)]

@@ -473,6 +473,24 @@ def test_agent_replays_a_controller_step_probe_by_probe():
     assert np.allclose(agent.act(obs, np.array([0.42])), want[0], atol=1e-6)
 
 
+def test_agent_leaves_out_the_probes_a_controller_leaves_out():
+    """A probe made with ``active`` False is no probe on the bench: ``offsets`` gives None (no move, no frame)."""
+    env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
+    from agents import trim
+
+    env, _ = __import__("ops_jax").make(**env_config)
+    wrapped = trim.trimmed((agents.base.algo_module("spgd").make_policy(env_config, None), None), {"config": "guarded"},
+                           env_config)
+    agent = runner.Agent(*wrapped, env, seed=3)
+    assert agent.probes == 2  # SPGD's and the trim's
+    dark, bright = (np.tile(env.layout.encode(p, np.zeros(env.frame_size - 1 - env.num_actions), np.zeros(env.num_actions),
+                                              0.5, xp=np), env.observation_size // env.frame_size) for p in (0.1, 0.9))
+    for obs, made in ((dark, False), (bright, True)):
+        agent.start(obs)
+        assert agent.offsets(obs, np.zeros(2), 0) is not None  # SPGD probes every step
+        assert (agent.offsets(obs, np.zeros(2), 1) is not None) == made  # the guarded trim only above its gate
+
+
 def test_ioc_options_come_from_make():
     args = ioc.parser().parse_args(["--stages", "3", "--imperfections", "lab", "--vib-rms", "0.01",
                                     "--waveplate-error-deg", "(0.1, 0.2, 0.3)", "--model", "phasor"])
@@ -787,24 +805,25 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
 
 
 def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path):
-    """``benchmarks.lab --frames-only --wrap --idle-s --seeds --cpu``: a bench serving no length readouts, a runner
-    mapping none, started after the idle time, on a core of its own; the row names the bench's seed and the tick of
-    the first step."""
+    """``benchmarks.lab --frames-only --wrap --idle-s --seeds --cpu --trims``: a bench serving no length readouts, a
+    runner mapping none, started after the idle time, on a core of its own, its controller wrapped in the trim; the row
+    names the bench's seed, the trim and the tick of the first step."""
     from benchmarks import lab
 
     result = lab.main(["--seconds", "3", "--controllers", "spgd", "--frames-only", "--wrap", "0.5", "--idle-s", "2",
                        "--seeds", "3", "--no-kill", "--stale-s", "5", "--cpu", str(max(os.sched_getaffinity(0))),
-                       "--out", str(tmp_path)])
+                       "--trims", "bench", "--out", str(tmp_path)])
     (row,) = result["rows"]
     assert row["stopped_by"] == "time" and row["bench_seed"] == 3 and row["steps"] > 10, row
     assert row["first_tick"] >= 150 and "wrapped_moves" in row  # at least the 2 s of idling at 100 ticks/s
-    run = tmp_path / "spgd-100hz-seed3" / "run"
-    assert json.loads((run / "summary.json").read_text())["controller"] == "spgd"
+    run = tmp_path / "spgd-trim-bench-100hz-seed3" / "run"
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["controller"] == "spgd" and summary["probes_per_step"] == 2  # SPGD's probe and the trim's
     start = json.loads((run / "documents.jsonl").read_text().splitlines()[0])["doc"]
     assert start["mapping"]["safety"]["wrap_wl"] == 0.5 and all("length" not in x for x in start["mapping"]["lines"])
     assert "--observe-lengths False" in " ".join(result["ioc"])
-    assert "LEN" not in (tmp_path / "spgd-100hz-seed3" / "run.log").read_text()
-    assert "| spgd | 3 |" in lab.table(result["rows"])
+    assert "LEN" not in (tmp_path / "spgd-trim-bench-100hz-seed3" / "run.log").read_text()
+    assert "| spgd + trim bench | 3 |" in lab.table(result["rows"]) and row["trim"] == "bench"
 
 
 def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):

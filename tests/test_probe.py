@@ -69,6 +69,26 @@ def test_evaluate_with_frame_probes_is_deterministic_and_spgds_fine_dither_drown
     assert above.summary["final_mean_best"] > large.summary["final_mean_best"] + 0.2
 
 
+def test_a_probe_left_out_moves_nothing_and_reads_nan():
+    """``probe(offsets, active)``: where ``active`` is False no frame passes and nothing moves, and the reading is NaN:
+    a policy that moves only on a finite reading runs there the episode of a policy that never probes."""
+    from agents.base import Policy
+
+    def policy(active):
+        def act(params, carry, obs, key, probe):
+            still = jnp.zeros((obs.shape[0], 5))
+            if active is None:
+                return still, carry
+            p = probe(jnp.full((obs.shape[0], 5), 0.05), jnp.asarray(active))
+            return jnp.where(jnp.isnan(p)[:, None], still, 0.5), carry
+        return Policy(lambda key, obs: (), act)
+
+    run = lambda active: agents.evaluate((policy(active), None), _config("frame"), episodes=2, seed=3, steps=20)
+    none, mixed = run(None), run([True, False])
+    np.testing.assert_array_equal(mixed.normalized_power[1], none.normalized_power[1])
+    assert not np.allclose(mixed.normalized_power[0], none.normalized_power[0])
+
+
 def _config(probe):
     return {"stages": 5, "mode": "hard", "imperfections": "lab", "observe_lengths": False, "probe": probe}
 

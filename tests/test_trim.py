@@ -80,10 +80,16 @@ def test_gate_holds_the_trim_below_it_and_release_clears_it():
     obs = jnp.zeros((2, env.observation_size), jnp.float32).at[:, -env.frame_size].set(jnp.array([0.6, -0.6]))
     carry = policy.init(None, obs)
     carry = dict(carry, c=jnp.full((2, 3), 0.5, jnp.float32))
-    probe = lambda offsets: jnp.full((2,), 0.9, jnp.float32)  # P/Pmax 0.9 at the probe: gradient > 0 along s
+    made = []
+
+    def probe(offsets, active=None):  # P/Pmax 0.9 at the probe: gradient > 0 along s
+        made.append(active)
+        return jnp.where(active, 0.9, jnp.nan)
+
     params = {"policy": None, "trim": trim.gains({"ki": 0.01, "p_gate": 0.5, "release": 0.5})}
     _, out = policy.act(params, carry, obs, jax.random.key(0), probe)
     c = np.asarray(out["c"])
+    assert np.asarray(made[0]).tolist() == [True, False]  # below the gate the reading would go unused: none is made
     # instance 0 reads P/Pmax 0.8 >= 0.5: integrates (|step| = ki x 0.1 / amp); instance 1 reads 0.2: released
     np.testing.assert_allclose(np.abs(c[0] - 0.5), 0.01 * 0.1 / 0.002, rtol=1e-4)
     np.testing.assert_allclose(c[1], 0.25)
@@ -93,7 +99,7 @@ def test_hold_replaces_the_move_at_and_above_it_and_climbs_from_a_biased_policy(
     policy = trim.make_policy(_biased_policy(ENV), ENV)
     env, _ = built(ENV)
     obs = jnp.zeros((2, env.observation_size), jnp.float32).at[:, -env.frame_size].set(jnp.array([0.6, -0.6]))
-    probe = lambda offsets: jnp.array([0.8001, 0.2001], jnp.float32)  # a slope of 0.05 / wl along the dither
+    probe = lambda offsets, active=None: jnp.array([0.8001, 0.2001], jnp.float32)  # a slope of 0.05 / wl along the dither
     key = jax.random.key(0)
     act = lambda hyper: np.asarray(policy.act({"policy": None, "trim": trim.gains(hyper)}, policy.init(None, obs), obs,
                                               key, probe)[0])  # noqa: E731
