@@ -4,7 +4,9 @@ measured power, removing the static bias a policy keeps on a system it has not f
 Each control step, per instance (B of them), with pi the wrapped policy and c (B, N) the trim:
 1. a = clip(pi(obs) + c, -1, 1), in the environment's action units;
 2. one probe P(tau + amp s) with random signs s (``agents.spgd.dither``) gives SPGD's one-probe
-   gradient estimate g (``agents.spgd.slope``, 1/wl), so 2 measurements per control step as SPGD;
+   gradient estimate g (``agents.spgd.slope``, 1/wl), so 2 measurements per control step as SPGD; none where
+   nothing would use it (the measured P/Pmax under ``p_gate`` and under ``hold``, the escape not testing): there
+   the wrapped policy runs at one measurement per step (``probe``'s ``active``, ``agents.base``);
 3. while the measured P/Pmax >= ``p_gate``: c <- c + ki g; below it: c <- release c;
 4. with ``hold``: where the measured P/Pmax is at or above it, the move is SPGD's proportional step up g
    (``agents.spgd.held``) instead of a: the wrapped policy acquires, the dither holds;
