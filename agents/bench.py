@@ -15,7 +15,8 @@ acquired ``settle_s`` or more after the write, by its time stamp), read it, buil
 exactly as the simulator does (power, oscilloscope samples, length readouts), decide, write the
 setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move: write the
 probed setpoints, wait for a frame that shows them, read the power; so each probe costs at least one
-frame and the step's action goes out after it. ``--rate`` caps the control steps per second; ``--cpu CORE`` runs
+frame and the step's action goes out after it. A probe the controller leaves out (``active``, ``agents.base``)
+is not made: no move, no frame, NaN in the event. ``--rate`` caps the control steps per second; ``--cpu CORE`` runs
 the runner on that core only. The loop runs in its own thread as a Bluesky flyer (``agents.bench_flyer``); the plan
 collects its events in pages.
 
