@@ -5,8 +5,10 @@ A controller is a ``Policy``: ``init(key, obs) -> carry`` and
 (B, N) in [-1, 1]). ``probe(offsets (B, N) wl, active=None) -> P / P_max (B,)`` is an extra detector reading
 at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,) bool, None: all,
 leaves it out where False (nothing moves, no frame passes, the result is NaN there). ``evaluate`` counts every
-probe call as a measurement (so ``measurements_per_step`` is at most that with ``active``). Learned policies
-ignore carry and probe.
+reading made as a measurement (``measurements_per_step``: the observation's frame plus the probes made, the mean
+over steps and episodes). Learned policies
+ignore carry and probe. A policy that compares frames through its own last move (the physics-informed fit, the fit
+observer) has ``sent``: a wrapper that moves the lines otherwise (the trim) tells it the move it sent instead.
 
 Each algorithm module (``agents.spgd``, ``agents.ppo``, ...; registered in ``agents.registry``,
 its interface ``agents.registry.AlgoModule``) provides
@@ -49,6 +51,9 @@ CHECKPOINT_VERSION = 1
 class Policy(NamedTuple):
     init: Callable  # (key, obs (B, D)) -> carry
     act: Callable  # (params, carry, obs (B, D), key, probe) -> (actions (B, N), carry)
+    # (params, carry, actions (B, N)) -> carry: the move really sent where a wrapper (the trim) sent another than
+    # ``act``'s, for a policy that reads its own last move (the fit's); None: the policy keeps no record of it
+    sent: Callable | None = None
 
 
 @dataclasses.dataclass
@@ -177,7 +182,7 @@ def evaluate(result_or_policy, env_config: EnvSpec | dict, *, episodes: int = 20
                              f"{trained_layout.describe()}; env_config gives {env.layout.describe()}")
     policy, params = _as_policy(result_or_policy)
     steps = int(steps or env.config.max_steps)
-    run, probes, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
+    run, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
     signature = (int(episodes), str(jax.tree.map(lambda x: (jnp.shape(x), jnp.result_type(x)), params)))
@@ -185,10 +190,10 @@ def evaluate(result_or_policy, env_config: EnvSpec | dict, *, episodes: int = 20
         jax.block_until_ready(run(params, env_params, key, ids))
         warm.add(signature)
     t0 = time.perf_counter()
-    npow, term = jax.block_until_ready(run(params, env_params, key, ids))
+    npow, term, made = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
-    summary = summarize(npow, measurements_per_step=1 + probes[0], inference_s_per_step=elapsed / steps)
+    summary = summarize(npow, measurements_per_step=float(np.mean(made)), inference_s_per_step=elapsed / steps)
     npow_best, summary["score"] = npow, "P/Pmax"
     if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
         npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
@@ -254,10 +259,10 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
     with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
     what its policy is built from (algorithm, training configuration, hyperparameters), a policy
     by identity; the environment by its static ``EnvConfig`` (its parameters are arguments).
-    Returns ``(run, probes, warmed)``: ``warmed`` holds the argument signatures already run once."""
+    Returns ``(run, warmed)``: ``warmed`` holds the argument signatures already run once."""
     key = (_source_ident(source, policy), env.config, steps, drift_episode)
     if key not in _EVALUATORS:
-        _EVALUATORS[key] = (*evaluator(env, policy, steps, drift_episode), set())  # + warmed signatures
+        _EVALUATORS[key] = (evaluator(env, policy, steps, drift_episode), set())  # + warmed signatures
         if len(_EVALUATORS) > _EVALUATORS_MAX:
             _EVALUATORS.popitem(last=False)
     _EVALUATORS.move_to_end(key)
@@ -265,12 +270,11 @@ def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: in
 
 
 def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: bool = False):
-    """``(run, probes)``: ``run(params, env_params, key, ids)`` is the jitted episode rollout (no
-    auto-reset) returning P/Pmax and terminated flags (steps, episodes), with ``trajectory`` also
-    the delay offsets (steps + 1, episodes, N) wl after the reset and after each step; ``probes[0]``
-    counts probe calls per step once traced. The one rollout of a policy: ``evaluate`` and the
-    episode renderer (``agents.episode``) use it."""
-    probes = [0]
+    """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning P/Pmax,
+    terminated flags and the readings made per step (the observation's frame and the probes left in; steps,
+    episodes), with ``trajectory`` also the delay offsets (steps + 1, episodes, N) wl after the reset and after each
+    step. The one rollout of a policy: ``evaluate`` and the episode renderer (``agents.episode``) use it."""
+    probes = [0]  # probe calls so far in the step being traced (each probe's own key)
     axes_params = None
 
     @jax.jit
@@ -284,6 +288,7 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: b
             obs, states, carry = c
             k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
             now = [states]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
+            made = [jnp.ones(ids.shape, jnp.int32)]  # readings this step, per episode
 
             def probe(offsets, active=None):
                 probes[0] += 1
@@ -291,7 +296,9 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: b
                 p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(keys, now[0], offsets, env_params)
                 if active is None:
                     now[0] = probed
+                    made[0] = made[0] + 1
                     return p
+                made[0] = made[0] + active.astype(jnp.int32)
                 now[0] = jax.tree.map(lambda a, b: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b),
                                       probed, now[0])
                 return jnp.where(active, p, jnp.nan)
@@ -301,15 +308,15 @@ def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: b
             keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
             obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
                 keys, now[0], action, env_params)
-            out = (info["normalized_power"], term) + ((states.deltas,) if trajectory else ())
+            out = (info["normalized_power"], term, made[0]) + ((states.deltas,) if trajectory else ())
             return (obs, states, carry), out
 
         _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
         if trajectory:
-            out = (*out[:2], jnp.concatenate([states.deltas[None], out[2]]))
+            out = (*out[:3], jnp.concatenate([states.deltas[None], out[3]]))
         return out
 
-    return run, probes
+    return run
 
 
 # -- checkpoints --------------------------------------------------------------------------------

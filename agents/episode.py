@@ -70,8 +70,8 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
     steps = int(env.config.max_steps if steps is None else steps)
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
-    run, _ = base.evaluator(env, policy, steps, int(episode), trajectory=True)
-    _, _, deltas = run(params, env_params, jax.random.key(seed), jnp.arange(1))
+    run = base.evaluator(env, policy, steps, int(episode), trajectory=True)
+    deltas = run(params, env_params, jax.random.key(seed), jnp.arange(1))[-1]
     deltas = np.asarray(deltas)[:, 0]
     p, _ = render.measure_frames(deltas, env.config.stages, env.config.detector)
     return render.Episode(deltas, p, dict(env_config))

@@ -86,7 +86,7 @@ def policy(observer: Observer, act: Callable):
         sent = observer.command(carry, act(params, seen))
         return sent, observer.moved(None, carry, sent)
 
-    return Policy(observer.init, act_observed)
+    return Policy(observer.init, act_observed, lambda params, carry, sent: observer.moved(None, carry, sent))
 
 
 class Observed:

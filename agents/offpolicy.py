@@ -181,7 +181,7 @@ def _cached_build(learner: Learner, env_config: dict, h: dict, num_seeds: int) -
            sharding)
     if key not in _BUILDS:
         raw = learner.build(learner.training_env(env, env_config, h), h)
-        evaluate_fn, _ = base.evaluator(env, learner.make_policy(env_config, h), env.config.max_steps, 10)
+        evaluate_fn = base.evaluator(env, learner.make_policy(env_config, h), env.config.max_steps, 10)
         ts_shape = jax.eval_shape(raw["init"], jax.random.key(0), env_params)
         fns = _over_seeds(raw, evaluate_fn, ts_shape, num_seeds, sharding)
         fns["sharding"] = sharding
@@ -302,7 +302,7 @@ def train_seeds(learner: Learner, env_config: dict, *, seeds: Sequence[int], tot
 
     def run_eval(ts):
         t0 = time.perf_counter()
-        npow, _ = evaluate_fn(policy_params(ts), env_params, k_eval, eval_ids)
+        npow = evaluate_fn(policy_params(ts), env_params, k_eval, eval_ids)[0]
         npow = np.asarray(npow)  # (seeds, steps, episodes)
         timing["evaluation"] += time.perf_counter() - t0
         return npow[:, -10:].mean((1, 2)), npow[:, -1].mean(1)

@@ -22,10 +22,11 @@ Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0
 (``wrap`` maps to the nearest optimum, [-wl/4, wl/4)).
 
 The hold (``hold``, preset "frames-hold"): where the measured P/Pmax is at or above ``hold``, the move is SPGD's
-proportional step instead (``agents.spgd``, its preset's gain schedule and fine dither, one probe per step: 2
-measurements per step), and the fit follows the lines through the moves really sent. The fit acquires from
-anywhere (no trap of a hill climber), the dither reads the slope at every step, where the fit compares frames
-that the vibration has moved apart: docs/imperfections.md ("The hold").
+proportional step instead (``agents.spgd``, its preset's gain schedule and fine dither, one probe per step there: 2
+measurements per step; under ``hold`` the probe is left out), and the fit follows the lines through the moves
+really sent. The fit acquires from anywhere (no trap of a hill climber), the dither reads the slope at every step,
+where the fit compares frames that the vibration has moved apart: docs/imperfections.md ("The hold"). The trim's
+``hold`` around the "frames" preset (``agents.trim``) runs the same episodes.
 
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
@@ -323,7 +324,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
                              "through agents.evaluate or agents.bench, or set hold=None")
         s = spgd.dither(jax.random.fold_in(key, HOLD_STREAM), action.shape)
         p0 = obs_layout.power(obs)
-        return spgd.held(action, p0, spgd.slope(p0, probe(amp * s), s, amp), hold)
+        p1 = probe(amp * s, p0 >= hold)  # none under the hold, where the fit's move is sent
+        return spgd.held(action, p0, spgd.slope(p0, p1, s, amp), hold)
 
     def act(params, carry, obs, key, probe):
         p = default if params is None else params
@@ -366,7 +368,11 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
         dz = action[:, :fit] * scale
         return action, {"y_prev": y, "dz_prev": dz, "z": z, "v": v, "valid": jnp.ones((b,), jnp.float32), **new}
 
-    return Policy(init, act)
+    def sent(params, carry, action):
+        scale = (default if params is None else params)["action_scale"]
+        return dict(carry, dz_prev=jnp.clip(action[:, :fit], -1.0, 1.0) * scale)
+
+    return Policy(init, act, sent)
 
 
 def train(env_config: dict, *, seed: int = 0, total_steps: int | None = None, progress_fn=None,

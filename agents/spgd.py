@@ -150,13 +150,13 @@ def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episod
     for m in modes:
         cfg = {"stages": stages, "mode": m, "model": "phasor"}
         env, env_params = built(cfg)
-        runs[m] = (evaluator(env, make_policy(cfg), env.config.max_steps, 10)[0], env_params)
+        runs[m] = (evaluator(env, make_policy(cfg), env.config.max_steps, 10), env_params)
     ids, key = episode_ids(episodes), jax.random.key(seed)
     rows = []
     for h in tqdm(combos, desc="spgd grid"):
         scores = {}
         for m, (run, env_params) in runs.items():  # compiled once per mode
-            npow, _ = run(gains(h, float(env_params.action_scale)), env_params, key, ids)
+            npow = run(gains(h, float(env_params.action_scale)), env_params, key, ids)[0]
             scores[m] = float(np.asarray(npow)[-1].mean())
         rows.append((h, scores))
     rows.sort(key=lambda r: -np.mean(list(r[1].values())))

@@ -12,7 +12,9 @@ Each control step, per instance (B of them), with pi the wrapped policy and c (B
    (``agents.spgd.held``) instead of a: the wrapped policy acquires, the dither holds;
 5. the stall escape (``agents.escape``, as SPGD's; ``jump = 0``: off): after ``patience`` steps below
    ``p_stall`` the probe tests jumps of a line or a pair of lines by ``jump`` wl instead of the dither, and
-   a committed jump moves its lines at full action speed, the wrapped policy paused on those lines.
+   a committed jump moves its lines at full action speed, the wrapped policy paused on those lines;
+6. a wrapped policy that reads its own last move (``Policy.sent``: the physics-informed fit, the fit observer) is
+   told the move sent, trim, hold and escape included.
 
 A feedback policy a = -K (x - x0) (x the delay offsets, x0 where the policy believes the optimum is)
 settles with the trim at x0 + c / K: the integrator moves the set point until the measured gradient
@@ -77,9 +79,16 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
         c = jnp.where(near, carry["c"] + p["ki"] * g, p["release"] * carry["c"])
         action = spgd.held(jnp.clip(a + c, -1.0, 1.0), p0, g, p["hold"])
         action, esc = escape.step(p, esc, cands, testing, p0, p1, action)
-        return action, {"policy": inner_carry, "c": c, **esc}
+        return action, {"policy": told(inner, inner_carry, action), "c": c, **esc}
 
-    return Policy(init, act)
+    def told(inner, inner_carry, action):
+        """The wrapped policy's carry told the move really sent (``Policy.sent``)."""
+        return inner_carry if policy.sent is None else policy.sent(inner, inner_carry, action)
+
+    def sent(params, carry, action):
+        return dict(carry, policy=told(None if params is None else params["policy"], carry["policy"], action))
+
+    return Policy(init, act, sent)
 
 
 def trimmed(result: TrainResult | tuple, hyper: dict | TrimConfig | None = None, env_config: dict | None = None):

@@ -174,12 +174,12 @@ def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the
 
 def test_the_hold_keeps_more_than_the_fit_where_the_vibration_moves_the_lines():
     """Twice the lab preset's imperfections, frames only: the fit acquires, the dither then holds more than the
-    fit's own moves do (2 measurements per step)."""
+    fit's own moves do (2 measurements per step there, 1 while the fit acquires)."""
     env_config = dict(ENV, imperfections="lab", imperfection_scale=2.0, observe_lengths=False)
     held = {}
     for hold in (None, 0.85):
         pol = pi.make_policy(env_config, {"config": "frames", "starts": 4, "iters": 4, "hold": hold})
         res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
         held[hold] = (np.asarray(res.normalized_power_best)[:, -20:].mean(), res.summary["measurements_per_step"])
-    assert held[None][1] == 1 and held[0.85][1] == 2
+    assert held[None][1] == 1 and 1.5 < held[0.85][1] < 2  # no probe under the hold
     assert held[0.85][0] > held[None][0] + 0.01, held

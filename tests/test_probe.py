@@ -87,6 +87,9 @@ def test_a_probe_left_out_moves_nothing_and_reads_nan():
     none, mixed = run(None), run([True, False])
     np.testing.assert_array_equal(mixed.normalized_power[1], none.normalized_power[1])
     assert not np.allclose(mixed.normalized_power[0], none.normalized_power[0])
+    # the readings made: every frame, plus the probe in one episode of two
+    assert (none.summary["measurements_per_step"], mixed.summary["measurements_per_step"]) == (1, 1.5)
+    assert run([True, True]).summary["measurements_per_step"] == 2
 
 
 def _config(probe):

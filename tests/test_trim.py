@@ -114,6 +114,47 @@ def test_hold_replaces_the_move_at_and_above_it_and_climbs_from_a_biased_policy(
     assert _final(climbed) > 0.97  # the biased policy acquires to about 0.6, the hold climbs from there
 
 
+@pytest.mark.parametrize("inner", ["physics", "observer"])
+def test_the_wrapped_fit_is_told_the_move_the_trim_sent(inner):
+    """``Policy.sent``: a wrapped policy that reads its own last move (the fit) records the trim's, not its own."""
+    from agents import observer, physics_informed
+
+    env_config = {"stages": 3, "mode": "hard", "model": "phasor", "imperfections": "lab", "observe_lengths": False}
+    if inner == "physics":
+        wrapped = physics_informed.make_policy(env_config, {"config": "frames"})
+    else:
+        wrapped = observer.policy(observer.fit_observer(env_config), lambda params, seen: jnp.zeros((seen.shape[0], 3)))
+    policy = trim.make_policy(wrapped, env_config)
+    env, env_params = built(env_config)
+    obs, _ = jax.vmap(env.reset, (0, None))(jax.random.split(jax.random.key(1), 2), env_params)
+    probe = lambda offsets, active=None: jnp.array([0.9, 0.9], jnp.float32)  # noqa: E731
+    params = {"policy": None, "trim": trim.gains({"ki": 0.0, "hold": 0.0})}  # the hold's step replaces every move
+    action, carry = policy.act(params, policy.init(jax.random.key(0), obs), obs, jax.random.key(2), probe)
+    _, own = wrapped.act(None, wrapped.init(jax.random.key(0), obs), obs, jax.random.key(2), probe)
+    fit = physics_informed.fitted_stages(env.config)
+    sent = np.clip(np.asarray(action)[:, :fit], -1, 1) * float(env_params.action_scale)
+    np.testing.assert_allclose(carry["policy"]["dz_prev"], sent, rtol=1e-6)
+    assert not np.allclose(own["dz_prev"], sent)  # alone the fit would have recorded its own move
+    assert Policy(wrapped.init, wrapped.act).sent is None and policy.sent is not None
+
+
+def test_the_trims_hold_around_the_fit_is_the_fits_own_hold():
+    """Told the moves the trim sent, the frames' fit wrapped in the trim's hold runs the episodes of the fit with the
+    same hold inside (``config="frames-hold"``: the same dither stream, the same step)."""
+    from agents import physics_informed
+
+    env_config = {"stages": 3, "mode": "hard", "model": "phasor", "imperfections": "lab", "imperfection_scale": 2.0,
+                  "observe_lengths": False}
+    small = {"starts": 4, "iters": 4}
+    own = physics_informed.make_policy(env_config, {"config": "frames-hold", **small})
+    wrapped = trim.trimmed((physics_informed.make_policy(env_config, {"config": "frames", **small}), None),
+                           {"ki": 0.0, "hold": 0.85}, env_config)
+    run = lambda pair: agents.evaluate(pair, env_config, episodes=8, seed=2, steps=60)  # noqa: E731
+    inside, around = run((own, None)), run(wrapped)
+    np.testing.assert_allclose(around.normalized_power, inside.normalized_power, atol=1e-5)
+    assert inside.normalized_power[:, -10:].mean() > 0.85  # the hold engaged: it held the lines near the top
+
+
 @pytest.mark.parametrize("hyper, word", [
     ({"ki": -0.1}, "ki"), ({"ki": 2.0}, "ki"), ({"amp": 0.0}, "amp"), ({"p_gate": 1.5}, "p_gate"),
     ({"release": -1.0}, "release"), ({"ki": "x"}, "ki"), ({"jump": 0.6}, "jump"), ({"patience": 0.0}, "patience"),
