@@ -6,9 +6,9 @@ A controller is a ``Policy``: ``init(key, obs) -> carry`` and
 at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,) bool, None: all,
 leaves it out where False (nothing moves, no frame passes, the result is NaN there). ``evaluate`` counts every
 reading made as a measurement (``measurements_per_step``: the observation's frame plus the probes made, the mean
-over steps and episodes). Learned policies
-ignore carry and probe. A policy that compares frames through its own last move (the physics-informed fit, the fit
-observer) has ``sent``: a wrapper that moves the lines otherwise (the trim) tells it the move it sent instead.
+over steps and episodes). Learned policies ignore carry and probe. A policy that compares frames through its own
+last move (the physics-informed fit, the fit observer) has ``sent``: a wrapper that moves the lines otherwise (the
+trim) tells it the move it sent instead.
 
 Each algorithm module (``agents.spgd``, ``agents.ppo``, ...; registered in ``agents.registry``,
 its interface ``agents.registry.AlgoModule``) provides
