@@ -193,7 +193,8 @@ def evaluate(result_or_policy, env_config: EnvSpec | dict, *, episodes: int = 20
     npow, term, made = jax.block_until_ready(run(params, env_params, key, ids))
     elapsed = time.perf_counter() - t0
     npow, term = np.asarray(npow).T, np.asarray(term).T
-    summary = summarize(npow, measurements_per_step=float(np.mean(made)), inference_s_per_step=elapsed / steps)
+    made = float(np.asarray(made).mean(dtype=np.float64))  # readings per step
+    summary = summarize(npow, measurements_per_step=made, inference_s_per_step=elapsed / steps)
     npow_best, summary["score"] = npow, "P/Pmax"
     if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
         npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
