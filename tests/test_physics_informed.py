@@ -152,7 +152,7 @@ def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 8), params)
     key, slope = jax.random.key(1), 3.0  # dP/dx along line 1, 1/wl
     p0 = env.layout.power(obs)
-    probe = lambda offsets: p0 + slope * offsets[:, 0]  # noqa: E731
+    probe = lambda offsets, active=None: p0 + slope * offsets[:, 0]  # noqa: E731
 
     def act(hyper, probe):
         pol = pi.make_policy(ENV, dict(config="frames", starts=1, iters=1, **hyper))
