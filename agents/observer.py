@@ -60,11 +60,7 @@ def fit_observer(env_config: dict, residual: bool = False, residual_scale: float
     def command(carry, action):
         return jnp.clip(carry["prior"] + residual_scale * action, -1.0, 1.0) if residual else action
 
-    def moved(params, carry, sent):
-        scale = (default if params is None else params)["action_scale"]
-        return dict(carry, dz_prev=jnp.clip(sent[:, :fit], -1.0, 1.0) * scale)
-
-    return Observer(fit, init, observe, command, moved)
+    return Observer(fit, init, observe, command, estimator.sent)  # moved: the fit records the move sent
 
 
 def of_learner(env_config: dict, h: dict) -> Observer | None:
