@@ -93,6 +93,7 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
         "p_over_pmax_mean": mean(rec["p_pmax"][tail]),
         "clipped_moves": int(loop.lines.clipped.get()),
         "wrapped_moves": int(loop.lines.wraps.get()),
+        "actions_cut": loop.actions_cut,
     }
 
 

@@ -379,6 +379,7 @@ class Lines(Device):
         self.wrap_wl = wrap_wl
         self.locked: str | None = None
         self._sent = None
+        self.shift = np.zeros(len(lines))  # the last move's wrap shift (wl, one per line; 0 where not wrapped)
         self.raw: RawWriter | None = None  # set by ``arm`` where caproto serves every setpoint
         super().__init__(prefix, **kwargs)
 
@@ -398,13 +399,13 @@ class Lines(Device):
         return self.wrap_wl * ((positions < low + self.wrap_wl).astype(float) - (positions > high - self.wrap_wl))
 
     def safe(self, targets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(targets within the limits (wl), which lines were clipped, which were wrapped)."""
+        """(targets within the limits (wl), which lines were clipped, the wrap shift (wl, 0 where not wrapped))."""
         targets = np.asarray(targets, float)
         here = self.position
         step = np.clip(targets - here, -self.max_step_wl, self.max_step_wl)
         shift = self.wrap(here + step)
         out = np.clip(here + step + shift, self.soft_range[:, 0], self.soft_range[:, 1])
-        return out, ~np.isclose(out, targets + shift, rtol=0, atol=1e-12), shift != 0
+        return out, ~np.isclose(out, targets + shift, rtol=0, atol=1e-12), shift
 
     def lock(self, reason: str):
         self.locked = reason
@@ -419,9 +420,9 @@ class Lines(Device):
         """``set`` without a status: the setpoints sent (wl)."""
         if self.locked:
             raise SafetyStop(f"no move after the watchdog's stop ({self.locked})")
-        out, clipped, wrapped = self.safe(targets)
-        if wrapped.any():
-            self.wraps.put(self.wraps.get() + int(wrapped.sum()))
+        out, clipped, shift = self.safe(targets)
+        if shift.any():
+            self.wraps.put(self.wraps.get() + int(np.count_nonzero(shift)))
         if clipped.any():
             self.clipped.put(self.clipped.get() + int(clipped.sum()))
             log.warning("move clipped to the safety limits: lines %s, asked %s wl, sent %s wl",
@@ -431,7 +432,7 @@ class Lines(Device):
         else:
             for line, value in zip(self._lines, out):
                 line.setpoint.put(float(value) * self.units_per_wl)
-        self._sent = out
+        self._sent, self.shift = out, shift
         return out.copy()
 
 

@@ -35,11 +35,14 @@ class Agent:
         self.probes = len(calls)
         self._init = jax.jit(policy.init)
         self._run = jax.jit(self._step)
+        self._sent = None if policy.sent is None else jax.jit(lambda p, c, a: policy.sent(p, c, a[None]))
         # compile before the run (results discarded: the policy is pure); twice, the second time with the
         # carry as act returns it (its dtypes may differ from init's)
         carry = self._init(self._k_init, obs)
         for _ in range(2):
             _, carry, _ = self._run(params, carry, np.zeros(obs.shape[1], np.float32), 0, np.zeros(self.probes, np.float32))
+            if self._sent is not None:
+                carry = self._sent(params, carry, np.zeros(env.num_actions, np.float32))
         jax.block_until_ready(carry)
         self.carry, self.t = None, 0
 
@@ -79,6 +82,14 @@ class Agent:
         action, self.carry, _ = self._call(obs, results)
         self.t += 1
         return np.asarray(action, np.float64)
+
+    def tell(self, action) -> bool:
+        """Tell a controller that reads its own last move (``Policy.sent``) the action (N,) really sent, where
+        the bench's safety limits cut the one it asked for; False for one that does not read it."""
+        if self._sent is None:
+            return False
+        self.carry = self._sent(self.params, self.carry, np.asarray(action, np.float32))
+        return True
 
 
 def load_controller(spec: str, mapping: dict, env_options: dict, hyper: dict, seed: int,
@@ -161,6 +172,7 @@ class Loop:
         self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
         self.advance = getattr(bench, "advance", None)
         self.reads = []  # (event key, signal) of the readings recorded at every step
+        self.actions_cut = 0  # steps whose action the safety limits cut
 
     # -- watchdog --------------------------------------------------------------------------------
     def trip(self, reason: str):
@@ -283,6 +295,7 @@ class Loop:
         decide_ms = 1e3 * (decide + time.perf_counter() - t)
         sent = self.lines.move(base_wl + action * self.scale)
         sent_at = time.time()
+        self.cut(action, (sent - self.lines.shift - base_wl) / self.scale)
         latency.append(1e3 * (time.perf_counter() - t_frame))
         self.moved()
         control = {"control_action": action, "control_setpoint_wl": sent, "control_probe_power": results,
@@ -293,6 +306,13 @@ class Loop:
         self.tick()
         self.pace(started)
         return data, stamps
+
+    def cut(self, action: np.ndarray, done: np.ndarray):
+        """Where the safety limits cut the step's ``action``: counted, and the controller told the action
+        ``done`` (N,), the move sent less its wrap (a whole period: the same optics)."""
+        if not np.allclose(done, action, rtol=0, atol=1e-9):
+            self.actions_cut += 1
+            self.agent.tell(done)
 
     def pace(self, started: float):
         """Sleep to the rate cap's next deadline, a period after the last (the first: a period after the step

@@ -491,6 +491,33 @@ def test_agent_leaves_out_the_probes_a_controller_leaves_out():
         assert (agent.offsets(obs, np.zeros(2), 1) is not None) == made  # the guarded trim only above its gate
 
 
+def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_move():
+    """The loop counts a step whose action the safety limits cut and tells the physics-informed fit the move
+    sent (``Policy.sent``), less a wrap (a whole period); a move within the limits, or a wrap alone, tells nothing."""
+    env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
+    env, params = __import__("ops_jax").make(**env_config)
+    scale = float(params.action_scale)
+    bench, lines = fake_bench(max_step_wl=0.5 * scale, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
+    for i in range(1, 4):
+        getattr(bench, f"line{i}").setpoint.sim_put(2.6)  # within a wrap of the upper limit
+    agent = runner.Agent(agents.base.algo_module("physics").make_policy(env_config, {"config": "frames"}), None, env,
+                         seed=1)
+    loop = runner.Loop(bench, lines, sim_mapping("T:", 3), agent, scale, 1.0, seconds=1.0, rate=100.0)
+    agent.start(np.zeros(env.observation_size))
+    for action, told in (([0.9, -0.2, 0.0], [0.5, -0.2, 0.0]),  # line 1 cut to the step limit, every line wrapped
+                         ([0.3, -0.2, 0.0], None)):  # within the limits
+        fit = agent.carry["dz_prev"].shape[1]  # the lines the fit moves
+        agent.carry = dict(agent.carry, dz_prev=jax.numpy.full((1, fit), 7.0))  # a mark: only a tell rewrites it
+        base = lines.position
+        loop.cut(np.array(action), (lines.move(base + np.array(action) * scale) - lines.shift - base) / scale)
+        want = np.full(fit, 7.0) if told is None else np.array(told[:fit]) * scale
+        np.testing.assert_allclose(np.asarray(agent.carry["dz_prev"])[0], want, rtol=1e-6)
+    assert loop.actions_cut == 1 and lines.wraps.get() == 3 and lines.clipped.get() == 1
+    spgd = runner.Agent(agents.base.algo_module("spgd").make_policy(env_config, None), None, env, seed=1)
+    spgd.start(np.zeros(env.observation_size))
+    assert not spgd.tell(np.zeros(3))  # SPGD reads no move of its own
+
+
 def test_ioc_options_come_from_make():
     args = ioc.parser().parse_args(["--stages", "3", "--imperfections", "lab", "--vib-rms", "0.01",
                                     "--waveplate-error-deg", "(0.1, 0.2, 0.3)", "--model", "phasor"])
