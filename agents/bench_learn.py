@@ -271,6 +271,7 @@ class Learning:
 
             carry, frame = jax.eval_shape(ob.init, None, raw), jax.ShapeDtypeStruct((d_raw,), jnp.float32)
             self._init_seen = jax.jit(lambda obs: ob.init(None, obs)).lower(raw).compile()
+            self._moved = jax.jit(lambda carry, sent: ob.moved(None, carry, sent[None])).lower(carry, act).compile()
             self._act = jax.jit(act_observed).lower(carry, frame, jnp.int32(0), _acting(ts), jnp.bool_(True)).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._insert = jax.jit(insert, donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
@@ -302,6 +303,17 @@ class Learning:
         self.prev, self.t = (obs, action), self.t + 1
         self.wake.set()
         return np.asarray(sent, np.float64)
+
+    def tell(self, action) -> bool:
+        """The move (N,) really sent where the bench's limits cut this step's: the step stored with it where the
+        learner's action is the move (no observer, or ``fit``; ``fit-residual`` keeps its correction), and the
+        fit told it (``Policy.sent``)."""
+        done = np.asarray(action, np.float32)
+        if self.observer is None or self.h["observer"] == "fit":
+            self.prev = (self.prev[0], done)
+        if self.observer is not None:
+            self.seen = self._moved(self.seen, done)
+        return True
 
     # -- the learner (its own thread) ------------------------------------------------------------
     def begin(self, steps: int, on_error) -> None:

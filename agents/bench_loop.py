@@ -295,9 +295,9 @@ class Loop:
         decide_ms = 1e3 * (decide + time.perf_counter() - t)
         sent = self.lines.move(base_wl + action * self.scale)
         sent_at = time.time()
-        self.cut(action, (sent - self.lines.shift - base_wl) / self.scale)
         latency.append(1e3 * (time.perf_counter() - t_frame))
         self.moved()
+        self.cut(action, (sent - self.lines.shift - base_wl) / self.scale)
         control = {"control_action": action, "control_setpoint_wl": sent, "control_probe_power": results,
                    "control_latency_ms": latency[-1]}
         data.update(control)

@@ -15,7 +15,7 @@ pytest.importorskip("bluesky")
 
 from test_bench import START_S, bench_run, documents, finish  # noqa: E402
 
-from agents import base, bench_learn, replay  # noqa: E402
+from agents import base, bench_learn, physics_informed, replay  # noqa: E402
 from agents.io import kept_dir  # noqa: E402
 from agents import bench as runner  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
@@ -251,15 +251,24 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
     """With ``observer=fit`` the loop's frames get the fit's offsets before the learner sees them (stored
     transitions hold both), nothing compiles after setup, and the checkpoint's policy acts on raw frames. The
     stored actions are the moves sent; with ``fit-residual`` they are the learner's corrections, not the moves
-    sent (the fit's move added)."""
+    sent (the fit's move added). A move the bench's limits cut is told to the fit, and stored where the action is
+    the move."""
     learning = _learning(tmp_path, 120, resume=False, observer=kind)
     d = learning.env.observation_size
     assert learning.train_env.observation_size == d + 2  # 3 stages, detector "total": 2 fitted lines
     obs = np.random.default_rng(1).uniform(-1, 1, (121, d)).astype(np.float32)
+    scale = physics_informed.policy_params(learning.env_config)["action_scale"]
     with compiles() as n:
         learning.begin(120, lambda exc: None)
         learning.start(obs[0])
-        actions = [learning.act(o, np.zeros(0)) for o in obs[1:]]
+        actions = []
+        for i, o in enumerate(obs[1:]):
+            actions.append(learning.act(o, np.zeros(0)))
+            if i == 60:  # the bench's limits cut this step's move: the fit is told it, and the stored step
+                actions[-1] = done = np.array([0.5, -0.25, 0.0])
+                assert learning.tell(done)
+                np.testing.assert_allclose(np.asarray(learning.seen["dz_prev"])[0], done[:2] * scale, rtol=1e-6)
+                assert np.array_equal(learning.prev[1], done) == (kind == "fit")
         learning.finish()
     assert n[0] == 0 and learning.error is None and np.all(np.abs(actions) <= 1)
     _, batch = replay.replay_buffer(learning.train_env, learning.h).sample(learning.ts.buffer)
