@@ -11,6 +11,26 @@ import pytest
 REFERENCE_DIR = Path(__file__).resolve().parents[1] / "benchmarks" / "reference"
 
 
+def _compile_unoptimised():
+    """This process compiles at XLA's backend optimisation level 0 (as ``benchmarks.sweep --quick``): the suite's
+    time is mostly compilation. The level is read once, when the backend starts (here); XLA_FLAGS is then
+    restored, so that the processes the tests start (the bench, the IOC, the sweep) run the optimised build."""
+    flags = os.environ.get("XLA_FLAGS")
+    if "xla_backend_optimization_level" in (flags or ""):
+        return
+    os.environ["XLA_FLAGS"] = f"{flags or ''} --xla_backend_optimization_level=0".strip()
+    try:
+        jax.devices()
+    finally:
+        if flags is None:
+            del os.environ["XLA_FLAGS"]
+        else:
+            os.environ["XLA_FLAGS"] = flags
+
+
+_compile_unoptimised()
+
+
 @pytest.fixture(scope="session")
 def reference():
     """The paper implementation's numbers (benchmarks/reference, or OPS_REFERENCE_DIR): physics
