@@ -14,11 +14,13 @@ REFERENCE_DIR = Path(__file__).resolve().parents[1] / "benchmarks" / "reference"
 def _compile_unoptimised():
     """This process compiles at XLA's backend optimisation level 0 (as ``benchmarks.sweep --quick``): the suite's
     time is mostly compilation. The level is read once, when the backend starts (here); XLA_FLAGS is then
-    restored, so that the processes the tests start (the bench, the IOC, the sweep) run the optimised build."""
+    restored, so that the processes the tests start (the bench, the IOC, the sweep) run the optimised build;
+    a test that compares this process's numbers with a started process's bit for bit uses ``this_build``.
+    Returns the XLA_FLAGS of this process."""
     flags = os.environ.get("XLA_FLAGS")
     if "xla_backend_optimization_level" in (flags or ""):
-        return
-    os.environ["XLA_FLAGS"] = f"{flags or ''} --xla_backend_optimization_level=0".strip()
+        return flags
+    here = os.environ["XLA_FLAGS"] = f"{flags or ''} --xla_backend_optimization_level=0".strip()
     try:
         jax.devices()
     finally:
@@ -26,9 +28,16 @@ def _compile_unoptimised():
             del os.environ["XLA_FLAGS"]
         else:
             os.environ["XLA_FLAGS"] = flags
+    return here
 
 
-_compile_unoptimised()
+XLA_FLAGS_HERE = _compile_unoptimised()
+
+
+@pytest.fixture
+def this_build(monkeypatch):
+    """XLA_FLAGS set to this process's while the test runs: the processes it starts compile the same build."""
+    monkeypatch.setenv("XLA_FLAGS", XLA_FLAGS_HERE)
 
 
 @pytest.fixture(scope="session")

@@ -50,7 +50,7 @@ def test_vmapped_seeds_equal_single_seed_runs():
     both = agents.train_seeds("droq", ENV, seeds=[3, 5], total_steps=FEW_STEPS, **FEW)
     solo = agents.train("droq", ENV, seed=5, total_steps=FEW_STEPS, **FEW)
     assert [r.seed for r in both] == [3, 5] and both[1].wall_time["seeds_in_call"] == 2
-    np.testing.assert_allclose(both[1].curve["normalized_power"][0], solo.curve["normalized_power"][0], rtol=1e-6)
+    np.testing.assert_allclose(both[1].curve["normalized_power"][0], solo.curve["normalized_power"][0], rtol=1e-5)
     gap = lambda a, b: [float(np.abs(x - y).max()) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b))]  # noqa: E731
     assert max(gap(both[1].params, solo.params)) < 2e-3  # rounding, grown over 64 Adam steps
     assert min(gap(both[0].params, both[1].params)) > 2e-2  # another seed: every array apart

@@ -71,8 +71,8 @@ def test_step_and_step_batch_agree():
         many = step_many(k, states, a, params)
         for i in range(8):
             one = step_one(k[i], jax.tree.map(lambda x: x[i], states), a[i], params)
-            np.testing.assert_allclose(one[0], many[0][i], rtol=1e-6, atol=1e-7)
-            np.testing.assert_allclose(one[2], many[2][i], rtol=1e-6)
+            np.testing.assert_allclose(one[0], many[0][i], rtol=1e-5, atol=1e-6)  # two programs: to rounding
+            np.testing.assert_allclose(one[2], many[2][i], rtol=1e-5)
         states = many[1]
 
 

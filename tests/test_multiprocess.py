@@ -5,7 +5,7 @@ import numpy as np
 from benchmarks import multiprocess
 
 
-def test_two_processes_match_one_process_instance_by_instance():
+def test_two_processes_match_one_process_instance_by_instance(this_build):
     r = multiprocess.check(processes=2, instances=8, steps=10, seed=3)
     assert r["devices"] == 2 and r["instances"] == 8
     assert r["equal"] and r["equal_instances"] == 8 and r["max_abs_diff"] == 0.0
