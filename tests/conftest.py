@@ -36,7 +36,8 @@ XLA_FLAGS_HERE = _compile_unoptimised()
 
 @pytest.fixture
 def this_build(monkeypatch):
-    """XLA_FLAGS set to this process's while the test runs: the processes it starts compile the same build."""
+    """XLA_FLAGS set to this process's while the test runs: the processes it starts compile the same build (to
+    compare with it bit for bit, or to compile faster where a process's speed does not matter)."""
     monkeypatch.setenv("XLA_FLAGS", XLA_FLAGS_HERE)
 
 

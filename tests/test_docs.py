@@ -161,7 +161,7 @@ def test_documented_yaml_parses(where, body):
 
 
 @pytest.mark.parametrize("where, body", fenced("python"), ids=lambda v: v if isinstance(v, str) and ".md:" in v else "")
-def test_documented_python_block_runs(where, body, tmp_path):
+def test_documented_python_block_runs(where, body, tmp_path, this_build):
     for big, small in SHRINK.items():
         body = body.replace(big, small)
     out = subprocess.run([sys.executable, "-c", body], capture_output=True, text=True, timeout=TIMEOUT_S,
@@ -173,7 +173,7 @@ def test_documented_python_block_runs(where, body, tmp_path):
 
 
 @pytest.mark.parametrize("command", sorted(STARTED))
-def test_long_running_command_starts(command, tmp_path):
+def test_long_running_command_starts(command, tmp_path, this_build):
     """Runs for real in a temporary folder until its first progress output, then is stopped (process group)."""
     log = tmp_path / "output.log"
     with open(log, "w") as f:
