@@ -21,9 +21,9 @@ from processes import descendants, stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 180
+SUBSET = ["--only", "table1", "budget", "--algos", "spgd", "td3"]  # the sweep's sections and algorithms here
 # Loopback test cluster: no token; workers at the normal priority (Ray's default nice 15 starves
 # them on a busy machine).
-SUBSET = ["--only", "table1", "budget", "--algos", "spgd", "td3"]
 CLUSTER_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_worker_niceness": "0", "RAY_USAGE_STATS_ENABLED": "0"}
 
 
