@@ -632,6 +632,30 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
 
 
+def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
+    """The physics-informed controller, which reads its own last move, on a bench whose step limit its moves
+    exceed: the run ends cleanly, counting as cut exactly the steps whose setpoints moved by less than asked."""
+    _, params = __import__("ops_jax").make(stages=3, mode="hard", model="phasor")  # the free bench's
+    scale = float(params.action_scale)  # wl per unit of action
+    max_step = 0.5 * scale
+    mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}
+    (tmp_path / "map.json").write_text(json.dumps(mapping))
+    rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"),
+                               "--controller", "physics", "--set", "config=frames", "--set", "starts=2",
+                               "--seconds", "3"))
+    assert rc == 0, log
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    docs = documents(tmp_path)
+    events = [d["doc"]["data"] for d in docs if d["name"] == "event"]
+    asked = np.array([e["control_action"] for e in events[1:]]) * scale
+    moved = np.diff(np.array([e["control_setpoint_wl"] for e in events]), axis=0)
+    assert np.all(np.abs(moved) <= max_step + 1e-9)
+    cut = ~np.all(np.isclose(moved, asked, rtol=0, atol=1e-9), axis=1)  # no wrap mapped: a move short of the ask
+    assert 0 < cut.sum() < len(cut), (cut.sum(), len(cut))  # acquiring is cut, holding is not
+    assert summary["actions_cut"] - int(cut.sum()) in (0, 1), summary  # the first step's base is in no event
+    assert summary["clipped_moves"] >= cut.sum() and summary["steps"] == len(events)
+
+
 def test_run_with_the_trim_probes_once_more_per_step(iocs, tmp_path):
     """SPGD wrapped in the extremum-seeking trim (agents.trim) over Channel Access: two probes per step."""
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--prefix", "FR:", "--stages", "3", "--controller", "spgd",
