@@ -21,7 +21,7 @@ from processes import descendants, stop_groups
 
 REPO = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 180
-SUBSET = ["--only", "table1", "budget", "--algos", "spgd", "td3"]  # the sweep's sections and algorithms here
+SECTIONS, ALGOS = ["table1", "budget"], ["spgd", "td3"]  # the sweep's sections and algorithms here
 # Loopback test cluster: no token; workers at the normal priority (Ray's default nice 15 starves
 # them on a busy machine).
 CLUSTER_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_worker_niceness": "0", "RAY_USAGE_STATS_ENABLED": "0"}
@@ -76,8 +76,8 @@ def two_node_cluster():
 def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cluster):
     address, env, cluster = two_node_cluster
     out = tmp_path / "quick"
-    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.sweep", "--quick", *SUBSET, "--ray", address,
-                             "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.sweep", "--quick", "--only", *SECTIONS, "--algos", *ALGOS,
+                             "--ray", address, "--out", str(out)],
                             cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         killed = None
@@ -98,8 +98,8 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
     assert proc.returncode == 0, stderr[-3000:]
     assert "\x1b[" not in stderr and "\r" not in stderr  # a log file: plain lines, no control codes
     assert stderr.count("sweep on 2 workers") >= 1
-    preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=["spgd", "td3"]))
-    units = Sweep(preset, tmp_path / "plan", print).units(["table1", "budget"])
+    preset = sweep.build_preset(argparse.Namespace(quick=True, seeds=None, algos=ALGOS))
+    units = Sweep(preset, tmp_path / "plan", print).units(SECTIONS)
     expected = {c.label for u in units for c in u.cells}
     cells = {}
     for path in (out / "cells").glob("*.json"):
@@ -130,5 +130,5 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
                  "budget/budget.md"]:
         assert (out / name).stat().st_size > 0, name
     rows = list(__import__("csv").DictReader(open(out / "table1.csv")))
-    assert {r["algo"] for r in rows} == {"spgd", "td3"}
+    assert {r["algo"] for r in rows} == set(ALGOS)
     assert all(0.0 <= float(r["mean"]) <= 1.0 for r in rows)
