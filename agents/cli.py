@@ -28,7 +28,7 @@ import agents
 from agents import base
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
-from ops_jax.progress import exit_interrupted, progress
+from ops_jax.progress import exit_interrupted, keep_ctrl_c, progress
 from ops_jax.cli import ArgumentParser
 
 
@@ -89,6 +89,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--logdir", type=Path, default=None,
                     help="TensorBoard event files of the training curve (needs the tensorboard extra)")
     args = ap.parse_args(argv)
+    keep_ctrl_c()
 
     out = args.out or Path("runs") / args.algo
     try:

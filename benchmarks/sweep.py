@@ -40,6 +40,7 @@ from pathlib import Path  # noqa: E402
 
 from benchmarks import sweep_plan  # noqa: E402
 from benchmarks.sweep_units import enable_compilation_cache, quick_compilation  # noqa: E402
+from ops_jax.progress import keep_ctrl_c  # noqa: E402
 
 SECTIONS = sweep_plan.default_sections()  # a run without --only
 
@@ -81,6 +82,7 @@ def main(argv=None):
     ap.add_argument("--worker-gpus", type=float, default=0.0,
                     help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)")
     args = ap.parse_args(argv)
+    keep_ctrl_c()
     if args.worker_gpus < 0:
         raise SystemExit(f"python -m benchmarks.sweep: --worker-gpus must be >= 0, got {args.worker_gpus}")
     if args.restarts < 0:

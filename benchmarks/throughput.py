@@ -32,7 +32,7 @@ from agents.base import split_over_devices
 from agents.io import write_json_atomic
 from benchmarks.common import load_reference_timing
 from ops_jax.cli import ArgumentParser
-from ops_jax.progress import exit_interrupted, progress
+from ops_jax.progress import exit_interrupted, keep_ctrl_c, progress
 
 SCAN_STEPS = 200
 PATHS = ("step_batch", "vmap")  # env.step_batch(keys, ...) | jax.vmap(env.step)(keys, ...)
@@ -172,6 +172,7 @@ def main(argv=None):
                     help="only vmap(gymnax adapter step) against step_batch (needs the gymnax extra)")
     ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
     args = ap.parse_args(argv)
+    keep_ctrl_c()
     if args.host_devices < 1:
         raise SystemExit(f"--host-devices must be >= 1, got {args.host_devices}")
     if args.host_devices > 1:  # read when jax's backend starts, i.e. before the first computation

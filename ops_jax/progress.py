@@ -11,8 +11,11 @@ time follows the measured cost rather than the count.
 
 from __future__ import annotations
 
+import _thread
 import os
+import signal
 import sys
+import threading
 import time
 
 INTERVAL_ENV = "OPS_JAX_PROGRESS_INTERVAL"
@@ -128,6 +131,36 @@ def progress(iterable=None, *, total=None, desc: str = "", unit: str = "it", fil
     tqdm_kwargs.pop("position", None)
     tqdm_kwargs.pop("dynamic_ncols", None)
     return PlainProgress(iterable, total=total, desc=desc, unit=unit, file=stream, **tqdm_kwargs)
+
+
+def keep_ctrl_c() -> None:
+    """Make a Ctrl-C that lands in a garbage-collector callback (JAX registers one) or a ``__del__`` stop
+    the program: Python reports a ``KeyboardInterrupt`` raised there as unraisable and goes on; this hook
+    has it raised again 5 ms later, once the callback has returned. Other unraisable errors are reported
+    as before. Idempotent; for command-line programs that end on ``KeyboardInterrupt``."""
+    if getattr(sys.unraisablehook, "keeps_ctrl_c", False):
+        return
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if not issubclass(unraisable.exc_type, KeyboardInterrupt):
+            previous(unraisable)
+            return
+        while True:
+            try:
+                threading.Thread(target=_interrupt_main_soon, daemon=True).start()
+                return
+            except KeyboardInterrupt:  # a delivery landed in this hook: it is lost, so send another
+                continue
+
+    hook.keeps_ctrl_c = True
+    sys.unraisablehook = hook
+
+
+def _interrupt_main_soon() -> None:
+    """Simulate a SIGINT in the main thread after 5 ms (nothing when SIGINT is ignored)."""
+    time.sleep(0.005)
+    _thread.interrupt_main(signal.SIGINT)
 
 
 def exit_interrupted(line: str) -> None:

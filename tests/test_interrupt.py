@@ -61,3 +61,33 @@ def test_ctrl_c_during_throughput_keeps_the_measured_rows(tmp_path):
     kept = json.loads((tmp_path / "t.json").read_text())
     assert kept["meta"]["interrupted"] is True and len(kept["rows"]) >= 2
     assert int(line.split()[1]) == len(kept["rows"]) // 2
+
+
+CTRL_C_IN_A_GC_CALLBACK = """
+import gc, signal, sys, time
+from ops_jax.progress import keep_ctrl_c
+if sys.argv[1] == "keep":
+    keep_ctrl_c()
+fired = []
+def callback(phase, info):  # as JAX's: Python code that runs inside every collection
+    if not fired:
+        fired.append(phase)
+        signal.raise_signal(signal.SIGINT)  # the Ctrl-C lands here, where Python can only report it
+gc.callbacks.append(callback)
+try:
+    gc.collect()
+    time.sleep(2.0)
+    print("ran on")
+except KeyboardInterrupt:
+    print("stopped")
+"""
+
+
+def test_a_ctrl_c_landing_in_a_gc_callback_still_stops_the_program():
+    def run(mode):
+        return subprocess.run([sys.executable, "-c", CTRL_C_IN_A_GC_CALLBACK, mode], capture_output=True, text=True,
+                              timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)}, preexec_fn=default_sigint)
+
+    plain, kept = run("plain"), run("keep")
+    assert plain.stdout.strip() == "ran on" and "KeyboardInterrupt" in plain.stderr  # Python's own behaviour
+    assert kept.stdout.strip() == "stopped" and kept.stderr == "", kept.stderr
