@@ -53,6 +53,7 @@ import numpy as np
 from agents.config import TrimConfig
 from agents.registry import get
 from ops_jax.env import PROBES
+from ops_jax.progress import keep_ctrl_c
 from benchmarks.budget_report import BENCH, TARGET, report, steps_to_target  # noqa: F401
 
 CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
@@ -347,6 +348,7 @@ def main(argv=None) -> str:
                     help="the trim's preset (agents.config.TrimConfig) around protocol (b)'s adapted policies "
                          "(default: the preset's)")
     args = ap.parse_args(argv)
+    keep_ctrl_c()
     from benchmarks.cells import CellStore
 
     try:

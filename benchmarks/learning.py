@@ -29,6 +29,7 @@ import numpy as np
 
 from agents.io import write_json_atomic
 from ops_jax.cli import ArgumentParser
+from ops_jax.progress import keep_ctrl_c
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:
@@ -117,6 +118,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--fresh", action="store_true", help="ignore runs already in <out>/learning.json")
     ap.add_argument("--no-checkpoints", action="store_true")
     args = ap.parse_args(argv)
+    keep_ctrl_c()
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
     for algo in args.algos:  # a missing extra stops here, at once, naming its install command
