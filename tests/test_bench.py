@@ -27,6 +27,7 @@ import agents  # noqa: E402
 from agents import bench as runner  # noqa: E402
 from agents.bench_devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
+import ops_jax  # noqa: E402
 from ops_jax import ioc  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -353,7 +354,7 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
     reading them fails before it is compiled, naming itself and the missing entries."""
     assert not runner.reads_lengths("spgd", None) and runner.reads_lengths("sac", {})
     assert runner.reads_lengths("physics", None) and not runner.reads_lengths("physics", {"use_lengths": False})
-    env, _ = __import__("ops_jax").make(3, "hard")
+    env, _ = ops_jax.make(3, "hard")
     assert runner.observes_lengths(env)
     mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
     assert all("length" not in line for line in mapping["lines"])
@@ -454,7 +455,7 @@ def test_agent_replays_a_controller_step_probe_by_probe():
     """Agent's probe protocol gives the policy's own offsets and, with the measured results, its action."""
     env_config = {"stages": 3, "model": "phasor"}
     policy = agents.base.algo_module("spgd").make_policy(env_config, None)
-    env, _ = __import__("ops_jax").make(**env_config)
+    env, _ = ops_jax.make(**env_config)
     agent = runner.Agent(policy, None, env, seed=3)
     assert agent.probes == 1
     obs = np.linspace(-0.5, 0.5, env.observation_size)
@@ -478,7 +479,7 @@ def test_agent_leaves_out_the_probes_a_controller_leaves_out():
     env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
     from agents import trim
 
-    env, _ = __import__("ops_jax").make(**env_config)
+    env, _ = ops_jax.make(**env_config)
     wrapped = trim.trimmed((agents.base.algo_module("spgd").make_policy(env_config, None), None), {"config": "guarded"},
                            env_config)
     agent = runner.Agent(*wrapped, env, seed=3)
@@ -495,7 +496,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
     """The loop counts a step whose action the safety limits cut and tells the physics-informed fit the move
     sent (``Policy.sent``), less a wrap (a whole period); a move within the limits, or a wrap alone, tells nothing."""
     env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
-    env, params = __import__("ops_jax").make(**env_config)
+    env, params = ops_jax.make(**env_config)
     scale = float(params.action_scale)
     bench, lines = fake_bench(max_step_wl=0.5 * scale, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
     for i in range(1, 4):
@@ -635,7 +636,7 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
 def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     """The physics-informed controller, which reads its own last move, on a bench whose step limit its moves
     exceed: the run ends cleanly, counting as cut exactly the steps whose setpoints moved by less than asked."""
-    _, params = __import__("ops_jax").make(stages=3, mode="hard", model="phasor")  # the free bench's
+    _, params = ops_jax.make(stages=3, mode="hard", model="phasor")  # the free bench's
     scale = float(params.action_scale)  # wl per unit of action
     max_step = 0.5 * scale
     mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}

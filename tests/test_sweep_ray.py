@@ -3,6 +3,7 @@ is the quick preset's Table 1 (SPGD and TD3) and budget section: Table 1's batch
 end, and reports from cells computed on both nodes."""
 
 import argparse
+import csv
 import json
 import os
 import shutil
@@ -129,6 +130,6 @@ def test_quick_sweep_on_two_nodes_survives_a_killed_worker(tmp_path, two_node_cl
     for name in ["table1.md", "table1.csv", "training_curves.png", "testing_curves.png", "performance_profile.png",
                  "budget/budget.md"]:
         assert (out / name).stat().st_size > 0, name
-    rows = list(__import__("csv").DictReader(open(out / "table1.csv")))
+    rows = list(csv.DictReader(open(out / "table1.csv")))
     assert {r["algo"] for r in rows} == set(ALGOS)
     assert all(0.0 <= float(r["mean"]) <= 1.0 for r in rows)
