@@ -26,6 +26,7 @@ import numpy as np
 from ops_jax import physics, render
 from agents import base, registry
 from ops_jax.cli import ArgumentParser
+from ops_jax.progress import keep_ctrl_c
 from agents.envs import built
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
@@ -95,6 +96,7 @@ def _parser():
 
 
 def main(argv=None) -> Path:
+    keep_ctrl_c()
     args = _parser().parse_args(argv)
     out = Path(args.out)
     if args.every < 1:

@@ -164,6 +164,9 @@ def search(grid: dict, modes=("easy", "medium", "hard"), stages: int = 5, episod
 
 
 if __name__ == "__main__":
+    from ops_jax.progress import keep_ctrl_c
+
+    keep_ctrl_c()
     ap = argparse.ArgumentParser(description="SPGD-PID search (the stall-escape grid of the module docstring)")
     ap.add_argument("--search", action="store_true")
     ap.add_argument("--episodes", type=int, default=1024)

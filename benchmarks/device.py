@@ -36,6 +36,7 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from agents.io import write_json_atomic  # noqa: E402
+from ops_jax.progress import keep_ctrl_c  # noqa: E402
 from benchmarks.device_sections import (  # noqa: E402, F401
     ENV, MIN_SECTION_S, ROOT, SECTION_FNS, TRAIN, TRAIN_TINY, OutOfTime, _pythonpath, _scan, _stop, batches, device_info,
     is_oom, rollout_rate, section_rollout, section_step_batch, section_sweep, short_error, step_dtypes, train_rate)
@@ -255,6 +256,7 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> dict:
+    keep_ctrl_c()
     args = parse_args(argv)
     if args.child:
         raise SystemExit(child_main(args))

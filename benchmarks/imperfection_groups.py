@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ops_jax.progress import keep_ctrl_c
+
 # The lab preset's fields by what they model; taking a group away sets its fields to the ideal values
 # (``ops_jax.imperfections.Imperfections()``). "backlash" and "actuator gain" are parts of "actuators".
 GROUPS = {
@@ -119,6 +121,7 @@ def table(rows: list, cols) -> str:
 
 
 def main(argv=None) -> dict:
+    keep_ctrl_c()
     from agents.cli import parse_set
     from agents.registry import get
     from ops_jax.env import PROBES

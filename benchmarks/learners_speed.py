@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from agents.io import write_json_atomic
+from ops_jax.progress import keep_ctrl_c
 
 ENV = {"stages": 5, "mode": "hard"}
 # Budgets per algorithm (env steps): enough for the steady state to dominate a cold call.
@@ -83,6 +84,7 @@ def _table(rows: list[dict], pythons: list[str], algos: list[str]) -> str:
 
 
 def main(argv=None) -> None:
+    keep_ctrl_c()
     ap = argparse.ArgumentParser(prog="python -m benchmarks.learners_speed", description=__doc__.split("\n\n")[0])
     ap.add_argument("--algos", nargs="+", default=list(STEPS), choices=list(STEPS))
     ap.add_argument("--steps", nargs="*", default=[], metavar="ALGO=N", help="budgets other than the defaults")

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ops_jax.progress import keep_ctrl_c
+
 WORKER_TIMEOUT_S = 300
 
 
@@ -124,6 +126,7 @@ def check(processes: int, instances: int, steps: int, seed: int) -> dict:
 
 
 def main(argv=None) -> int:
+    keep_ctrl_c()
     ap = argparse.ArgumentParser(prog="python -m benchmarks.multiprocess", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--processes", type=int, default=2, help="JAX processes to start (>= 1)")

@@ -23,6 +23,7 @@ from agents.io import write_json_atomic
 from benchmarks.throughput import SCAN_STEPS, measure
 from ops_jax import noise
 from ops_jax.cli import ArgumentParser
+from ops_jax.progress import keep_ctrl_c
 
 
 def _median_scan_s(fn, args, repeats: int) -> tuple[float, float]:
@@ -78,6 +79,7 @@ def breakdown(stages: int, model: str, batch: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> list[dict]:
+    keep_ctrl_c()
     ap = ArgumentParser(prog="python -m benchmarks.step_breakdown", description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stages", type=int, nargs="+", default=[5])

@@ -29,6 +29,7 @@ import numpy as np
 
 from agents.config import TrimConfig
 from ops_jax.env import PROBES
+from ops_jax.progress import keep_ctrl_c
 from benchmarks.reality import LEVELS, level_env
 
 ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
@@ -96,6 +97,7 @@ def table(rows: list, margin: float) -> str:
 
 
 def main(argv=None) -> dict:
+    keep_ctrl_c()
     ap = argparse.ArgumentParser(prog="python -m benchmarks.trim_loss", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", default="droq", help="the policy's algorithm (agents.train's name)")
     ap.add_argument("--config", default="budget", help="its preset")

@@ -34,6 +34,7 @@ import numpy as np
 from ops_jax import physics
 from ops_jax.cli import ArgumentParser
 from ops_jax.env import make
+from ops_jax.progress import keep_ctrl_c
 
 DEFAULT_FIGSIZE = (6.4, 3.4)  # inches
 DEFAULT_DPI = 100
@@ -316,6 +317,7 @@ def _parser():
 
 
 def main(argv=None) -> Path:
+    keep_ctrl_c()
     args = _parser().parse_args(argv)
     out = Path(args.out)
     points = args.points or (401 if len(args.stage) == 1 else 201)
