@@ -16,7 +16,10 @@ run the checkpoint (``--kill-learner-after S``: the learning run SIGKILLed after
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
 step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
-time per step (all its threads), mean P / P_best over the last 80 % of the run.
+time per step (all its threads), mean P / P_best over the last 80 % of the run, and the early frames: steps whose
+frame, taken as the bench's answer to the step before, the IOC had computed before that step's move reached it
+(``early_frames`` of ``early_frames_checked`` steps, from the IOC's ``--tick-log``): the mapping's
+``detector.settle_s`` was too short for them.
 """
 
 from __future__ import annotations
@@ -113,9 +116,39 @@ class Process:
         self.proc.wait(30)
 
 
+TICK_LOG = "ticks.jsonl"  # the IOC's --tick-log, beside its ioc.log
+
+
 def start_ioc(out: Path, *args, cpus: set | None = None) -> Process:
-    """A simulated bench serving on a fresh port (on CPU cores ``cpus``; None: any), once it serves."""
-    return Process("ops_jax.ioc", args, ca_env(), out / "ioc.log", cpus).wait_for("serving")
+    """A simulated bench serving on a fresh port (on CPU cores ``cpus``; None: any), once it serves; its ticks
+    logged to ``out/TICK_LOG``."""
+    return Process("ops_jax.ioc", [*args, "--tick-log", out / TICK_LOG], ca_env(), out / "ioc.log",
+                   cpus).wait_for("serving")
+
+
+def early_frames(documents: Path, ticks: Path) -> tuple[int, int]:
+    """(steps whose frame the IOC computed from other setpoints than the move of the step before, steps checked):
+    each event's frame tick looked up in the IOC's tick log (``--tick-log``) and its setpoints compared with the
+    previous event's move (within a run; a run resumed into the same documents starts afresh)."""
+    applied = {}
+    for line in ticks.read_text().splitlines():
+        if line.strip():
+            tick = json.loads(line)
+            applied[tick["tick"]] = tick["setpoints"]
+    early = checked = 0
+    sent = None
+    for line in documents.read_text().splitlines():
+        doc = json.loads(line)
+        if doc["name"] == "start":
+            sent = None
+        elif doc["name"] == "event":
+            data = doc["doc"]["data"]
+            seen = applied.get(data["bench_detector_tick"])
+            if sent is not None and seen is not None:
+                checked += 1
+                early += any(abs(a - b) > 1e-9 for a, b in zip(seen, sent, strict=True))
+            sent = data["control_setpoint_wl"]
+    return early, checked
 
 
 def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | None) -> list:
@@ -154,8 +187,9 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
         raise RuntimeError(f"the run failed ({rc}):\n{runner.text()}")
     first = next(json.loads(line) for line in (out / "documents.jsonl").read_text().splitlines()
                  if '"name": "event"' in line)
+    early, checked = early_frames(out / "documents.jsonl", out.parent / TICK_LOG)
     return {**json.loads((out / "summary.json").read_text()), "first_tick": first["doc"]["data"]["bench_detector_tick"],
-            "wall_s": wall_s}
+            "wall_s": wall_s, "early_frames": early, "early_frames_checked": checked}
 
 
 def unseen_args(seed: int, scale: float) -> list:
@@ -269,11 +303,12 @@ def kill_check(out: Path, stale_s: float, controller: str = "physics", after_eve
 
 def table(rows: list) -> str:
     head = ("| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) "
-            "| CPU ms/step | P / P_best | clipped / wrapped moves | stopped by |\n" + "|---" * 11 + "|")
+            "| CPU ms/step | P / P_best | clipped / wrapped moves | early frames | stopped by |\n" + "|---" * 12 + "|")
     body = [f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | {r['rate_hz']:.1f} | "
             f"{r['frames_per_step']:.2f} | {r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | "
             f"{r['cpu_ms_per_step']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / "
-            f"{r['wrapped_moves']} | {r['stopped_by']} |" for r in rows]
+            f"{r['wrapped_moves']} | {r['early_frames']} / {r['early_frames_checked']} | {r['stopped_by']} |"
+            for r in rows]
     return "\n".join([head, *body])
 
 

@@ -28,8 +28,11 @@ PVs (prefix first; lengths in wavelengths, wl):
   as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the tick count goes on.
 
 Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
-so a frame stamped after a setpoint write shows that write. Every 1,000 ticks the IOC prints one line of their
-host time (the simulator step, then the PV writes: median and 99th percentile, ms) and the overruns so far.
+so a frame stamped after a setpoint write shows that write once the write has reached the IOC. ``--tick-log FILE``
+appends one JSON line per tick, ``{"tick": t, "stamp": s, "setpoints": [...]}`` (the time stamp, time.time() s, and
+the setpoints the tick applied, wl): what a client's frames can be checked against.
+Every 1,000 ticks the IOC prints one line of their host time (the simulator step, then the PV writes:
+median and 99th percentile, ms) and the overruns so far.
 
 Random draws follow ``agents.evaluate``'s episode 0 for ``--seed``: ``reset`` as the
 ``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded by t.
@@ -43,6 +46,7 @@ import argparse
 import ast
 import asyncio
 import functools
+import json
 import math
 import os
 import socket
@@ -77,6 +81,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="seed of the simulated run")
     ap.add_argument("--drift-episode", type=int, default=10, help="the reset's episode count (hard-mode drift)")
     ap.add_argument("--interface", default="127.0.0.1", help="address to serve on (default localhost only)")
+    ap.add_argument("--tick-log", metavar="FILE", help="append each tick's time stamp and applied setpoints to FILE "
+                    "(JSON lines)")
     env = ap.add_argument_group("simulator (ops_jax.make options)")
     env.add_argument("--stages", type=int, default=5)
     env.add_argument("--mode", default="hard")
@@ -160,8 +166,9 @@ class Bench:
         return self.frame
 
 
-def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
-    """The caproto ``PVGroup`` instance serving ``bench``."""
+def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool, tick_log=None):
+    """The caproto ``PVGroup`` instance serving ``bench``; ``tick_log``: a text file each tick appends its line to
+    (``--tick-log``; None: none)."""
     from caproto import ChannelType
     from caproto.server import pvproperty
 
@@ -187,7 +194,7 @@ def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool):
     ns["reset"] = pvproperty(value=0, name="RESET", dtype=ChannelType.LONG,
                              doc="a non-zero write starts the bench again").putter(_reset)
     group_type = type("OPSBench", (_group_class(),), ns)
-    return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep)
+    return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep, tick_log=tick_log)
 
 
 class _BenchGroupBase:
@@ -213,6 +220,8 @@ class _BenchGroupBase:
         """One tick: the setpoints as they are now, one simulator step, its frame stamped with this moment."""
         stamp, t0 = time.time(), time.perf_counter()
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
+        if self.tick_log is not None:
+            self.tick_log.write(json.dumps({"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints}) + "\n")
         values = self.bench.tick(setpoints)
         t1 = time.perf_counter()
         await self.publish(values, stamp)
@@ -271,8 +280,9 @@ def _group_class():
     from caproto.server import PVGroup
 
     class BenchGroup(_BenchGroupBase, PVGroup):
-        def __init__(self, *args, bench, rate, lockstep, **kwargs):
+        def __init__(self, *args, bench, rate, lockstep, tick_log=None, **kwargs):
             self.bench, self.tick_rate, self.lockstep, self.tick_ms = bench, rate, lockstep, []
+            self.tick_log = tick_log
             super().__init__(*args, **kwargs)
 
     return BenchGroup
@@ -324,8 +334,12 @@ def main(argv=None) -> None:
         raise SystemExit(f"ops_jax.ioc: {exc}")
     from caproto.server import run
 
+    try:
+        tick_log = None if args.tick_log is None else open(args.tick_log, "a", buffering=1)  # a line per write
+    except OSError as exc:
+        raise SystemExit(f"ops_jax.ioc: --tick-log: {exc}")
     tune_server(args.rate)
-    group = pv_group(bench, args.prefix, args.rate, args.lockstep)
+    group = pv_group(bench, args.prefix, args.rate, args.lockstep, tick_log)
     run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
 
 

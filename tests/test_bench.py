@@ -420,6 +420,28 @@ def test_ioc_reports_its_ticks_host_time(monkeypatch, capsys):
     assert sim.t == 7 and len(group.tick_ms) == 1
 
 
+def test_ioc_tick_log_names_each_tick_and_the_setpoints_it_applied():
+    """``--tick-log``: a JSON line per tick, its number, its time stamp (that of the tick's PVs) and the setpoints
+    read at its start."""
+    import asyncio
+    import io
+
+    sim = ioc.Bench(2, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
+    log = io.StringIO()
+    group = ioc.pv_group(sim, "TL:", 100.0, lockstep=True, tick_log=log)
+
+    async def ticks():
+        await group.step()
+        await group.sp1.write(0.25)
+        await group.step()
+
+    asyncio.run(ticks())
+    lines = [json.loads(line) for line in log.getvalue().splitlines()]
+    assert [x["tick"] for x in lines] == [1, 2] and [x["setpoints"] for x in lines] == [[0.0, 0.0], [0.25, 0.0]]
+    assert abs(lines[1]["stamp"] - group.tick.timestamp) < 1e-5 and lines[0]["stamp"] < lines[1]["stamp"]  # EPICS ns
+    assert ioc.parser().parse_args(["--tick-log", "t.jsonl"]).tick_log == "t.jsonl"
+
+
 def test_ioc_socket_sends_without_nagle_delay():
     """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle on)."""
     import asyncio
@@ -546,7 +568,8 @@ def iocs(tmp_path_factory):
             "free": ["--prefix", "FR:", "--rate", "100"], "victim": ["--prefix", "KV:", "--rate", "100"],
             "reset": ["--prefix", "RS:", "--imperfections", "lab", "--lockstep"],
             "raw": ["--prefix", "RW:", "--lockstep"]}
-    started = {k: Process("ops_jax.ioc", common + a, ca_env(), tmp / f"{k}.log") for k, a in args.items()}
+    started = {k: Process("ops_jax.ioc", [*common, *a, "--tick-log", tmp / f"{k}.ticks.jsonl"], ca_env(), tmp / f"{k}.log")
+               for k, a in args.items()}
     try:
         yield {k: p.wait_for("serving", START_S) for k, p in started.items()}
     finally:
@@ -570,6 +593,11 @@ def wait_for_events(proc: Process, tmp: Path, count: int) -> None:
     while not (out.exists() and out.read_text().count('"name": "event"') >= count):
         assert proc.proc.poll() is None and time.monotonic() < deadline, proc.text()
         time.sleep(0.1)
+
+
+def tick_log(ioc_: Process) -> Path:
+    """The IOC's ``--tick-log`` (``iocs``)."""
+    return ioc_.log.with_suffix(".ticks.jsonl")
 
 
 def documents(tmp: Path) -> list:
@@ -602,6 +630,30 @@ def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
     assert replay.returncode == 0, replay.stderr[-2000:]
     np.testing.assert_array_equal(bench_p, np.float32(json.loads(replay.stdout)))  # event t: the frame of tick t
     assert np.ptp(bench_p) > 0.01  # the controller moved the lines
+
+
+def test_each_frame_is_checked_against_the_setpoints_its_tick_applied(iocs, tmp_path):
+    """The IOC's ``--tick-log`` names each tick's setpoints; ``benchmarks.lab.early_frames`` finds no early frame in a
+    lockstep run (each tick follows the step's writes) and, against a log one tick late, every moved step early."""
+    from benchmarks import lab
+
+    steps = 15
+    rc, log = finish(bench_run(iocs["lockstep"], tmp_path, "--prefix", "LS:", "--stages", "3", "--lockstep",
+                               "--controller", "physics", "--set", "starts=2", "--steps", str(steps),
+                               "--stale-s", "30"))
+    assert rc == 0, log
+    docs = tmp_path / "out" / "documents.jsonl"
+    assert lab.early_frames(docs, tick_log(iocs["lockstep"])) == (0, steps - 1)
+    ticks = [json.loads(line) for line in tick_log(iocs["lockstep"]).read_text().splitlines()]
+    assert [t["tick"] for t in ticks] == list(range(1, len(ticks) + 1)) and all(len(t["setpoints"]) == 3 for t in ticks)
+    late = tmp_path / "late.jsonl"
+    late.write_text("".join(json.dumps({**t, "setpoints": before["setpoints"]}) + "\n"
+                            for t, before in zip(ticks[1:], ticks)))
+    sent = [d["doc"]["data"]["control_setpoint_wl"] for d in documents(tmp_path) if d["name"] == "event"]
+    # event k + 1's frame checked against the setpoints of the tick before it: step k - 1's move (k >= 1)
+    moved = sum(not np.allclose(a, b, rtol=0, atol=1e-9) for a, b in zip(sent[1:-1], sent[:-2]))
+    early, checked = lab.early_frames(docs, late)
+    assert moved >= steps // 2 and moved <= early <= moved + 1 and checked == steps - 1
 
 
 def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
@@ -887,6 +939,9 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
     assert "--observe-lengths False" in " ".join(result["ioc"])
     assert "LEN" not in (tmp_path / "spgd-trim-bench-100hz-seed3" / "run.log").read_text()
     assert "| spgd + trim bench | 3 |" in lab.table(result["rows"]) and row["trim"] == "bench"
+    # each step's frame checked against the IOC's tick log (free-running: some may come before the move)
+    assert (tmp_path / "spgd-trim-bench-100hz-seed3" / lab.TICK_LOG).exists()
+    assert row["early_frames_checked"] >= row["steps"] - 2 and 0 <= row["early_frames"] <= row["early_frames_checked"]
 
 
 def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):
