@@ -162,6 +162,9 @@ def parser() -> argparse.ArgumentParser:
                          "simulated bench); safety.wrap_wl of the mapping")
     ap.add_argument("--stale-s", type=float, default=None, help="the watchdog's limit on a reading's age and "
                     "on the wait for a frame (s; default: the mapping's, 0.5)")
+    ap.add_argument("--settle-s", type=float, default=None, metavar="S",
+                    help="from a setpoint write until a frame acquired S s or more after it shows the move (s; default: "
+                         "the mapping's detector.settle_s, 0.002)")
     ap.add_argument("--cpu", type=int, default=None, metavar="CORE",
                     help="run the runner on this CPU core only (Linux): a controller's step costs less CPU on a core "
                          "of its own, with the bench's other processes on the others")
@@ -193,6 +196,10 @@ def _setup(args):
     for key, value in (("stale_s", args.stale_s), ("wrap_wl", args.wrap)):
         if value is not None:
             mapping["safety"] = {**(mapping.get("safety") or {}), key: value}
+    if args.settle_s is not None:
+        if not 0 <= args.settle_s <= 10:
+            raise ValueError(f"--settle-s must be in [0, 10] s, got {args.settle_s}")
+        mapping["detector"] = {**mapping["detector"], "settle_s": args.settle_s}
     mapping = check_mapping(mapping)
     if args.learn:
         return (mapping, *bench_learn.setup(args, mapping, checkpoint, parse_set(args.env), parse_set(args.set)))

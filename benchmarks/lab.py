@@ -151,10 +151,11 @@ def early_frames(documents: Path, ticks: Path) -> tuple[int, int]:
     return early, checked
 
 
-def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | None) -> list:
-    """The runner's arguments shared by every run on the simulated bench."""
+def _bench_args(stale_s: float, rate: float, frames_only: bool, wrap: float | None,
+                settle_s: float | None = None) -> list:
+    """The runner's arguments shared by every run on the simulated bench (``settle_s`` None: the runner's default)."""
     return (["--prefix", "OPS:", "--rate", rate, "--stale-s", stale_s] + (["--no-lengths"] if frames_only else [])
-            + (["--wrap", wrap] if wrap is not None else []))
+            + (["--wrap", wrap] if wrap is not None else []) + (["--settle-s", settle_s] if settle_s is not None else []))
 
 
 def _sets(values) -> list:
@@ -212,16 +213,18 @@ def _ioc(out: Path, lockstep: int, frames_only: bool, seed: int, scale: float = 
 def run_controller(out: Path, controller: str, sets, seconds: float, rate: float, stale_s: float,
                    lockstep: int = 0, frames_only: bool = False, wrap: float | None = None, idle_s: float = 0.0,
                    seed: int = 0, scale: float = 1.0, unseen: bool = False, cpu: int | None = None,
-                   trim: str | None = None) -> dict:
+                   trim: str | None = None, settle_s: float | None = None) -> dict:
     """One run against a fresh IOC (``IOC_ARGS`` at imperfection ``scale``, bench seed ``seed``, 100 Hz, or
     ``lockstep`` > 0 steps in lockstep; ``frames_only``: without length readouts; ``unseen``: as ``run_learning``),
     started ``idle_s`` after the IOC serves, the runner on core ``cpu`` and the IOC on the others (None: any), the
-    controller wrapped in the trim's preset ``trim`` (None: alone); returns its summary.json with ``first_tick``."""
+    controller wrapped in the trim's preset ``trim`` (None: alone), the runner's ``--settle-s settle_s`` (None: its
+    default); returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, lockstep, frames_only, seed, scale, unseen, _other_cores(cpu))
     try:
         time.sleep(idle_s)
-        args = [*_bench_args(stale_s, rate, frames_only, wrap), "--controller", controller, "--seconds", seconds]
+        args = [*_bench_args(stale_s, rate, frames_only, wrap, settle_s), "--controller", controller, "--seconds",
+                seconds]
         args += ["--lockstep", "--steps", lockstep] if lockstep else []
         args += _sets(sets) + _cpu(cpu) + ([] if trim is None else ["--trim", f"config={trim}"])
         return _run(out / "run", args, ioc.env, START_S + 2 * seconds + lockstep)
@@ -234,7 +237,7 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
                  start_from: str | None = None, sets=(), scale: float = 1.0, unseen: bool = False,
                  kill_after: float | None = None, catch_up_s: float | None = None,
                  learn_seconds: float | None = None, checkpoint_every: int | None = None,
-                 cpu: int | None = None) -> tuple[dict, dict]:
+                 cpu: int | None = None, settle_s: float | None = None) -> tuple[dict, dict]:
     """``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an ``agents.save`` folder; ``sets``: its
     ``--set`` values) against a fresh IOC (the lab preset at ``scale``; ``unseen``: its per-stage errors re-drawn
     from ``seed``, ``unseen_args``) started ``idle_s`` before, then its
@@ -243,12 +246,13 @@ def run_learning(out: Path, algo: str, steps: int, seconds: float, rate: float, 
     continued with ``--resume`` (the summary, the resumed run's, adds ``killed_after_s``); ``checkpoint_every``: the
     runner's ``--checkpoint-every`` (None: its default); ``catch_up_s``: the runner's ``--catch-up-s`` (None: its default);
     ``learn_seconds``: the learning run's ``--seconds`` (it stops at ``steps`` or then, whichever comes first);
-    ``cpu``: the checkpoint's run on that core (the learning run on any), the IOC on the others."""
+    ``cpu``: the checkpoint's run on that core (the learning run on any), the IOC on the others; ``settle_s``: the
+    runner's ``--settle-s`` in both runs (None: its default)."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, 0, frames_only, seed, scale, unseen, _other_cores(cpu))
     try:
         time.sleep(idle_s)
-        shared = _bench_args(stale_s, rate, frames_only, wrap)
+        shared = _bench_args(stale_s, rate, frames_only, wrap, settle_s)
         run = [*shared, "--learn", algo, "--steps", steps] + ([] if catch_up_s is None else ["--catch-up-s", catch_up_s])
         run += [] if learn_seconds is None else ["--seconds", learn_seconds]
         run += [] if checkpoint_every is None else ["--checkpoint-every", checkpoint_every]
@@ -351,12 +355,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--cpu", type=int, default=None, metavar="CORE",
                     help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on any), the "
                          "simulated bench on the others")
+    ap.add_argument("--settle-s", type=float, nargs="+", default=[None], metavar="S",
+                    help="the runner's --settle-s (s), a run per value (--learn: the first; default: the runner's)")
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
     args = ap.parse_args(argv)
     try:
         _other_cores(args.cpu)
     except ValueError as exc:
         ap.error(str(exc))
+    if any(s is not None and not 0 <= s <= 10 for s in args.settle_s):
+        ap.error(f"--settle-s must be in [0, 10] s, got {args.settle_s}")
     rows = []
     controllers = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
     runs = [] if args.learn else controllers  # --learn: the learners' runs instead
@@ -366,22 +374,24 @@ def main(argv=None) -> dict:
                                         args.seconds, args.rates[0], args.stale_s, args.frames_only, args.wrap,
                                         args.idle_s, seed, args.from_, args.learn_set, args.imperfection_scale,
                                         args.unseen, args.kill_learner_after, args.catch_up_s, args.learn_seconds,
-                                        args.checkpoint_every, args.cpu)
+                                        args.checkpoint_every, args.cpu, args.settle_s[0])
             for summary, name in ((learned, f"learning {args.learn}"), (ran, "its checkpoint")):
-                rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed})
+                rows.append({**summary, "controller": name, "settings": [], "rate": args.rates[0], "bench_seed": seed,
+                             "settle_s": args.settle_s[0]})
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
     trims = [(None, "") if t == "none" else (t, f" + trim {t}") for t in args.trims]
     for (name, controller, sets), (trim, suffix) in itertools.product(runs, trims):
-        for rate in args.rates:
-            for seed in args.seeds:
-                folder = args.out / (f"{name}{'' if trim is None else '-trim-' + trim}-{rate:g}hz"
-                                     + (f"-seed{seed}" if args.seeds != [0] else ""))
-                s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
-                                   args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen,
-                                   args.cpu, trim)
-                rows.append({**s, "controller": name + suffix, "settings": sets, "rate": rate, "bench_seed": seed,
-                             "trim": trim})
-                print(table(rows[-1:]).splitlines()[-1], flush=True)
+        for rate, settle, seed in itertools.product(args.rates, args.settle_s, args.seeds):
+            settled = "" if settle is None else f" (settle {1e3 * settle:g} ms)"
+            folder = args.out / (f"{name}{'' if trim is None else '-trim-' + trim}-{rate:g}hz"
+                                 + ("" if settle is None else f"-settle{1e3 * settle:g}ms")
+                                 + (f"-seed{seed}" if args.seeds != [0] else ""))
+            s = run_controller(folder, controller, sets, args.seconds, rate, args.stale_s, args.lockstep,
+                               args.frames_only, args.wrap, args.idle_s, seed, args.imperfection_scale, args.unseen,
+                               args.cpu, trim, settle)
+            rows.append({**s, "controller": name + suffix + settled, "settings": sets, "rate": rate, "bench_seed": seed,
+                         "trim": trim, "settle_s": settle})
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
     ioc = IOC_ARGS + (["--lockstep"] if args.lockstep else ["--rate", "100"]) + (FRAMES_ONLY if args.frames_only else [])
     ioc += ["--imperfection-scale", str(args.imperfection_scale)]
     result = {"ioc": ioc, "seconds": args.seconds, "frames_only": args.frames_only, "wrap": args.wrap,
@@ -390,7 +400,7 @@ def main(argv=None) -> dict:
               "from": args.from_,
               "kill_learner_after": args.kill_learner_after, "checkpoint_every": args.checkpoint_every,
               "catch_up_s": args.catch_up_s, "cpu": args.cpu,
-              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "rows": rows,
+              "lockstep_steps": args.lockstep, "stale_s": args.stale_s, "settle_s": args.settle_s, "rows": rows,
               "kill": None if args.no_kill else kill_check(args.out / "kill", args.stale_s)}
     print(table(rows))
     if result["kill"]:

@@ -230,6 +230,18 @@ def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
         runner.pin(100_000)
 
 
+def test_settle_s_sets_the_detectors_settle_and_is_checked(tmp_path):
+    """``--settle-s``: the mapping's ``detector.settle_s`` for the run; out of [0, 10] s it fails naming it."""
+    args = runner.parser().parse_args(["--prefix", "X:", "--controller", "spgd", "--settle-s", "-0.001",
+                                       "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match=r"--settle-s must be in \[0, 10\] s, got -0.001"):
+        runner._setup(args)
+    args.settle_s = 0.004
+    assert runner._setup(args)[0]["detector"]["settle_s"] == 0.004
+    args.settle_s = None
+    assert runner._setup(args)[0]["detector"]["settle_s"] == 0.002
+
+
 def test_loop_flyer_pages_are_collected_between_steps():
     """A page is due after the step that ends its period: the RunEngine collects it while the loop waits for
     its next frame, not while a step works."""
@@ -927,20 +939,21 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
 
     result = lab.main(["--seconds", "3", "--controllers", "spgd", "--frames-only", "--wrap", "0.5", "--idle-s", "2",
                        "--seeds", "3", "--no-kill", "--stale-s", "5", "--cpu", str(max(os.sched_getaffinity(0))),
-                       "--trims", "bench", "--out", str(tmp_path)])
+                       "--trims", "bench", "--settle-s", "0.003", "--out", str(tmp_path)])
     (row,) = result["rows"]
     assert row["stopped_by"] == "time" and row["bench_seed"] == 3 and row["steps"] > 10, row
     assert row["first_tick"] >= 150 and "wrapped_moves" in row  # at least the 2 s of idling at 100 ticks/s
-    run = tmp_path / "spgd-trim-bench-100hz-seed3" / "run"
+    run = tmp_path / "spgd-trim-bench-100hz-settle3ms-seed3" / "run"
     summary = json.loads((run / "summary.json").read_text())
     assert summary["controller"] == "spgd" and summary["probes_per_step"] == 2  # SPGD's probe and the trim's
     start = json.loads((run / "documents.jsonl").read_text().splitlines()[0])["doc"]
     assert start["mapping"]["safety"]["wrap_wl"] == 0.5 and all("length" not in x for x in start["mapping"]["lines"])
+    assert start["mapping"]["detector"]["settle_s"] == 0.003 and row["settle_s"] == 0.003
     assert "--observe-lengths False" in " ".join(result["ioc"])
-    assert "LEN" not in (tmp_path / "spgd-trim-bench-100hz-seed3" / "run.log").read_text()
-    assert "| spgd + trim bench | 3 |" in lab.table(result["rows"]) and row["trim"] == "bench"
+    assert "LEN" not in (tmp_path / "spgd-trim-bench-100hz-settle3ms-seed3" / "run.log").read_text()
+    assert "| spgd + trim bench (settle 3 ms) | 3 |" in lab.table(result["rows"]) and row["trim"] == "bench"
     # each step's frame checked against the IOC's tick log (free-running: some may come before the move)
-    assert (tmp_path / "spgd-trim-bench-100hz-seed3" / lab.TICK_LOG).exists()
+    assert (tmp_path / "spgd-trim-bench-100hz-settle3ms-seed3" / lab.TICK_LOG).exists()
     assert row["early_frames_checked"] >= row["steps"] - 2 and 0 <= row["early_frames"] <= row["early_frames_checked"]
 
 
