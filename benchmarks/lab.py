@@ -131,10 +131,9 @@ def early_frames(documents: Path, ticks: Path) -> tuple[int, int]:
     each event's frame tick looked up in the IOC's tick log (``--tick-log``) and its setpoints compared with the
     previous event's move (within a run; a run resumed into the same documents starts afresh)."""
     applied = {}
-    for line in ticks.read_text().splitlines():
-        if line.strip():
-            tick = json.loads(line)
-            applied[tick["tick"]] = tick["setpoints"]
+    for line in ticks.read_text().split("\n")[:-1]:  # whole lines: the IOC may be writing the last
+        tick = json.loads(line)
+        applied[tick["tick"]] = tick["setpoints"]
     early = checked = 0
     sent = None
     for line in documents.read_text().splitlines():

@@ -656,11 +656,14 @@ def test_each_frame_is_checked_against_the_setpoints_its_tick_applied(iocs, tmp_
     assert rc == 0, log
     docs = tmp_path / "out" / "documents.jsonl"
     assert lab.early_frames(docs, tick_log(iocs["lockstep"])) == (0, steps - 1)
+    writing = tmp_path / "writing.jsonl"  # a log read while the IOC writes its last line
+    writing.write_text(tick_log(iocs["lockstep"]).read_text() + '{"tick": 10')
+    assert lab.early_frames(docs, writing) == (0, steps - 1)
     ticks = [json.loads(line) for line in tick_log(iocs["lockstep"]).read_text().splitlines()]
     assert [t["tick"] for t in ticks] == list(range(1, len(ticks) + 1)) and all(len(t["setpoints"]) == 3 for t in ticks)
     late = tmp_path / "late.jsonl"
-    late.write_text("".join(json.dumps({**t, "setpoints": before["setpoints"]}) + "\n"
-                            for t, before in zip(ticks[1:], ticks)))
+    before = [{"setpoints": [0.0] * 3}, *ticks]  # the setpoints at start-up, then each tick's
+    late.write_text("".join(json.dumps({**t, "setpoints": b["setpoints"]}) + "\n" for t, b in zip(ticks, before)))
     sent = [d["doc"]["data"]["control_setpoint_wl"] for d in documents(tmp_path) if d["name"] == "event"]
     # event k + 1's frame checked against the setpoints of the tick before it: step k - 1's move (k >= 1)
     moved = sum(not np.allclose(a, b, rtol=0, atol=1e-9) for a, b in zip(sent[1:-1], sent[:-2]))
