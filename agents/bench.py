@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 
 from agents import base, bench_learn
-from agents.bench_devices import (MappingError, SafetyStop, arm, check_mapping, connect, disconnect, load_mapping,
-                                  make_bench, sim_mapping)
+from agents.bench_devices import (SETTLE_RANGE_S, MappingError, SafetyStop, arm, check_mapping, connect, disconnect,
+                                  load_mapping, make_bench, sim_mapping)
 from agents.bench_flyer import lean_page_checks
 from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
                                log, observes_lengths, reads_lengths)
@@ -197,8 +197,9 @@ def _setup(args):
         if value is not None:
             mapping["safety"] = {**(mapping.get("safety") or {}), key: value}
     if args.settle_s is not None:
-        if not 0 <= args.settle_s <= 10:
-            raise ValueError(f"--settle-s must be in [0, 10] s, got {args.settle_s}")
+        low, high = SETTLE_RANGE_S
+        if not low <= args.settle_s <= high:
+            raise ValueError(f"--settle-s must be in [{low:g}, {high:g}] s, got {args.settle_s}")
         mapping["detector"] = {**mapping["detector"], "settle_s": args.settle_s}
     mapping = check_mapping(mapping)
     if args.learn:

@@ -43,6 +43,7 @@ from ophyd.status import Status
 log = logging.getLogger("agents.bench")
 
 SETTLE_S = 0.002  # default detector.settle_s (s): a write's transit to a local IOC, with margin
+SETTLE_RANGE_S = (0.0, 10.0)  # detector.settle_s's accepted range (s, both ends included)
 SAFETY_DEFAULTS = {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0, "wrap_wl": None}
 _KEYS = {
     "": {"lines", "detector", "evaluation", "advance", "units_per_wl", "safety"},
@@ -108,7 +109,8 @@ def check_mapping(m: dict) -> dict:
     detector = {k: _pv(f"detector.{k}", det[k]) for k in ("power", "trace", "tick")}
     for k in ("power_full_scale", "trace_peak"):
         detector[k] = _number(f"detector.{k}", det.get(k, 1.0), 0.0)
-    detector["settle_s"] = _number("detector.settle_s", det.get("settle_s", SETTLE_S), 0.0, 10.0, low_included=True)
+    detector["settle_s"] = _number("detector.settle_s", det.get("settle_s", SETTLE_S), *SETTLE_RANGE_S,
+                                  low_included=True)
     ev = m.get("evaluation") or {}
     _check_keys("evaluation", ev, _KEYS["evaluation"])
     safety = {**SAFETY_DEFAULTS, **(m.get("safety") or {})}

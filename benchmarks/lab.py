@@ -362,8 +362,11 @@ def main(argv=None) -> dict:
         _other_cores(args.cpu)
     except ValueError as exc:
         ap.error(str(exc))
-    if any(s is not None and not 0 <= s <= 10 for s in args.settle_s):
-        ap.error(f"--settle-s must be in [0, 10] s, got {args.settle_s}")
+    from agents.bench_devices import SETTLE_RANGE_S
+
+    low, high = SETTLE_RANGE_S
+    if any(s is not None and not low <= s <= high for s in args.settle_s):
+        ap.error(f"--settle-s must be in [{low:g}, {high:g}] s, got {args.settle_s}")
     rows = []
     controllers = [(c, *CONTROLLERS[c]) for c in args.controllers] + [(Path(p).name, p, []) for p in args.policy]
     runs = [] if args.learn else controllers  # --learn: the learners' runs instead
