@@ -485,6 +485,42 @@ def test_ioc_batch_window_is_a_tenth_of_the_tick(monkeypatch):
     assert ioc.batch_window(100) == 0.004
 
 
+def test_ioc_sends_a_batch_once_no_update_is_queued(monkeypatch):
+    """The server's circuits take queued updates without waiting, answer None at once on an empty queue (the batch
+    goes out), and wait for an update only where caproto asks for no timeout."""
+    import asyncio
+
+    import caproto.asyncio.server
+    import caproto.server.common
+
+    class Circuit:
+        subscription_queue = None
+
+    async def takes():
+        circuit = Circuit()
+        circuit.subscription_queue = asyncio.Queue()
+        circuit.subscription_queue.put_nowait("update")
+        first = await ioc._drained_get(circuit, timeout=30)
+        start = time.monotonic()
+        empty = await ioc._drained_get(circuit, timeout=30)
+        waited = time.monotonic() - start
+        later = asyncio.get_running_loop().call_later(0.05, circuit.subscription_queue.put_nowait, "next")
+        blocking = await asyncio.wait_for(ioc._drained_get(circuit, timeout=None), 30)
+        later.cancel()
+        return first, empty, waited, blocking
+
+    first, empty, waited, blocking = asyncio.run(takes())
+    assert (first, empty, blocking) == ("update", None, "next") and waited < 5
+    circuit_type = caproto.asyncio.server.VirtualCircuit
+    monkeypatch.setattr(circuit_type, "get_from_sub_queue", circuit_type.get_from_sub_queue)
+    monkeypatch.setattr(caproto.server.common, "HIGH_LOAD_TIMEOUT", caproto.server.common.HIGH_LOAD_TIMEOUT)
+    if hasattr(caproto.asyncio.server, "_create_bound_tcp_socket"):
+        monkeypatch.setattr(caproto.asyncio.server, "_create_bound_tcp_socket",
+                            caproto.asyncio.server._create_bound_tcp_socket)
+    ioc.tune_server(100)
+    assert circuit_type.get_from_sub_queue is ioc._drained_get
+
+
 def test_agent_replays_a_controller_step_probe_by_probe():
     """Agent's probe protocol gives the policy's own offsets and, with the measured results, its action."""
     env_config = {"stages": 3, "model": "phasor"}
