@@ -54,6 +54,7 @@ from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, 
                                log, observes_lengths, reads_lengths)
 from agents.cli import parse_set
 from agents.io import write_json_atomic
+from ops_jax import runtime
 
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
 # waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
@@ -185,6 +186,8 @@ def _setup(args):
         raise ValueError("give one of --controller (run a controller) and --learn (learn on the bench)")
     if args.cpu is not None:  # before JAX and its thread pools start
         pin(args.cpu)
+    elif not args.learn:  # a controller's calls are small: XLA's pools one thread each (on one core they are)
+        runtime.start_single_threaded()
     checkpoint = bench_learn.check_args(args) if args.learn else None
     saved = args.controller not in ("spgd", "physics", None)
     if saved and not Path(args.controller).is_dir():

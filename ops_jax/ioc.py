@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
+from ops_jax import runtime
 from ops_jax.env import option_names
 from ops_jax.gym_codec import FlatCodec
 
@@ -341,6 +342,7 @@ def main(argv=None) -> None:
     args = parser().parse_args(argv)
     if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
         raise SystemExit(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
+    runtime.start_single_threaded()  # a tick is one small call
     try:
         bench = Bench(args.stages, args.mode, make_options(args), seed=args.seed, drift_episode=args.drift_episode)
     except (TypeError, ValueError) as exc:

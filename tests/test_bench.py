@@ -230,6 +230,36 @@ def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
         runner.pin(100_000)
 
 
+def xla_pool_threads(pid) -> tuple[int, set]:
+    """(threads of XLA's Eigen pool in process ``pid``, the distinct sets of cores its threads may run on) (Linux)."""
+    tasks = Path(f"/proc/{pid}/task").iterdir()
+    names_cores = [((t / "comm").read_text().strip(), frozenset(os.sched_getaffinity(int(t.name)))) for t in tasks]
+    return sum(name == "tf_XLAEigen" for name, _ in names_cores), {cores for _, cores in names_cores}
+
+
+def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_free():
+    """``ops_jax.runtime.start_single_threaded``: XLA's Eigen pool has one thread (one per core without it); every
+    thread of the process may then run on all the cores it could before."""
+    allowed = frozenset(os.sched_getaffinity(0))
+    if len(allowed) < 2:
+        pytest.skip("needs two CPU cores")
+    code = ("import os, sys, jax; from ops_jax import runtime\n"
+            "started = runtime.start_single_threaded() if sys.argv[1] == 'single' else jax.devices() and None\n"
+            "jax.jit(lambda x: x @ x)(jax.numpy.ones((64, 64))).block_until_ready()\n"
+            "print(started, sys.argv[1]); sys.stdout.flush(); sys.stdin.read()")
+    pools = {}
+    for mode in ("usual", "single"):
+        proc = subprocess.Popen([sys.executable, "-c", code, mode], cwd=ROOT, stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True)
+        try:
+            started = proc.stdout.readline().split()
+            pools[mode] = (started, *xla_pool_threads(proc.pid))
+        finally:
+            proc.communicate("", timeout=START_S)
+    assert pools["usual"][1] == len(allowed)
+    assert pools["single"][:3] == (["True", "single"], 1, {allowed})
+
+
 def test_settle_s_sets_the_detectors_settle_and_is_checked(tmp_path):
     """``--settle-s``: the mapping's ``detector.settle_s`` for the run; out of [0, 10] s it fails naming it."""
     args = runner.parser().parse_args(["--prefix", "X:", "--controller", "spgd", "--settle-s", "-0.001",
@@ -659,6 +689,12 @@ sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor", "imperfectio
 sent = json.load(open(sys.argv[1]))
 print(json.dumps([float(sim.frame["p_pmax"])] + [float(sim.tick(s)["p_pmax"]) for s in sent]))
 """
+
+
+def test_the_ioc_runs_xla_with_one_pool_thread(iocs):
+    """The simulated bench's ticks are small calls: its XLA pool has one thread, its threads every core."""
+    threads, cores = xla_pool_threads(iocs["free"].proc.pid)
+    assert (threads, cores) == (1, {frozenset(os.sched_getaffinity(0))})
 
 
 def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
