@@ -238,7 +238,7 @@ def xla_pool_threads(pid) -> tuple[int, set]:
 
 
 def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_free():
-    """``ops_jax.runtime.start_single_threaded``: XLA's Eigen pool has one thread (one per core without it); every
+    """``ops_jax.runtime.start_single_threaded``: XLA's Eigen pool has one thread (several without it); every
     thread of the process may then run on all the cores it could before."""
     allowed = frozenset(os.sched_getaffinity(0))
     if len(allowed) < 2:
@@ -256,7 +256,7 @@ def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_fr
             pools[mode] = (started, *xla_pool_threads(proc.pid))
         finally:
             proc.communicate("", timeout=START_S)
-    assert pools["usual"][1] == len(allowed)
+    assert pools["usual"][1] > 1
     assert pools["single"][:3] == (["True", "single"], 1, {allowed})
 
 
