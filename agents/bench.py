@@ -231,11 +231,7 @@ def usable_cores(core: int) -> set:
 def pin(core: int) -> None:
     """Run this process's threads, and the threads they start, on CPU core ``core`` only (Linux)."""
     usable_cores(core)
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), {core})
-        except ProcessLookupError:  # a thread that has ended meanwhile
-            pass
+    runtime.set_cores({core})
 
 
 def main(argv=None) -> int:

@@ -27,6 +27,7 @@ from pathlib import Path
 from agents.io import temp_dir, write_bytes_atomic
 from benchmarks.sweep_records import EvalUnit, Unit
 from benchmarks.sweep_units import Sweep, enable_compilation_cache
+from ops_jax import runtime
 from ops_jax.progress import is_terminal, progress
 
 FORWARDED_ENV = ("XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL", "JAX_PLATFORMS", "XLA_PYTHON_CLIENT_PREALLOCATE",
@@ -99,11 +100,7 @@ class SweepWorker:
 def pin(cpus) -> None:
     """Run every thread of this process, and the threads it starts later, on ``cpus`` only; called before
     JAX starts its CPU client, which then sizes its thread pool to them."""
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), cpus)
-        except (ProcessLookupError, PermissionError):  # a thread that ended meanwhile
-            pass
+    runtime.set_cores(cpus)
 
 
 def cpu_shares(n: int) -> list:

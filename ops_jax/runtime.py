@@ -1,4 +1,4 @@
-"""How a latency-bound process starts JAX's CPU backend."""
+"""Which CPU cores this process's threads run on, and how a latency-bound process starts JAX's CPU backend."""
 
 from __future__ import annotations
 
@@ -16,14 +16,25 @@ def start_single_threaded() -> bool:
     if not hasattr(os, "sched_setaffinity"):
         jax.devices()
         return False
-    allowed, before = os.sched_getaffinity(0), set(os.listdir("/proc/self/task"))
+    allowed, before = os.sched_getaffinity(0), threads()
     os.sched_setaffinity(0, {min(allowed)})  # XLA sizes its pools by the cores the starting thread may use
     try:
         jax.devices()
     finally:  # this thread and those the backend started
-        for tid in ["0", *set(os.listdir("/proc/self/task")) - before]:
-            try:
-                os.sched_setaffinity(int(tid), allowed)
-            except ProcessLookupError:  # a thread that has ended meanwhile
-                pass
+        set_cores(allowed, {0} | (threads() - before))
     return True
+
+
+def threads() -> set:
+    """The ids of this process's threads (Linux)."""
+    return {int(tid) for tid in os.listdir("/proc/self/task")}
+
+
+def set_cores(cores: set, tids: set | None = None) -> None:
+    """Let the threads ``tids`` (None: every thread of this process; 0: the calling one) run on CPU ``cores`` only
+    (Linux); a thread that has ended meanwhile, or that this process may not move, is skipped."""
+    for tid in threads() if tids is None else tids:
+        try:
+            os.sched_setaffinity(tid, cores)
+        except (ProcessLookupError, PermissionError):
+            pass
