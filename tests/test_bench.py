@@ -772,6 +772,17 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
 
 
+# Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length readout's).
+OFF_OPTIMUM = """
+import sys
+from caproto.sync.client import read, write
+get = lambda pv: read(sys.argv[1] + pv, timeout=20, repeater=False).data[0]
+for i in (1, 2, 3):
+    write(f"{sys.argv[1]}LINE{i}:SP", [get(f"LINE{i}:SP") - get(f"LINE{i}:LEN") + 0.1], notify=True, timeout=20,
+          repeater=False)
+"""
+
+
 def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     """The physics-informed controller, which reads its own last move, on a bench whose step limit its moves
     exceed: the run ends cleanly, counting as cut exactly the steps whose setpoints moved by less than asked."""
@@ -780,6 +791,9 @@ def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     max_step = 0.5 * scale
     mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
+    off = subprocess.run([sys.executable, "-c", OFF_OPTIMUM, "FR:"], env=iocs["free"].env, cwd=ROOT,
+                         capture_output=True, text=True, timeout=START_S)  # the run starts by acquiring, wherever
+    assert off.returncode == 0, off.stderr  # the runs before it left the lines
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"),
                                "--controller", "physics", "--set", "config=frames", "--set", "starts=2",
                                "--seconds", "3"))
