@@ -791,9 +791,10 @@ def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     max_step = 0.5 * scale
     mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
+    # the run starts by acquiring, wherever the runs before it left the lines
     off = subprocess.run([sys.executable, "-c", OFF_OPTIMUM, "FR:"], env=iocs["free"].env, cwd=ROOT,
-                         capture_output=True, text=True, timeout=START_S)  # the run starts by acquiring, wherever
-    assert off.returncode == 0, off.stderr  # the runs before it left the lines
+                         capture_output=True, text=True, timeout=START_S)
+    assert off.returncode == 0, off.stderr
     rc, log = finish(bench_run(iocs["free"], tmp_path, "--mapping", str(tmp_path / "map.json"),
                                "--controller", "physics", "--set", "config=frames", "--set", "starts=2",
                                "--seconds", "3"))
