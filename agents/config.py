@@ -441,8 +441,12 @@ class DroQConfig(ReplayConfig):
         init_alpha=0.1, target_entropy=-1.0, gamma=0.97, tau=0.005, buffer_size=20_000, learning_starts=1000,
         policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16,
         train_reward="linear")}
+    # learning on a bench from its frames (``agents.bench --learn droq``): a correction, a quarter of the action
+    # range at most, added to the physics-informed fit's move, the fit at 4 starts x 6 iterations (a bench's pace)
+    PRESETS["bench"] = dict(PRESETS["budget"], observer="fit-residual", residual_scale=0.25, fit_starts=4,
+                            fit_iters=6)
 
-    config: str = field(_choice("budget"))
+    config: str = field(_choice("budget", "bench"))
     num_envs: int = field(COUNT)
     unroll: int = field(COUNT)
     updates_per_iter: int | None = field(_optional(COUNT))

@@ -13,7 +13,9 @@ a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.offpolicy``'s
 
 Preset "budget" of ``agents.config.DroQConfig``: one env, 10 gradient steps per env step, 2 x 64
 networks, LayerNorm critics without dropout (dropout doubled the cost of a step for no measured
-gain), gamma 0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md).
+gain), gamma 0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md). Preset "bench": the same,
+learning a bounded correction to the physics-informed fit's move (``observer="fit-residual"``), for learning on a
+bench from its frames (docs/lab.md).
 """
 
 from __future__ import annotations

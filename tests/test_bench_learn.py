@@ -222,6 +222,24 @@ def _learning(out, steps: int, resume: bool, **extra):
     return bench_learn.setup(args, mapping, bench_learn.check_args(args), {}, hyper)[0]
 
 
+def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
+    """A run from scratch learns with DroQ's ``budget`` preset (the learner alone), or with ``--set config=bench``
+    with the bench preset's correction to the fit's move, other ``--set`` values kept."""
+    from types import SimpleNamespace
+
+    from agents.bench_devices import check_mapping, sim_mapping
+
+    mapping, args = check_mapping(sim_mapping("T:", 3, lengths=False)), SimpleNamespace(from_=None, seed=3)
+    learner = bench_learn.off_policy_learner("droq")
+    env_config, h, _, start = bench_learn._settings(args, learner, mapping, None, {}, {"hidden": [16, 16]})
+    assert h["config"] == "budget" and h.get("observer", "none") == "none", h
+    assert start is None and env_config["observe_lengths"] is False, env_config
+    _, h = bench_learn._settings(args, learner, mapping, None, {}, {"config": "bench", "hidden": [16, 16]})[:2]
+    assert (h["config"], h["observer"], h["residual_scale"], h["fit_starts"], h["fit_iters"]) == (
+        "bench", "fit-residual", 0.25, 4, 6), h
+    assert list(h["hidden"]) == [16, 16] and h["utd_ratio"] == 10.0, h
+
+
 def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, compiles):
     """200 steps of acting, storing, gradient steps and checkpoints compile nothing after setup; --resume restores
     every saved leaf of the training state bit for bit, and the counts."""
