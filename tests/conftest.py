@@ -37,17 +37,18 @@ XLA_FLAGS_HERE = _compile_unoptimised()
 
 
 def _share_compilations_with_started_processes():
-    """The processes the tests start (IOCs, bench runners, learners, snippets) share one persistent XLA cache for
-    the run (a temporary folder, made by the first pytest process and inherited by xdist's workers): a program
-    one of them compiled, the next loads. The pytest processes themselves compile without it, so that the tests'
-    compile counts see every compilation; the size limit turns the cache's file lock on (two workers write to
-    it). Returns the folder this process made and removes at the end (None: inherited, or set outside and kept)."""
+    """The processes the tests start (IOCs, bench runners, learners, snippets, sweeps) share one persistent XLA
+    cache for the run (a temporary folder, made by the first pytest process and inherited by xdist's workers; not
+    the user's ``~/.cache/ops-jax``): a program one of them compiled, the next loads. The pytest processes
+    themselves compile without it, so that the tests' compile counts see every compilation; the size limit turns
+    the cache's file lock on (several processes write to it). Returns the folder this process made and removes at
+    the end (None: inherited, or set outside and kept)."""
     jax.config.update("jax_compilation_cache_dir", None)
     if "JAX_COMPILATION_CACHE_DIR" in os.environ:
         return None
     folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
     os.environ.update(JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
-                      JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30))
+                      JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30), OPS_JAX_CACHE=str(folder))  # the sweep's too
     return folder
 
 

@@ -41,7 +41,7 @@ def test_evaluate_counts_probes_and_is_deterministic():
     assert 0 < a.summary["final_mean"] <= 1
 
 
-def test_evaluate_is_the_same_on_two_devices():
+def test_evaluate_is_the_same_on_two_devices(this_build):
     code = (
         "import numpy as np, jax, jax.numpy as jnp, agents; from agents.base import Policy;"
         "p = Policy(lambda k, o: (), lambda pr, c, o, k, probe: (jnp.tanh(-3 * o[:, -3:]), c));"
@@ -51,7 +51,8 @@ def test_evaluate_is_the_same_on_two_devices():
     outs = []
     for count in (1, 2):
         path = f"/tmp/ops_eval_{count}_{os.getpid()}.npy"
-        env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": f"--xla_force_host_platform_device_count={count}"}
+        flags = f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count={count}"  # this process's build
+        env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": flags}
         res = subprocess.run([sys.executable, "-c", code, path], env=env, capture_output=True, text=True, check=True)
         assert res.stdout.strip() == str(count)
         outs.append(np.load(path))

@@ -123,7 +123,7 @@ FEW = dict(HYPER, eval_every=320)  # the warm-up, then chunks of 10 iterations (
 FEW_STEPS = 1024 + 2 * 320
 
 
-def test_seeds_in_one_call_and_on_two_devices(tmp_path):
+def test_seeds_in_one_call_and_on_two_devices(tmp_path, this_build):
     """train_seeds: reproducible for a seed list, the same draws as each seed alone (equal before
     any gradient step, equal to float rounding after 80), the seeds differ; with two (forced CPU)
     devices (a subprocess, started first to overlap) the seed axis is split across them."""
@@ -134,7 +134,8 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path):
         "sharded = [str(agents.base.split_over_devices(2, 'seeds').spec)];"
         "print(json.dumps(dict(devices=jax.device_count(), sharded=sharded)))"
     )
-    env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env = {**os.environ, "PYTHONPATH": str(REPO),  # this process's build, on two devices
+           "XLA_FLAGS": f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=2"}
     proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "two.npz")], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
