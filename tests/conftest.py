@@ -36,23 +36,25 @@ def _compile_unoptimised():
 XLA_FLAGS_HERE = _compile_unoptimised()
 
 
-def _share_compilations_with_started_processes():
-    """The processes the tests start (IOCs, bench runners, learners, snippets, sweeps) share one persistent XLA
-    cache for the run (a temporary folder, made by the first pytest process and inherited by xdist's workers; not
-    the user's ``~/.cache/ops-jax``): a program one of them compiled, the next loads. The pytest processes
-    themselves compile without it, so that the tests' compile counts see every compilation; the size limit turns
-    the cache's file lock on (several processes write to it). Returns the folder this process made and removes at
-    the end (None: inherited, or set outside and kept)."""
-    jax.config.update("jax_compilation_cache_dir", None)
-    if "JAX_COMPILATION_CACHE_DIR" in os.environ:
-        return None
-    folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
-    os.environ.update(JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
-                      JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30), OPS_JAX_CACHE=str(folder))  # the sweep's too
+def _share_compilations():
+    """One persistent XLA cache for the run, a temporary folder (not the user's ``~/.cache/ops-jax``) made by the
+    first pytest process and inherited by xdist's workers and by every process the tests start (IOCs, bench
+    runners, learners, snippets, sweeps): a program one of them compiled, another loads. Programs that compile in
+    under 0.5 s are not kept; the size limit turns the cache's file lock on (several processes write to it).
+    ``compiles`` counts a program loaded from it as a compilation. Returns the folder this process made and
+    removes at the end (None: inherited, or set outside and kept)."""
+    folder = None
+    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+        folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
+        os.environ.update(JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
+                          JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30), OPS_JAX_CACHE=str(folder))
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_compilation_cache_max_size", 4 << 30)
     return folder
 
 
-SHARED_XLA_CACHE = _share_compilations_with_started_processes()
+SHARED_XLA_CACHE = _share_compilations()
 
 
 def pytest_sessionfinish(session):
@@ -82,7 +84,7 @@ def reference():
 def _count_compiles():
     n = [0]
 
-    def listen(event, duration, **kwargs):
+    def listen(event, duration, **kwargs):  # also fired for a program loaded from the persistent cache
         n[0] += event == "/jax/core/compile/backend_compile_duration"
 
     jax.monitoring.register_event_duration_secs_listener(listen)
@@ -94,8 +96,8 @@ def _count_compiles():
 
 @pytest.fixture
 def compiles():
-    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``
-    (``jax.monitoring``'s compile events): a check that nothing is traced or compiled again."""
+    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``, programs loaded from the
+    persistent cache included (``jax.monitoring``'s events): a check that nothing is traced or compiled again."""
     return _count_compiles
 
 
