@@ -1,5 +1,6 @@
 import contextlib
 import gc
+import importlib.util
 import json
 import os
 import shutil
@@ -40,17 +41,19 @@ def _share_compilations():
     """One persistent XLA cache for the run, a temporary folder (not the user's ``~/.cache/ops-jax``) made by the
     first pytest process and inherited by xdist's workers and by every process the tests start (IOCs, bench
     runners, learners, snippets, sweeps): a program one of them compiled, another loads. Programs that compile in
-    under 0.5 s are not kept; the size limit turns the cache's file lock on (several processes write to it).
-    ``compiles`` counts a program loaded from it as a compilation. Returns the folder this process made and
-    removes at the end (None: inherited, or set outside and kept)."""
+    under 0.5 s are not kept. Only where the filelock package is installed: the cache's size limit turns its file
+    lock on, and several processes write to it. ``compiles`` counts a program loaded from it as a compilation.
+    Returns the folder this process made and removes at the end (None: none, inherited, or set outside)."""
     folder = None
     if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+        if not importlib.util.find_spec("filelock"):
+            return None
         folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
         os.environ.update(JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
                           JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30), OPS_JAX_CACHE=str(folder))
     jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    jax.config.update("jax_compilation_cache_max_size", 4 << 30)
+    jax.config.update("jax_compilation_cache_max_size", int(os.environ.get("JAX_COMPILATION_CACHE_MAX_SIZE", -1)))
     return folder
 
 
