@@ -16,6 +16,9 @@ pytest.importorskip("filelock", reason="the suite shares its XLA cache where fil
 def test_a_program_loaded_from_the_cache_counts_as_a_compilation(compiles):
     keep = jax.config.jax_persistent_cache_min_compile_time_secs
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    loaded = []
+    listen = lambda event, **kwargs: loaded.append(event == "/jax/compilation_cache/cache_hits")  # noqa: E731
+    jax.monitoring.register_event_listener(listen)
     try:
         f = jax.jit(lambda x: jnp.sin(x) * 3.0 - x)
         x = jnp.ones(7, jnp.float32)
@@ -23,13 +26,15 @@ def test_a_program_loaded_from_the_cache_counts_as_a_compilation(compiles):
             f(x).block_until_ready()
         assert n[0] == 1
         jax.clear_caches()  # the in-memory programs gone: the next call loads it from the folder
+        del loaded[:]
         with compiles() as n:
             f(x).block_until_ready()
-        assert n[0] == 1
+        assert n[0] == 1 and sum(loaded) == 1
         with compiles() as n:
             f(x).block_until_ready()
         assert n[0] == 0
     finally:
+        jax.monitoring.unregister_event_listener(listen)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", keep)
 
 
