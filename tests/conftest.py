@@ -60,7 +60,7 @@ def _share_compilations():
 SHARED_XLA_CACHE = _share_compilations()
 
 
-def pytest_sessionfinish(session):
+def pytest_unconfigure(config):
     if SHARED_XLA_CACHE is not None:  # the first pytest process, after every worker has ended
         shutil.rmtree(SHARED_XLA_CACHE, ignore_errors=True)
 
