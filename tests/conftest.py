@@ -44,16 +44,15 @@ def _share_compilations():
     under 0.5 s are not kept. Only where the filelock package is installed: the cache's size limit turns its file
     lock on, and several processes write to it. ``compiles`` counts a program loaded from it as a compilation.
     Returns the folder this process made and removes at the end (None: none, inherited, or set outside)."""
-    folder = None
-    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-        if not importlib.util.find_spec("filelock"):
-            return None
-        folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
-        os.environ.update(JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
-                          JAX_COMPILATION_CACHE_MAX_SIZE=str(4 << 30), OPS_JAX_CACHE=str(folder))
-    jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    jax.config.update("jax_compilation_cache_max_size", int(os.environ.get("JAX_COMPILATION_CACHE_MAX_SIZE", -1)))
+    if "JAX_COMPILATION_CACHE_DIR" in os.environ or not importlib.util.find_spec("filelock"):
+        return None  # inherited or set outside (jax read it when imported), or no file lock
+    folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
+    settings = {"jax_compilation_cache_dir": str(folder), "jax_persistent_cache_min_compile_time_secs": 0.5,
+                "jax_compilation_cache_max_size": 4 << 30}
+    for name, value in settings.items():
+        jax.config.update(name, value)  # this process's jax is imported already
+        os.environ[name.upper()] = str(value)  # the processes started later read it when they import jax
+    os.environ["OPS_JAX_CACHE"] = str(folder)  # the sweep's cache
     return folder
 
 
