@@ -28,6 +28,7 @@ import argparse
 import itertools
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -54,18 +55,31 @@ START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX impor
 
 
 def free_port() -> int:
-    """A localhost port free for both TCP and UDP (Channel Access serves both on one port)."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp:
-            tcp.bind(("127.0.0.1", 0))
-            port = tcp.getsockname()[1]
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-                try:
-                    udp.bind(("127.0.0.1", port))
-                except OSError:
-                    continue
-                return port
-    raise RuntimeError("no free localhost port for Channel Access")
+    """A localhost port free for both TCP and UDP (Channel Access serves both on one port), below the kernel's
+    range for auto-bound ports: caproto binds an IOC's UDP port shareable, so a client socket the kernel
+    auto-binds to that port would take the IOC's search replies for itself, and the client's search time out."""
+    low = ephemeral_ports()[0]
+    rng = random.SystemRandom()
+    for _ in range(200):
+        port = rng.randrange(10_000 if low > 11_000 else 1024, low)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp, \
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            try:
+                tcp.bind(("127.0.0.1", port))
+                udp.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free localhost port for Channel Access below {low}")
+
+
+def ephemeral_ports() -> tuple[int, int]:
+    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read."""
+    try:
+        first, last = map(int, Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+        return first, last
+    except (OSError, ValueError):
+        return 32768, 60999
 
 
 def ca_env() -> dict:

@@ -26,6 +26,7 @@ from ophyd.sim import make_fake_device  # noqa: E402
 import agents  # noqa: E402
 from agents import bench as runner  # noqa: E402
 from agents.bench_devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
+from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
 import ops_jax  # noqa: E402
 from ops_jax import ioc  # noqa: E402
@@ -617,6 +618,22 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
     spgd = runner.Agent(agents.base.algo_module("spgd").make_policy(env_config, None), None, env, seed=1)
     spgd.start(np.zeros(env.observation_size))
     assert not spgd.tell(np.zeros(3))  # SPGD reads no move of its own
+
+
+def test_bench_ports_lie_below_the_range_the_kernel_auto_binds_from():
+    """The IOC's Channel Access port is never one the kernel can hand to a client's socket: caproto's IOC binds
+    its UDP port shareable, and a client socket auto-bound to it (caproto's are made shareable too) hears the
+    IOC's replies to itself, so its search times out. Each port is free for TCP and UDP when drawn."""
+    import socket
+
+    first = lab.ephemeral_ports()[0]
+    ports = [lab.free_port() for _ in range(50)]
+    assert all(1024 <= p < first for p in ports) and len(set(ports)) > 40, ports
+    for family in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        with socket.socket(socket.AF_INET, family) as s:
+            s.bind(("127.0.0.1", ports[0]))
+    env = ca_env()
+    assert int(env["EPICS_CA_SERVER_PORT"]) < first and int(env["EPICS_CA_REPEATER_PORT"]) < first
 
 
 def test_ioc_options_come_from_make():
