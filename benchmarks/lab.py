@@ -58,6 +58,8 @@ def free_port() -> int:
     """A localhost port free for both TCP and UDP (Channel Access serves both on one port), below the kernel's
     range for auto-bound ports: caproto binds an IOC's UDP port shareable, so a client socket the kernel
     auto-binds to that port would take the IOC's search replies for itself, and the client's search time out."""
+    from ops_jax.ioc import ephemeral_ports
+
     low = ephemeral_ports()[0]
     rng = random.SystemRandom()
     for _ in range(200):
@@ -71,15 +73,6 @@ def free_port() -> int:
                 continue
             return port
     raise RuntimeError(f"no free localhost port for Channel Access below {low}")
-
-
-def ephemeral_ports() -> tuple[int, int]:
-    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read."""
-    try:
-        first, last = map(int, Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
-        return first, last
-    except (OSError, ValueError):
-        return 32768, 60999
 
 
 def ca_env() -> dict:

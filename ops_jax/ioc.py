@@ -50,6 +50,7 @@ import json
 import math
 import os
 import socket
+import sys
 import time
 
 import jax
@@ -323,6 +324,27 @@ async def _drained_get(circuit, timeout=None):
         return None if timeout is not None else await queue.get()
 
 
+def ephemeral_ports() -> tuple[int, int]:
+    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            first, last = map(int, f.read().split())
+        return first, last
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
+def port_warning(port: int) -> str | None:
+    """A line for a Channel Access port inside the kernel's range for auto-bound ports (None: outside it):
+    caproto binds the IOC's UDP port shareable, so a client socket the kernel happens to bind to the same port
+    takes the IOC's search replies for itself, and that client's search times out."""
+    first, last = ephemeral_ports()
+    if first <= port <= last:
+        return (f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports ({first}-{last}); "
+                f"a client given the same port misses the IOC's search replies: set EPICS_CA_SERVER_PORT below {first}")
+    return None
+
+
 def tune_server(rate: float) -> None:
     """caproto's server set for a tick-paced IOC: monitor batches sent once the queue is drained (``_drained_get``)
     and within ``batch_window(rate)`` under load, and replies sent without Nagle's delay. caproto binds with
@@ -354,6 +376,11 @@ def main(argv=None) -> None:
     except OSError as exc:
         raise SystemExit(f"ops_jax.ioc: --tick-log: {exc}")
     tune_server(args.rate)
+    from caproto import get_environment_variables
+
+    warning = port_warning(int(get_environment_variables()["EPICS_CA_SERVER_PORT"]))
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     group = pv_group(bench, args.prefix, args.rate, args.lockstep, tick_log)
     run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
 

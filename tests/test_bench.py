@@ -626,7 +626,7 @@ def test_bench_ports_lie_below_the_range_the_kernel_auto_binds_from():
     IOC's replies to itself, so its search times out. Each port is free for TCP and UDP when drawn."""
     import socket
 
-    first = lab.ephemeral_ports()[0]
+    first = ioc.ephemeral_ports()[0]
     ports = [lab.free_port() for _ in range(50)]
     assert all(1024 <= p < first for p in ports) and len(set(ports)) > 40, ports
     for family in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
@@ -634,6 +634,10 @@ def test_bench_ports_lie_below_the_range_the_kernel_auto_binds_from():
             s.bind(("127.0.0.1", ports[0]))
     env = ca_env()
     assert int(env["EPICS_CA_SERVER_PORT"]) < first and int(env["EPICS_CA_REPEATER_PORT"]) < first
+    last = ioc.ephemeral_ports()[1]
+    assert ioc.port_warning(ports[0]) is None and ioc.port_warning(5064) is None
+    for inside in (first, (first + last) // 2, last):
+        assert f"port {inside} lies in" in ioc.port_warning(inside) and f"below {first}" in ioc.port_warning(inside)
 
 
 def test_ioc_options_come_from_make():
