@@ -54,16 +54,22 @@ FRAMES_ONLY = ["--observe-lengths", "False"]
 START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
 
 
-def free_port() -> int:
-    """A localhost port free for both TCP and UDP (Channel Access serves both on one port), below the kernel's
-    range for auto-bound ports: caproto binds an IOC's UDP port shareable, so a client socket the kernel
-    auto-binds to that port would take the IOC's search replies for itself, and the client's search time out."""
+def free_port(other: int | None = None) -> int:
+    """A localhost port free for both TCP and UDP (Channel Access serves both on one port), not ``other``, and
+    outside the kernel's range for auto-bound ports (from 10,000 up, clear of the well-known ones): caproto binds
+    an IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a client socket the
+    kernel auto-binds to the IOC's port takes the IOC's search replies for itself and the client's search times
+    out."""
     from ops_jax.ioc import ephemeral_ports
 
-    low = ephemeral_ports()[0]
+    first, last = ephemeral_ports()
+    spans = [r for r in (range(10_000, first), range(last + 1, 65_536)) if r] or [r for r in (range(1024, first),) if r]
+    if not spans:
+        raise RuntimeError(f"no localhost port for Channel Access outside the kernel's auto-bound range {first}-{last}")
     rng = random.SystemRandom()
     for _ in range(200):
-        port = rng.randrange(10_000 if low > 11_000 else 1024, low)
+        k = rng.randrange(sum(map(len, spans)))
+        port = spans[0][k] if k < len(spans[0]) else spans[1][k - len(spans[0])]
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp, \
                 socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
             try:
@@ -71,13 +77,15 @@ def free_port() -> int:
                 udp.bind(("127.0.0.1", port))
             except OSError:
                 continue
-            return port
-    raise RuntimeError(f"no free localhost port for Channel Access below {low}")
+            if port != other:
+                return port
+    raise RuntimeError(f"no free localhost port for Channel Access outside {first}-{last}")
 
 
 def ca_env() -> dict:
     """This process's environment with Channel Access confined to a fresh localhost port."""
-    return {**os.environ, "EPICS_CA_SERVER_PORT": str(free_port()), "EPICS_CA_REPEATER_PORT": str(free_port()),
+    server = free_port()
+    return {**os.environ, "EPICS_CA_SERVER_PORT": str(server), "EPICS_CA_REPEATER_PORT": str(free_port(server)),
             "EPICS_CA_ADDR_LIST": "127.0.0.1", "EPICS_CA_AUTO_ADDR_LIST": "NO"}
 
 

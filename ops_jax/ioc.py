@@ -325,7 +325,8 @@ async def _drained_get(circuit, timeout=None):
 
 
 def ephemeral_ports() -> tuple[int, int]:
-    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read."""
+    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read (other
+    systems: their own, e.g. macOS 49152-65535)."""
     try:
         with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
             first, last = map(int, f.read().split())
@@ -336,8 +337,9 @@ def ephemeral_ports() -> tuple[int, int]:
 
 def port_warning(port: int) -> str | None:
     """A line for a Channel Access port inside the kernel's range for auto-bound ports (None: outside it):
-    caproto binds the IOC's UDP port shareable, so a client socket the kernel happens to bind to the same port
-    takes the IOC's search replies for itself, and that client's search times out."""
+    caproto binds the IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a
+    client socket the kernel auto-binds to the same port takes the IOC's search replies for itself, and that
+    client's search times out."""
     first, last = ephemeral_ports()
     if first <= port <= last:
         return (f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports ({first}-{last}); "

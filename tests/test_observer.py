@@ -154,7 +154,7 @@ def test_the_fits_size_reaches_the_observer():
 def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
     """A short DroQ run with the fit: its policy params are sized for frames + offsets, the saved policy evaluates
     on the frames-only env (the fit runs inside the policy), and the same seed gives the same params."""
-    config = dict(FRAMES, imperfections="none", max_steps=50)  # short episodes: the fit is dear to run unoptimised
+    config = dict(FRAMES, imperfections="none", max_steps=50)  # short episodes: the fit is costly to run unoptimised
     kw = dict(seed=2, total_steps=200, observer="fit", learning_starts=100, eval_every=100, hidden=(16, 16),
               critic_hidden=(16, 16), batch_size=32, utd_ratio=1.0, eval_episodes=2)
     result = agents.train("droq", config, **kw)
