@@ -56,14 +56,14 @@ START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX impor
 
 def free_port(other: int | None = None) -> int:
     """A localhost port free for both TCP and UDP (Channel Access serves both on one port), not ``other``, and
-    outside the kernel's range for auto-bound ports (from 10,000 up, clear of the well-known ones): caproto binds
-    an IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a client socket the
-    kernel auto-binds to the IOC's port takes the IOC's search replies for itself and the client's search times
-    out."""
+    outside the kernel's range for auto-bound ports (from 20,000 up: clear of the well-known ports and of Ray's
+    worker ports, 10002-19999). caproto binds an IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its
+    client sockets, so a client socket the kernel auto-binds to the IOC's port takes the IOC's search replies for
+    itself and the client's search times out."""
     from ops_jax.ioc import ephemeral_ports
 
     first, last = ephemeral_ports()
-    spans = [r for r in (range(10_000, first), range(last + 1, 65_536)) if r] or [r for r in (range(1024, first),) if r]
+    spans = [r for r in (range(20_000, first), range(last + 1, 65_536)) if r] or [r for r in (range(1024, first),) if r]
     if not spans:
         raise RuntimeError(f"no localhost port for Channel Access outside the kernel's auto-bound range {first}-{last}")
     rng = random.SystemRandom()
