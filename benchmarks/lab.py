@@ -63,13 +63,12 @@ def free_port(other: int | None = None) -> int:
     from ops_jax.ioc import ephemeral_ports
 
     first, last = ephemeral_ports()
-    spans = [r for r in (range(20_000, first), range(last + 1, 65_536)) if r] or [r for r in (range(1024, first),) if r]
-    if not spans:
+    outside = [*range(20_000, first), *range(last + 1, 65_536)] or [*range(1024, first)]
+    if not outside:
         raise RuntimeError(f"no localhost port for Channel Access outside the kernel's auto-bound range {first}-{last}")
     rng = random.SystemRandom()
     for _ in range(200):
-        k = rng.randrange(sum(map(len, spans)))
-        port = spans[0][k] if k < len(spans[0]) else spans[1][k - len(spans[0])]
+        port = rng.choice(outside)
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp, \
                 socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
             try:
