@@ -342,7 +342,17 @@ class SACConfig(AlgoConfig):
 @dataclasses.dataclass(frozen=True)
 class ReplayConfig(AlgoConfig):
     """Base of the off-policy learners' configs (``agents.offpolicy``): gradient steps per iteration are
-    ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two)."""
+    ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two); the observer's fields
+    (``agents.observer``), keyword-only, are common to them."""
+
+    observer: str = field(OBSERVER, default="none", kw_only=True)
+    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
+    residual_scale: float = field(UNIT, default=1.0, kw_only=True)
+    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
+    fit_starts: int | None = field(_optional(COUNT), default=None, kw_only=True)
+    fit_iters: int | None = field(_optional(COUNT), default=None, kw_only=True)
+    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
+    fit_history: int | None = field(_optional(HISTORY), default=None, kw_only=True)
 
     def updates_per_step(self) -> float:
         from agents.replay import updates_per_iter
@@ -418,14 +428,6 @@ class TD3Config(ReplayConfig):
     eval_episodes: int = field(COUNT)
     utd_ratio: float | None = field(_optional(Range(0, 1e4, lo_open=True)))
     train_reward: str | None = field(TRAIN_REWARD)
-    observer: str = field(OBSERVER, default="none")
-    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
-    residual_scale: float = field(UNIT, default=1.0)
-    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
-    fit_starts: int | None = field(_optional(COUNT), default=None)
-    fit_iters: int | None = field(_optional(COUNT), default=None)
-    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
-    fit_history: int | None = field(_optional(HISTORY), default=None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -471,11 +473,3 @@ class DroQConfig(ReplayConfig):
     eval_every: int = field(COUNT)
     eval_episodes: int = field(COUNT)
     train_reward: str | None = field(TRAIN_REWARD)
-    observer: str = field(OBSERVER, default="none")
-    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
-    residual_scale: float = field(UNIT, default=1.0)
-    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
-    fit_starts: int | None = field(_optional(COUNT), default=None)
-    fit_iters: int | None = field(_optional(COUNT), default=None)
-    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
-    fit_history: int | None = field(_optional(HISTORY), default=None)
