@@ -26,16 +26,18 @@ saved policy, checkpointing to ``DIR/checkpoint`` every ``--checkpoint-every`` s
 
 The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
-ends the run after the current step. Written to ``DIR``: ``documents.jsonl`` (the Bluesky documents,
-one per line, as they are emitted), ``power.png`` (P / P_max and P / P_best against time; learning: the update
-ratio too), ``summary.json`` (learning: the step counts and update ratio) and, learning, ``checkpoint/``. Exit
-status 0 when the run ended by time, steps or the user, 3 when the watchdog stopped it, 2 for bad arguments or a
-bench that cannot be reached.
+ends the run after the current step, a second one at once (``user_stops``). Written to ``DIR``:
+``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P / P_max and
+P / P_best against time; learning: the update ratio too), ``summary.json`` (learning: the step counts and update
+ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time, steps or the user, 3 when the
+watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run
+started (nothing recorded).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -50,16 +52,23 @@ from agents import base, bench_learn
 from agents.bench_devices import (SETTLE_RANGE_S, MappingError, SafetyStop, arm, check_mapping, connect, disconnect,
                                   load_mapping, make_bench, sim_mapping)
 from agents.bench_flyer import lean_page_checks
-from agents.bench_loop import (FLUSH_S, MAX_PROBES, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
+from agents.bench_loop import (FLUSH_S, MAX_PROBES, USER_STOP, Agent, Loop, check_lengths, control_plan, load_controller,  # noqa: F401
                                log, observes_lengths, reads_lengths)
 from agents.cli import parse_set
 from agents.io import write_json_atomic
 from ops_jax import runtime
+from ops_jax.progress import exit_interrupted, keep_ctrl_c
 
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
 # waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
 SWITCH_S = 0.0005
 EXIT_WATCHDOG = 3
+
+
+def _stopped_by(loop: Loop) -> str:
+    """How the run ended: ``"time"``, ``"steps"``, ``"user"`` (``USER_STOP``) or the watchdog's reason."""
+    user = USER_STOP if loop.user_stop else None
+    return loop.stop_reason or user or ("steps" if 0 < loop.max_steps <= len(loop.rec["time_s"]) else "time")
 
 
 def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
@@ -74,10 +83,9 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
     pct = lambda v, q: float(np.percentile(v, q)) if v.size else float("nan")
     mean = lambda v: float(np.mean(v)) if v.size else float("nan")
     frames = float(rec["tick"][-1] - rec["tick"][0]) if steps > 1 else 0.0
-    stopped_by = loop.stop_reason or ("user" if loop.user_stop else "steps" if 0 < loop.max_steps <= steps else "time")
     return {
         "controller": controller,
-        "stopped_by": stopped_by,
+        "stopped_by": _stopped_by(loop),
         "watchdog_time": loop.stopped_at,
         "steps": steps,
         "seconds": elapsed,
@@ -129,7 +137,7 @@ def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m agents.bench", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m agents.bench", description=__doc__.split("\n\n")[0])
     ap.add_argument("--prefix", default="OPS:", help="PV prefix of the simulated bench (without --mapping)")
     ap.add_argument("--stages", type=int, default=None, help="delay lines of the simulated bench "
                     "(default: the saved controller's, else 5)")
@@ -235,57 +243,68 @@ def pin(core: int) -> None:
 
 
 def main(argv=None) -> int:
+    keep_ctrl_c()
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     out = Path(args.out)
-    try:
-        mapping, agent, env_config, scale, window = _setup(args)
-    except (MappingError, ValueError, TypeError, FileNotFoundError) as exc:
-        print(f"agents.bench: {exc}", file=sys.stderr)
-        return 2
-    _pyplot()
-    bench, lines = make_bench(mapping)
-    try:
-        connect(bench, mapping["safety"]["connect_s"])
-    except MappingError as exc:
-        print(f"agents.bench: {exc}", file=sys.stderr)
-        return 2
-    out.mkdir(parents=True, exist_ok=True)
-    if args.resume:  # a resumed learning run appends its documents
-        bench_learn.mend_documents(out / "documents.jsonl")
-    else:
-        (out / "documents.jsonl").unlink(missing_ok=True)
-    arm(bench, lines)
-    learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
-    steps = args.steps - learning.counts.env_steps if learning else args.steps
-    loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)
-    loop.watch()
+    say("starting: the controller's compilation, then the connection to the bench")
+    try:  # a Ctrl-C before the run starts: one line, nothing recorded
+        try:
+            mapping, agent, env_config, scale, window = _setup(args)
+            _pyplot()
+            bench, lines = make_bench(mapping)
+            connect(bench, mapping["safety"]["connect_s"])
+        except (MappingError, ValueError, TypeError, FileNotFoundError) as exc:
+            say(str(exc))
+            return 2
+        out.mkdir(parents=True, exist_ok=True)
+        if args.resume:  # a resumed learning run appends its documents
+            bench_learn.mend_documents(out / "documents.jsonl")
+        else:
+            (out / "documents.jsonl").unlink(missing_ok=True)
+        arm(bench, lines)
+        learning, label = (agent, f"learning {args.learn}") if args.learn else (None, args.controller)
+        steps = args.steps - learning.counts.env_steps if learning else args.steps
+        loop = Loop(bench, lines, mapping, agent, scale, window, args.seconds, args.rate, steps)
+        loop.watch()
+        say("running; Ctrl-C stops the run after the current step")
+    except KeyboardInterrupt:
+        kept = "; its checkpoint as it was" if args.resume else ""
+        exit_interrupted(f"stopped while starting; nothing recorded in {out}{kept}")
     md = {"controller": label, "controller_env": env_config, "hyper": parse_set(args.set),
           "trim": None if args.trim is None else parse_set(args.trim), "learning": learning and learning.describe(),
           "seed": args.seed, "rate_hz": args.rate, "mapping": mapping, "plan_name": "agents.bench"}
-    if learning:
-        learning.begin(steps, lambda exc: loop.trip(f"error: the learner failed: {exc!r}"))
-    quiet = _QuietStop()
-    for name in QUIET_LOGGERS:
-        logging.getLogger(name).addFilter(quiet)
-    try:
-        elapsed = _run(loop, md, out)
-    finally:
-        disconnect(bench)
+    with user_stops(loop):  # from here on nothing recorded is lost to a Ctrl-C
+        if learning:
+            learning.begin(steps, lambda exc: loop.trip(f"error: the learner failed: {exc!r}"))
+        quiet = _QuietStop()
         for name in QUIET_LOGGERS:
-            logging.getLogger(name).removeFilter(quiet)
-    summary = summarize(loop, label, elapsed)
-    if learning:
-        learning.finish(args.catch_up_s if summary["stopped_by"] in ("steps", "time") else 0.0)
-        summary.update(learning.report())
-    write_json_atomic(out / "summary.json", summary)
-    stopped = summary["stopped_by"] not in ("time", "steps", "user")
-    if stopped:
-        print(f"agents.bench: stopped by the watchdog: {summary['stopped_by']}", file=sys.stderr, flush=True)
-    plot(out / "power.png", loop, f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
-         learning and learning.ratio_series(loop.t0))
-    print(json.dumps(summary, indent=1))
+            logging.getLogger(name).addFilter(quiet)
+        try:
+            elapsed = _run(loop, md, out)
+            if learning:  # the learner's steps while the loop ran end here (then its catch-up, its last checkpoint)
+                learning.end(args.catch_up_s if _stopped_by(loop) in ("steps", "time") else 0.0)
+        finally:
+            disconnect(bench)
+            for name in QUIET_LOGGERS:
+                logging.getLogger(name).removeFilter(quiet)
+        summary = summarize(loop, label, elapsed)
+        if learning:
+            learning.finish()
+            summary.update(learning.report())
+        write_json_atomic(out / "summary.json", summary)
+        stopped = summary["stopped_by"] not in ("time", "steps", USER_STOP)
+        if stopped:
+            say(f"stopped by the watchdog: {summary['stopped_by']}")
+        plot(out / "power.png", loop, f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
+             learning and learning.ratio_series(loop.t0))
+        print(json.dumps(summary, indent=1))
     return EXIT_WATCHDOG if stopped else 0
+
+
+def say(line: str) -> None:
+    """A line of the runner's on stderr."""
+    print(f"agents.bench: {line}", file=sys.stderr, flush=True)
 
 
 QUIET_LOGGERS = ("bluesky", "caproto.circ", "caproto.ch")  # filtered by _QuietStop from connection to disconnection
@@ -318,30 +337,46 @@ def _writer(out: Path):
     return write
 
 
-def _run(loop: Loop, md: dict, out: Path) -> float:
-    """Run the plan, documents streamed to ``out/documents.jsonl``; returns the seconds it ran."""
-    from bluesky import RunEngine
-
-    RE = RunEngine({}, context_managers=[])  # Ctrl-C and SIGTERM end the run after the step (below)
-    RE.subscribe(_writer(out))
+@contextlib.contextmanager
+def user_stops(loop: Loop):
+    """Ctrl-C and SIGTERM while the run lasts: the first ends it after the current step (a line on stderr says
+    so), a second at once (``USER_STOP``, no further move); once the plan has returned, while what the run recorded
+    is written, each is answered with a line and otherwise ignored. The previous handlers are restored after."""
 
     def stop(signum, frame):
-        if loop.user_stop:  # a second Ctrl-C: stop now, move nothing more
-            loop.trip("interrupted by the user")
-        loop.user_stop = True
+        if loop.ended:
+            os.write(2, b"agents.bench: the run has ended; writing what it recorded\n")
+        elif loop.user_stop:
+            loop.trip(USER_STOP)
+        else:
+            loop.user_stop = True
+            os.write(2, b"agents.bench: stopping after the current step (again: at once)\n")
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _run(loop: Loop, md: dict, out: Path) -> float:
+    """Run the plan, documents streamed to ``out/documents.jsonl``, Ctrl-C and SIGTERM as ``user_stops`` says;
+    returns the seconds it ran."""
+    from bluesky import RunEngine
+
+    RE = RunEngine({}, context_managers=[])  # its own Ctrl-C handling left out: user_stops
+    RE.subscribe(_writer(out))
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:
-        with lean_page_checks():
+        with user_stops(loop), lean_page_checks():
             RE(control_plan(loop, md))
     except Exception as exc:  # the watchdog (SafetyStop) or a failure: no further move, keep what was recorded
         if loop.stop_reason is None:
             loop.trip(f"error: {exc}")
     finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        loop.ended = True
         sys.setswitchinterval(switch)
     return time.perf_counter() - loop.t0 if loop.t0 is not None else 0.0
 

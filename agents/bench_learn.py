@@ -28,6 +28,7 @@ import dataclasses
 import json
 import logging
 import shutil
+import sys
 import threading
 import time
 from pathlib import Path
@@ -92,6 +93,12 @@ def check_args(args) -> Path | None:
             raise ValueError("--resume continues the run in --out with its own settings: drop --from, --set and --env")
         if checkpoint is None or not (checkpoint / "learner.json").exists():
             raise ValueError(f"--resume needs a checkpoint of a learning run in --out, none in {args.out}")
+        try:
+            done = json.loads((checkpoint / "learner.json").read_text())["counts"]["env_steps"]
+        except (OSError, ValueError, KeyError, TypeError):
+            done = None  # unreadable: restoring it says why
+        if done is not None and done >= args.steps:
+            raise ValueError(f"--steps must be > the {done} env steps of the checkpoint, got {args.steps}")
     elif checkpoint is not None:
         raise ValueError(f"--out {args.out} holds a learning run's checkpoint: continue it with --resume, or give "
                          "another --out")
@@ -137,11 +144,11 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
     learning = Learning(learner, env_config, h, seed, out, args.checkpoint_every)
     if checkpoint is not None:
         learning.restore(checkpoint)
-        if learning.counts.env_steps >= args.steps:
-            raise ValueError(f"--steps must be > the {learning.counts.env_steps} env steps of the checkpoint, "
-                             f"got {args.steps}")
     elif start is not None:
         learning.start_from(start, args.from_)
+    if learning.counts.transitions + args.steps - learning.counts.env_steps <= h["learning_starts"]:
+        print(f"agents.bench: warning: --steps {args.steps} ends within the learner's warm-up (learning_starts="
+              f"{h['learning_starts']} transitions of random actions): it takes no gradient step", file=sys.stderr)
     learning.compile()
     return learning, env_config, float(env_params.action_scale), float(env_params.window)
 
@@ -324,12 +331,18 @@ class Learning:
         self.thread = threading.Thread(target=self._run, name="learner", daemon=True)
         self.thread.start()
 
-    def finish(self, catch_up_s: float = 0.0) -> None:
-        """Store what the loop handed over; then, for at most ``catch_up_s`` seconds, take the gradient steps the
-        learner fell behind the ratio (``catch_up_steps``); write the last checkpoint, end the thread."""
+    def end(self, catch_up_s: float = 0.0) -> None:
+        """The loop has stopped: the thread stores what the loop handed over; then, for at most ``catch_up_s``
+        seconds, takes the gradient steps the learner fell behind the ratio (``catch_up_steps``); writes the last
+        checkpoint and ends (``finish`` waits for it)."""
         self.catch_up_s = catch_up_s
         self.ending = True
         self.wake.set()
+
+    def finish(self, catch_up_s: float = 0.0) -> None:
+        """``end`` (unless called already), and wait for the thread."""
+        if not self.ending:
+            self.end(catch_up_s)
         self.thread.join()
         self.bar.close()
 

@@ -16,6 +16,7 @@ from agents.bench_flyer import LoopFlyer, fly
 
 MAX_PROBES = 16  # probes per control step a controller may ask for
 FLUSH_S = 0.2  # a page of the loop's events is due this often (s), collected after the step that ends it
+USER_STOP = "user"  # the stop reason of a run the user ended at once (a second Ctrl-C or SIGTERM)
 log = logging.getLogger("agents.bench")
 
 
@@ -166,8 +167,9 @@ class Loop:
         self.frames = None
         self.deadline = None  # time.perf_counter() before which the next step does not read (the rate cap)
         self.stop_reason: str | None = None
-        self.stopped_at = None  # time.time() of the watchdog's stop
+        self.stopped_at = None  # time.time() of a stop at once (the watchdog's or the user's)
         self.user_stop = False
+        self.ended = False  # the plan has returned: what is left is writing what the run recorded
         self.rec = {k: [] for k in ("time_s", "tick", "p_pmax", "p_pbest", "latency_ms", "decide_ms")}
         self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
         self.advance = getattr(bench, "advance", None)
@@ -176,10 +178,12 @@ class Loop:
 
     # -- watchdog --------------------------------------------------------------------------------
     def trip(self, reason: str):
-        """Stop at once: no further move; the frame being waited for fails with ``reason``."""
+        """Stop at once: no further move; the frame being waited for fails with ``reason`` (logged as the
+        watchdog's, unless it is the user's ``USER_STOP``)."""
         if self.stop_reason is None:
             self.stop_reason, self.stopped_at = reason, time.time()
-            log.error("watchdog: %s", reason)
+            if reason != USER_STOP:
+                log.error("watchdog: %s", reason)
         self.lines.lock(self.stop_reason)
         self.det.fail(SafetyStop(self.stop_reason))
 

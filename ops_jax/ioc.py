@@ -365,7 +365,7 @@ def tune_server(rate: float) -> None:
 def main(argv=None) -> None:
     args = parser().parse_args(argv)
     if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
-        raise SystemExit(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
+        raise SystemExit(f"ops_jax.ioc: --rate must be a number in (0, 10000] Hz, got {args.rate}")
     runtime.start_single_threaded()  # a tick is one small call
     try:
         bench = Bench(args.stages, args.mode, make_options(args), seed=args.seed, drift_episode=args.drift_episode)
