@@ -200,6 +200,7 @@ def _setup(args):
     saved = args.controller not in ("spgd", "physics", None)
     if saved and not Path(args.controller).is_dir():
         raise ValueError(f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}")
+    say("starting: the controller's compilation, then the connection to the bench")  # the arguments' own checks passed
     stages = args.stages or (bench_learn.default_stages(args, checkpoint) if args.learn else
                              base.load(args.controller).env_config.get("stages", 5) if saved else 5)
     mapping = load_mapping(args.mapping) if args.mapping else sim_mapping(args.prefix, stages, args.lockstep,
@@ -247,7 +248,6 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     out = Path(args.out)
-    say("starting: the controller's compilation, then the connection to the bench")
     try:  # a Ctrl-C before the run starts: one line, nothing recorded
         try:
             mapping, agent, env_config, scale, window = _setup(args)

@@ -161,7 +161,7 @@ def test_bad_learning_arguments_fail_in_one_line(tmp_path, capsys, extra, needle
     extra = [str(_saved_policy(tmp_path / x, *policies[x])) if x in policies else x for x in extra]
     assert runner.main(["--prefix", "NONE:", "--stages", "3", "--no-lengths", "--out", str(tmp_path / "out"),
                         *extra]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if not line.startswith("agents.bench: starting")]
     assert len(err) == 1 and needle in err[0], err
 
 
@@ -174,6 +174,19 @@ def test_a_checkpoint_in_out_is_continued_or_kept(tmp_path, capsys):
     assert "continue it with --resume" in capsys.readouterr().err
     assert runner.main([*base_args, "--resume", "--set", "utd_ratio=1"]) == 2
     assert "drop --from, --set and --env" in capsys.readouterr().err
+    # --steps at or under the checkpoint's count: refused from its learner.json, before anything is loaded
+    (tmp_path / "out" / "checkpoint" / "learner.json").write_text(json.dumps({"counts": {"env_steps": 9}}))
+    assert runner.main([*base_args, "--resume"]) == 2
+    assert "--steps must be > the 9 env steps of the checkpoint, got 9" in capsys.readouterr().err
+
+
+def test_a_run_that_ends_within_the_warm_up_is_told_so(tmp_path, capsys):
+    """--steps that end before ``learning_starts`` transitions are stored: a warning naming both; two steps past
+    them: none (the first step stores no transition)."""
+    _learning(tmp_path / "short", 32, resume=False)
+    assert "--steps 32 ends within the learner's warm-up (learning_starts=32" in capsys.readouterr().err
+    _learning(tmp_path / "long", 34, resume=False)
+    assert "warm-up" not in capsys.readouterr().err
 
 
 def test_replace_dir_leaves_one_whole_folder(tmp_path):
