@@ -65,6 +65,11 @@ SWITCH_S = 0.0005
 EXIT_WATCHDOG = 3
 
 
+def say(line: str) -> None:
+    """A line of the runner's on stderr."""
+    print(f"agents.bench: {line}", file=sys.stderr, flush=True)
+
+
 def _stopped_by(loop: Loop) -> str:
     """How the run ended: ``"time"``, ``"steps"``, ``"user"`` (``USER_STOP``) or the watchdog's reason."""
     user = USER_STOP if loop.user_stop else None
@@ -300,11 +305,6 @@ def main(argv=None) -> int:
              learning and learning.ratio_series(loop.t0))
         print(json.dumps(summary, indent=1))
     return EXIT_WATCHDOG if stopped else 0
-
-
-def say(line: str) -> None:
-    """A line of the runner's on stderr."""
-    print(f"agents.bench: {line}", file=sys.stderr, flush=True)
 
 
 QUIET_LOGGERS = ("bluesky", "caproto.circ", "caproto.ch")  # filtered by _QuietStop from connection to disconnection
