@@ -103,6 +103,8 @@ def main(argv=None) -> dict:
                 raise ValueError(f"--{name} must be an integer >= {least}, got {value}")
         env_config = base.check_env_config({"stages": args.stages, "mode": args.mode, **parse_set(args.env)})
         config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
+        if args.steps is not None and not hasattr(config, "total_steps"):
+            raise ValueError(f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out")
         module.make_policy(env_config, config.to_hyper())
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
@@ -118,14 +120,22 @@ def main(argv=None) -> dict:
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
     def show(step: int, metrics: dict) -> None:
+        shown.append(step)
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
         bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
 
+    shown = []
     if logger is not None:
         logger.then, show = show, logger
     try:
         result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
                             config=config)
+    except ValueError as exc:
+        if shown:  # a failure during training: its traceback
+            raise
+        bar.close()  # the trainer's own checks of the budget against its config: one line, as the ones above
+        message = str(exc).replace("total_steps", "--steps", 1) if args.steps is not None else str(exc)
+        ap.exit(2, f"{ap.prog}: error: {message}\n")
     except KeyboardInterrupt:
         bar.close()
         at = f"at step {bar.n:,} of {total:,}" if total else "during training"

@@ -168,6 +168,21 @@ def test_training_cli_refuses_bad_arguments_in_one_line(argv, words, tmp_path):
     assert words in res.stderr and not (tmp_path / "run").exists()
 
 
+@pytest.mark.parametrize("argv, words", [
+    (["--algo", "spgd", "--steps", "400"], "--steps: spgd trains nothing"),
+    (["--algo", "droq", "--config", "budget", "--steps", "500"], "--steps must be >= the warm-up of learning_starts = 1000"),
+])
+def test_training_cli_refuses_a_budget_its_trainer_refuses_in_one_line(argv, words, tmp_path):
+    """--steps for a controller with nothing to train, or under a learner's warm-up (the trainer's own check, after
+    the progress line): one error line, exit status 2, nothing written."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
+    res = subprocess.run([sys.executable, "-m", "agents.train", *argv, "--stages", "2", "--out", str(tmp_path / "run")],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.splitlines()[-1].startswith(f"python -m agents.train: error: {words}"), res.stderr
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize("algo", sorted(agents.ALGOS))
 def test_every_algorithm_has_one_config_type(algo):
     """Presets build and round-trip through the stored form; one error style for every algorithm."""
