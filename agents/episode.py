@@ -25,7 +25,7 @@ import numpy as np
 
 from ops_jax import physics, render
 from agents import base, registry
-from ops_jax.cli import ArgumentParser
+from ops_jax.cli import ArgumentParser, run
 from ops_jax.progress import keep_ctrl_c
 from agents.envs import built
 
@@ -128,4 +128,4 @@ def main(argv=None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    run("python -m agents.episode", main)

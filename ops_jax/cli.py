@@ -4,6 +4,9 @@ lines (the error and where the options are listed), not under a screenful of usa
 from __future__ import annotations
 
 import argparse
+import sys
+
+from ops_jax.progress import exit_interrupted, keep_ctrl_c
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -12,3 +15,17 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\nthe options: {self.prog} --help\n")
 
+
+
+def run(prog: str, main) -> None:
+    """Run a picture-making program's ``main()``, which computes from its arguments alone: a ``ValueError`` (a
+    value out of its range, named by the function that refused it) is one line on stderr, exit status 2; a
+    Ctrl-C one line, exit status 130."""
+    keep_ctrl_c()
+    try:
+        main()
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr, flush=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        exit_interrupted("nothing written")

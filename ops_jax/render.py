@@ -32,7 +32,7 @@ import jax
 import numpy as np
 
 from ops_jax import physics
-from ops_jax.cli import ArgumentParser
+from ops_jax.cli import ArgumentParser, run
 from ops_jax.env import make
 from ops_jax.progress import keep_ctrl_c
 
@@ -222,6 +222,9 @@ def _check_stage(stage, stages):
     return int(stage) - 1
 
 
+LANDSCAPE_CHUNK = 16_384  # offsets per field-model call of ``landscape``: its memory (the field grid of each) bounded
+
+
 @functools.lru_cache(maxsize=None)
 def _landscape_fn(stages: int, detector: str):
     p_max = physics.p_max(stages, detector)
@@ -250,7 +253,9 @@ def landscape(stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str
         deltas = np.tile(base, (x.size**2, 1))
         deltas[:, ids[0]] += xa.ravel()
         deltas[:, ids[1]] += xb.ravel()
-    p = np.asarray(_landscape_fn(stages, detector)(deltas))
+    fn, chunk = _landscape_fn(stages, detector), min(LANDSCAPE_CHUNK, len(deltas))
+    padded = np.concatenate([deltas, np.tile(base, (-len(deltas) % chunk, 1))])  # whole chunks: one compilation
+    p = np.concatenate([np.asarray(fn(padded[i:i + chunk])) for i in range(0, len(padded), chunk)])[:len(deltas)]
     return p if len(ids) == 1 else p.reshape(x.size, x.size)
 
 
@@ -303,7 +308,8 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
 # -- command line ------------------------------------------------------------------------------
 
 def _parser():
-    ap = ArgumentParser(prog="python -m ops_jax.render", description=__doc__.split("\n\n")[0],
+    ap = ArgumentParser(prog="python -m ops_jax.render", description="The objective landscape of OPS as a picture (the "
+                        "oscilloscope frames and episode GIFs: python -m agents.episode).",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", choices=("landscape",))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
@@ -329,4 +335,4 @@ def main(argv=None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    run("python -m ops_jax.render", main)

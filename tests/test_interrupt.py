@@ -1,4 +1,4 @@
-"""Ctrl-C on the training command and the throughput benchmark, in real subprocesses under a watchdog:
+"""Ctrl-C on the training command, the throughput benchmark and the GIF command, in real subprocesses under a watchdog:
 one line saying what was kept, exit status 130, no traceback."""
 
 import json
@@ -61,6 +61,13 @@ def test_ctrl_c_during_throughput_keeps_the_measured_rows(tmp_path):
     kept = json.loads((tmp_path / "t.json").read_text())
     assert kept["meta"]["interrupted"] is True and len(kept["rows"]) >= 2
     assert int(line.split()[1]) == len(kept["rows"]) // 2
+
+
+def test_ctrl_c_while_a_gif_is_drawn_writes_nothing(tmp_path):
+    out = _interrupt_after(["-m", "agents.episode", "episode", "--stages", "2", "--policy", "zero", "--steps", "2000",
+                            "--out", "e.gif"], "frames:", tmp_path)
+    assert out.returncode == 130 and _last_line(out) == "interrupted: nothing written", out.stdout[-2000:]
+    assert not (tmp_path / "e.gif").exists()
 
 
 CTRL_C_IN_A_GC_CALLBACK = """

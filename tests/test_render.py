@@ -97,6 +97,14 @@ def test_landscape_periodic_and_peaked():
     np.testing.assert_allclose(q, render.landscape(3, [1, 2], x[::8] + 0.5), atol=1e-4)
 
 
+def test_landscape_in_chunks_equals_one_call(monkeypatch):
+    """The offsets computed a chunk at a time (the last one padded) give what one call gives."""
+    x = np.linspace(-1.0, 1.0, 23)
+    whole = render.landscape(3, [1, 2], x)
+    monkeypatch.setattr(render, "LANDSCAPE_CHUNK", 50)  # 529 offsets: 10 whole chunks and a padded one
+    np.testing.assert_array_equal(render.landscape(3, [1, 2], x), whole)
+
+
 def test_landscape_last_stage_needs_polariser():
     x = np.linspace(-0.5, 0.5, 11)
     total = render.landscape(2, [1, 2], x)
