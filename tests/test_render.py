@@ -98,11 +98,11 @@ def test_landscape_periodic_and_peaked():
 
 
 def test_landscape_in_chunks_equals_one_call(monkeypatch):
-    """The offsets computed a chunk at a time (the last one padded) give what one call gives."""
+    """The offsets computed a chunk at a time (the last one padded) give what one call gives, to float32 rounding."""
     x = np.linspace(-1.0, 1.0, 23)
     whole = render.landscape(3, [1, 2], x)
     monkeypatch.setattr(render, "LANDSCAPE_CHUNK", 50)  # 529 offsets: 10 whole chunks and a padded one
-    np.testing.assert_array_equal(render.landscape(3, [1, 2], x), whole)
+    np.testing.assert_allclose(render.landscape(3, [1, 2], x), whole, atol=1e-6)  # float32: batch size moves an ulp
 
 
 def test_landscape_last_stage_needs_polariser():
