@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -119,8 +120,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-checkpoints", action="store_true")
     args = ap.parse_args(argv)
     keep_ctrl_c()
-    if args.seeds < 1:
-        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    for name, least in (("seeds", 1), ("stages", 1), ("episodes", 1), ("steps", 0)):  # before any run, in one line
+        value = getattr(args, name)
+        if value is not None and value < least:
+            ap.error(f"--{name} must be an integer >= {least}, got {value}")
     for algo in args.algos:  # a missing extra stops here, at once, naming its install command
         algo_module(algo)
 
@@ -167,4 +170,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    failed = sum(row["failed"] for row in main().values())
+    if failed:  # the table and the file hold the others
+        sys.exit(f"python -m benchmarks.learning: {failed} run(s) failed; their errors are above and in learning.json")

@@ -41,3 +41,28 @@ def test_help_shows_the_whole_description(capsys):
     out = capsys.readouterr().out
     assert stop.value.code == 0 and out.startswith("usage: python -m benchmarks.learning")
     assert learning.__doc__.strip().splitlines()[-1].strip() in out  # the description's last line too
+
+
+@pytest.mark.parametrize("argv, words", [(["--steps", "-1"], "--steps must be an integer >= 0, got -1"),
+                                         (["--episodes", "0"], "--episodes must be an integer >= 1, got 0")])
+def test_a_value_out_of_range_stops_before_any_run(argv, words, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        learning.main([*argv, "--out", str(tmp_path)])
+    assert stop.value.code == 2 and words in capsys.readouterr().err
+    assert not (tmp_path / "learning.json").exists()
+
+
+def test_a_failed_run_is_the_commands_failure(tmp_path):
+    """A run its trainer refuses (TD3 with fewer steps than its warm-up) is recorded, and the command exits 1."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "benchmarks.learning", "--algos", "td3", "--modes", "easy", "--seeds",
+                          "1", "--stages", "2", "--steps", "10", "--out", str(tmp_path), "--no-checkpoints"],
+                         capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(repo)})
+    assert out.returncode == 1 and "1 run(s) failed" in out.stderr, out.stderr[-2000:]
+    (run,) = json.loads((tmp_path / "learning.json").read_text())["runs"]
+    assert run["status"] == "error" and "learning_starts" in run["error"], run
