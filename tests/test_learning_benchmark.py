@@ -3,11 +3,17 @@ rerun when its hyperparameters (here: an older default) or episode count differ 
 never passed off as the new one)."""
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from agents import SPGDConfig
 from benchmarks import learning
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_runs_are_reused_only_for_the_same_request(tmp_path):
@@ -54,15 +60,9 @@ def test_a_value_out_of_range_stops_before_any_run(argv, words, tmp_path, capsys
 
 def test_a_failed_run_is_the_commands_failure(tmp_path):
     """A run its trainer refuses (TD3 with fewer steps than its warm-up) is recorded, and the command exits 1."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    repo = Path(__file__).resolve().parents[1]
     out = subprocess.run([sys.executable, "-m", "benchmarks.learning", "--algos", "td3", "--modes", "easy", "--seeds",
                           "1", "--stages", "2", "--steps", "10", "--out", str(tmp_path), "--no-checkpoints"],
-                         capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(repo)})
+                         capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert out.returncode == 1 and "1 run(s) failed" in out.stderr, out.stderr[-2000:]
     (run,) = json.loads((tmp_path / "learning.json").read_text())["runs"]
     assert run["status"] == "error" and "learning_starts" in run["error"], run
