@@ -75,14 +75,16 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
 
 def main(argv=None) -> dict:
     ap = ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
-    ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS))
-    ap.add_argument("--stages", type=int, default=5)
-    ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"])
+    presets = "; ".join(f"{algo}: {', '.join(sorted(t.PRESETS))}" for algo, t in sorted(CONFIG_TYPES.items()))
+    ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS), help="the controller or learner")
+    ap.add_argument("--stages", type=int, default=5, help="delay lines N (default 5)")
+    ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"],
+                    help="the noise and drift of the paper's modes (default hard)")
     ap.add_argument("--out", type=Path, default=None, help="output folder (default runs/<algo>)")
-    ap.add_argument("--steps", type=int, default=None, help="env steps (default: the algorithm's)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--config", default=None, help="hyperparameter set, e.g. fast | paper")
-    ap.add_argument("--episodes", type=int, default=50, help="final evaluation episodes")
+    ap.add_argument("--steps", type=int, default=None, help="env steps of training (default: the algorithm's)")
+    ap.add_argument("--seed", type=int, default=0, help="the training's random draws (default 0)")
+    ap.add_argument("--config", default=None, help=f"hyperparameter preset (default: the algorithm's); {presets}")
+    ap.add_argument("--episodes", type=int, default=50, help="final evaluation episodes (default 50)")
     ap.add_argument("--eval-seed", type=int, default=1, help="seed of the testing environment")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="hyperparameter overrides")
     ap.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options")

@@ -40,6 +40,7 @@ from pathlib import Path  # noqa: E402
 
 from benchmarks import sweep_plan  # noqa: E402
 from benchmarks.sweep_units import enable_compilation_cache, quick_compilation  # noqa: E402
+from ops_jax.cli import ArgumentParser  # noqa: E402
 from ops_jax.progress import keep_ctrl_c  # noqa: E402
 
 SECTIONS = sweep_plan.default_sections()  # a run without --only
@@ -49,9 +50,6 @@ def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
     preset = json.loads(json.dumps(sweep_plan.preset(name)))  # deep copy
     if args.seeds is not None:
-        if args.seeds < 2:
-            raise SystemExit("python -m benchmarks.sweep: --seeds must be >= 2 (Welch's t-test needs two samples "
-                             "per algorithm)")
         preset["seeds"] = args.seeds
     if args.algos:
         preset["algos"] = list(args.algos)
@@ -60,9 +58,10 @@ def build_preset(args) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.sweep", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", choices=("default", "paper"), default="default")
+    ap = ArgumentParser(prog="python -m benchmarks.sweep", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--preset", choices=("default", "paper"), default="default",
+                    help="seeds, budgets and episodes of every section (benchmarks/sweep_plan.py; default: default)")
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
     ap.add_argument("--algos", nargs="+", choices=sweep_plan.preset("default")["algos"])
@@ -83,12 +82,14 @@ def main(argv=None):
                     help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)")
     args = ap.parse_args(argv)
     keep_ctrl_c()
+    if args.seeds is not None and args.seeds < 2:
+        ap.error(f"--seeds must be >= 2 (Welch's t-test needs two samples per algorithm), got {args.seeds}")
     if args.worker_gpus < 0:
-        raise SystemExit(f"python -m benchmarks.sweep: --worker-gpus must be >= 0, got {args.worker_gpus}")
+        ap.error(f"--worker-gpus must be >= 0, got {args.worker_gpus}")
     if args.restarts < 0:
-        raise SystemExit(f"python -m benchmarks.sweep: --restarts must be >= 0, got {args.restarts}")
+        ap.error(f"--restarts must be >= 0, got {args.restarts}")
     if args.jobs is not None and args.jobs < 1:
-        raise SystemExit(f"python -m benchmarks.sweep: --jobs must be >= 1, got {args.jobs}")
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
     preset = build_preset(args)
     preset["command"] = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
     out = (args.out or Path("results") / preset["name"]).resolve()

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from agents import cli, episode
-from benchmarks import learning, throughput
+from benchmarks import learning, sweep, throughput
 from ops_jax import render
 
 
@@ -19,6 +19,8 @@ from ops_jax import render
     (learning.main, ["--algos", "td3", "--seedz", "2"], "python -m benchmarks.learning"),
     (throughput.main, ["--models", "fields"], "python -m benchmarks.throughput"),
     (render.main, ["landscap", "--out", "x.png"], "python -m ops_jax.render"),
+    (sweep.main, ["--quikc"], "python -m benchmarks.sweep"),
+    (sweep.main, ["--quick", "--seeds", "1"], "python -m benchmarks.sweep"),  # a value out of range, before any work
 ])
 def test_a_mistyped_option_is_two_lines(main, argv, prog, capsys):
     with pytest.raises(SystemExit) as stop:

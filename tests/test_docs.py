@@ -116,6 +116,16 @@ def _skip_if_extra_missing(module: str) -> None:
         pytest.skip(f"needs {module} from the {extra} extra, not installed here: {extras.install_command(extra)}")
 
 
+@pytest.mark.parametrize("path", DOCS, ids=lambda p: p.name)
+def test_every_table_has_as_many_columns_in_its_separator_as_in_its_header(path):
+    """A separator row of another width than its header's: GitHub shows the table as text."""
+    lines = path.read_text().splitlines()
+    split = lambda line: re.split(r"(?<!\\)\|", line.strip().strip("|"))  # noqa: E731  (cells; an escaped \| inside one)
+    for i, line in enumerate(lines[1:], 1):
+        if re.fullmatch(r"\|(\s*:?-+:?\s*\|)+", line.strip()) and lines[i - 1].lstrip().startswith("|"):
+            assert len(split(line)) == len(split(lines[i - 1])), f"{path.name}:{i + 1}: {lines[i - 1]}"
+
+
 def test_the_docs_hold_the_commands_this_test_expects():
     names = {_name(argv) for _, argv in python_commands()}
     assert "python -m benchmarks.sweep" in names and "python -m pytest -q -n 2" in names
