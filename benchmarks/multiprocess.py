@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ops_jax.cli import ArgumentParser
 from ops_jax.progress import keep_ctrl_c
 
 WORKER_TIMEOUT_S = 300
@@ -127,8 +128,8 @@ def check(processes: int, instances: int, steps: int, seed: int) -> dict:
 
 def main(argv=None) -> int:
     keep_ctrl_c()
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.multiprocess", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="python -m benchmarks.multiprocess", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--processes", type=int, default=2, help="JAX processes to start (>= 1)")
     ap.add_argument("--instances", type=int, default=64, help="rollouts, a multiple of the processes' devices")
     ap.add_argument("--steps", type=int, default=100, help="control steps per rollout (>= 1)")
@@ -139,12 +140,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     for name in ("processes", "instances", "steps"):
         if getattr(args, name) < 1:
-            raise SystemExit(f"--{name} must be >= 1, got {getattr(args, name)}")
+            ap.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.process_id is not None:
         worker(args)
         return 0
     if args.instances % args.processes:
-        raise SystemExit(f"--instances must be a multiple of --processes ({args.processes}), got {args.instances}")
+        ap.error(f"--instances must be a multiple of --processes ({args.processes}), got {args.instances}")
     r = check(args.processes, args.instances, args.steps, args.seed)
     print(f"{r['instances']} instances x {args.steps} steps over {args.processes} processes ({r['devices']} devices): "
           f"{r['equal_instances']} equal to the single-process run (max |diff| {r['max_abs_diff']:.3g}); "

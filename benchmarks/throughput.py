@@ -174,7 +174,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     keep_ctrl_c()
     if args.host_devices < 1:
-        raise SystemExit(f"--host-devices must be >= 1, got {args.host_devices}")
+        ap.error(f"--host-devices must be >= 1, got {args.host_devices}")
     if args.host_devices > 1:  # read when jax's backend starts, i.e. before the first computation
         os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} "
                                    f"--xla_force_host_platform_device_count={args.host_devices}").strip()

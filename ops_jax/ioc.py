@@ -59,6 +59,7 @@ import numpy as np
 
 import ops_jax
 from ops_jax import runtime
+from ops_jax.cli import ArgumentParser
 from ops_jax.env import option_names
 from ops_jax.gym_codec import FlatCodec
 
@@ -76,7 +77,7 @@ def _literal(text: str):
 
 def parser() -> argparse.ArgumentParser:
     """The IOC's options: its own, then ``stages``, ``mode`` and every ``ops_jax.make`` option."""
-    ap = argparse.ArgumentParser(prog="python -m ops_jax.ioc", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m ops_jax.ioc", description=__doc__.split("\n")[0])
     ap.add_argument("--prefix", default="OPS:", help="PV name prefix (default OPS:)")
     ap.add_argument("--rate", type=float, default=100.0, help="ticks per second (Hz, default 100)")
     ap.add_argument("--lockstep", action="store_true", help="advance one tick per write to ADVANCE instead")
@@ -363,14 +364,15 @@ def tune_server(rate: float) -> None:
 
 
 def main(argv=None) -> None:
-    args = parser().parse_args(argv)
+    ap = parser()
+    args = ap.parse_args(argv)
     if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
-        raise SystemExit(f"ops_jax.ioc: --rate must be a number in (0, 10000] Hz, got {args.rate}")
+        ap.error(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
     runtime.start_single_threaded()  # a tick is one small call
     try:
         bench = Bench(args.stages, args.mode, make_options(args), seed=args.seed, drift_episode=args.drift_episode)
     except (TypeError, ValueError) as exc:
-        raise SystemExit(f"ops_jax.ioc: {exc}")
+        ap.error(str(exc))
     from caproto.server import run
 
     try:
