@@ -10,7 +10,7 @@ import pytest
 
 from agents import cli, episode
 from benchmarks import learning, sweep, throughput
-from ops_jax import render
+from ops_jax import ioc, render
 
 
 @pytest.mark.parametrize("main, argv, prog", [
@@ -21,6 +21,8 @@ from ops_jax import render
     (render.main, ["landscap", "--out", "x.png"], "python -m ops_jax.render"),
     (sweep.main, ["--quikc"], "python -m benchmarks.sweep"),
     (sweep.main, ["--quick", "--seeds", "1"], "python -m benchmarks.sweep"),  # a value out of range, before any work
+    (ioc.main, ["--rate", "-1"], "python -m ops_jax.ioc"),
+    (ioc.main, ["--mode", "bogus"], "python -m ops_jax.ioc"),
 ])
 def test_a_mistyped_option_is_two_lines(main, argv, prog, capsys):
     with pytest.raises(SystemExit) as stop:
