@@ -121,12 +121,13 @@ def main(argv=None) -> dict:
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
     bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
 
+    shown = []  # the steps reported so far
+
     def show(step: int, metrics: dict) -> None:
         shown.append(step)
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
         bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
 
-    shown = []
     if logger is not None:
         logger.then, show = show, logger
     try:

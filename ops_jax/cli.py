@@ -1,5 +1,6 @@
 """The argument parser of the project's command-line programs: a mistyped option is reported in two
-lines (the error and where the options are listed), not under a screenful of usage."""
+lines (the error and where the options are listed), not under a screenful of usage; ``run``: a picture program's
+values out of range and its Ctrl-C in one line each."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\nthe options: {self.prog} --help\n")
-
 
 
 def run(prog: str, main) -> None:
