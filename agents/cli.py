@@ -98,11 +98,8 @@ def main(argv=None) -> dict:
         module = base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
     except KeyboardInterrupt:
         exit_interrupted(f"stopped while starting; nothing written to {out}")
+    ap.check_least(args, steps=0, episodes=1)
     try:  # every argument checked before the progress starts: a mistake is one line
-        for name in ("steps", "episodes"):
-            value, least = getattr(args, name), 0 if name == "steps" else 1
-            if value is not None and value < least:
-                raise ValueError(f"--{name} must be an integer >= {least}, got {value}")
         env_config = base.check_env_config({"stages": args.stages, "mode": args.mode, **parse_set(args.env)})
         config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
         if args.steps is not None and not hasattr(config, "total_steps"):

@@ -18,7 +18,6 @@ it) and writes ``imperfection_groups.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import sys
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ops_jax.cli import ArgumentParser
 from ops_jax.progress import keep_ctrl_c
 
 # The lab preset's fields by what they model; taking a group away sets its fields to the ideal values
@@ -126,7 +126,7 @@ def main(argv=None) -> dict:
     from agents.registry import get
     from ops_jax.env import PROBES
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0])
     ap.add_argument("--algo", default="physics", choices=["physics", "spgd"], help="a controller with nothing to learn")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="its hyperparameters")
     ap.add_argument("--policy", type=Path, default=None, metavar="DIR", help="instead: a policy stored by agents.save")
@@ -143,8 +143,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--eval-seed", type=int, default=4242)
     ap.add_argument("--out", type=Path, default=Path("results/imperfection_groups"))
     args = ap.parse_args(argv)
-    if args.episodes < 1:
-        ap.error(f"--episodes must be an integer >= 1, got {args.episodes}")
+    ap.check_least(args, episodes=1)
     if not 0 < args.scale <= 10:
         ap.error(f"--scale must be a number in (0, 10], got {args.scale}")
     if args.policy is not None and not args.policy.is_dir():

@@ -12,7 +12,6 @@ ratio to the first interpreter (this one).
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import statistics
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 
 from agents.io import write_json_atomic
+from ops_jax.cli import ArgumentParser
 from ops_jax.progress import keep_ctrl_c
 
 ENV = {"stages": 5, "mode": "hard"}
@@ -85,7 +85,7 @@ def _table(rows: list[dict], pythons: list[str], algos: list[str]) -> str:
 
 def main(argv=None) -> None:
     keep_ctrl_c()
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.learners_speed", description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(prog="python -m benchmarks.learners_speed", description=__doc__.split("\n\n")[0])
     ap.add_argument("--algos", nargs="+", default=list(STEPS), choices=list(STEPS))
     ap.add_argument("--steps", nargs="*", default=[], metavar="ALGO=N", help="budgets other than the defaults")
     ap.add_argument("--repeats", type=int, default=3)
@@ -98,8 +98,7 @@ def main(argv=None) -> None:
         if algo not in STEPS or not n.isdigit() or int(n) < 1:
             ap.error(f"--steps takes ALGO=N with ALGO in {list(STEPS)} and N >= 1, got {item!r}")
         steps[algo] = int(n)
-    if args.repeats < 1:
-        ap.error(f"--repeats must be >= 1, got {args.repeats}")
+    ap.check_least(args, repeats=1)
     pythons = [sys.executable] + args.python
     rows = []
     total = args.repeats * len(args.algos) * len(pythons)

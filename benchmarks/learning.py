@@ -120,10 +120,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-checkpoints", action="store_true")
     args = ap.parse_args(argv)
     keep_ctrl_c()
-    for name, least in (("seeds", 1), ("stages", 1), ("episodes", 1), ("steps", 0)):  # before any run, in one line
-        value = getattr(args, name)
-        if value is not None and value < least:
-            ap.error(f"--{name} must be an integer >= {least}, got {value}")
+    ap.check_least(args, seeds=1, stages=1, episodes=1, steps=0)  # before any run
     for algo in args.algos:  # a missing extra stops here, at once, naming its install command
         algo_module(algo)
 

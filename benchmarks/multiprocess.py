@@ -138,9 +138,7 @@ def main(argv=None) -> int:
     ap.add_argument("--coordinator", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    for name in ("processes", "instances", "steps"):
-        if getattr(args, name) < 1:
-            ap.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    ap.check_least(args, processes=1, instances=1, steps=1)
     if args.process_id is not None:
         worker(args)
         return 0

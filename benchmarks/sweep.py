@@ -84,12 +84,7 @@ def main(argv=None):
     keep_ctrl_c()
     if args.seeds is not None and args.seeds < 2:
         ap.error(f"--seeds must be >= 2 (Welch's t-test needs two samples per algorithm), got {args.seeds}")
-    if args.worker_gpus < 0:
-        ap.error(f"--worker-gpus must be >= 0, got {args.worker_gpus}")
-    if args.restarts < 0:
-        ap.error(f"--restarts must be >= 0, got {args.restarts}")
-    if args.jobs is not None and args.jobs < 1:
-        ap.error(f"--jobs must be >= 1, got {args.jobs}")
+    ap.check_least(args, worker_gpus=0, restarts=0, jobs=1)
     preset = build_preset(args)
     preset["command"] = " ".join(["python -m benchmarks.sweep", *(sys.argv[1:] if argv is None else argv)])
     out = (args.out or Path("results") / preset["name"]).resolve()

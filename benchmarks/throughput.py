@@ -173,8 +173,7 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=Path("results/throughput.json"))
     args = ap.parse_args(argv)
     keep_ctrl_c()
-    if args.host_devices < 1:
-        ap.error(f"--host-devices must be >= 1, got {args.host_devices}")
+    ap.check_least(args, host_devices=1)
     if args.host_devices > 1:  # read when jax's backend starts, i.e. before the first computation
         os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} "
                                    f"--xla_force_host_platform_device_count={args.host_devices}").strip()

@@ -16,6 +16,14 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\nthe options: {self.prog} --help\n")
 
+    def check_least(self, args, **least) -> None:
+        """A parser error for the first of the options ``least`` names whose value lies under its least (an option
+        left unset, None, passes): ``check_least(args, steps=0, episodes=1)``."""
+        for name, low in least.items():
+            value = getattr(args, name)
+            if value is not None and value < low:
+                self.error(f"--{name.replace('_', '-')} must be >= {low}, got {value}")
+
 
 def run(prog: str, main) -> None:
     """Run a picture-making program's ``main()``, which computes from its arguments alone: a ``ValueError`` (a

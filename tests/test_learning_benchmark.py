@@ -49,8 +49,8 @@ def test_help_shows_the_whole_description(capsys):
     assert learning.__doc__.strip().splitlines()[-1].strip() in out  # the description's last line too
 
 
-@pytest.mark.parametrize("argv, words", [(["--steps", "-1"], "--steps must be an integer >= 0, got -1"),
-                                         (["--episodes", "0"], "--episodes must be an integer >= 1, got 0")])
+@pytest.mark.parametrize("argv, words", [(["--steps", "-1"], "--steps must be >= 0, got -1"),
+                                         (["--episodes", "0"], "--episodes must be >= 1, got 0")])
 def test_a_value_out_of_range_stops_before_any_run(argv, words, tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         learning.main([*argv, "--out", str(tmp_path)])
