@@ -339,10 +339,10 @@ class Learning:
         self.ending = True
         self.wake.set()
 
-    def finish(self, catch_up_s: float = 0.0) -> None:
-        """``end`` (unless called already), and wait for the thread."""
+    def finish(self) -> None:
+        """``end`` (unless called already: without a catch-up), and wait for the thread."""
         if not self.ending:
-            self.end(catch_up_s)
+            self.end()
         self.thread.join()
         self.bar.close()
 
