@@ -1,8 +1,8 @@
 """Train one controller from the command line and write its checkpoint, curve and evaluation.
 
-Run as ``python -m agents.train`` (``agents/train.py`` starts ``main`` here)::
+Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
 
-    python -m agents.train --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
+    python -m agents --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
                            [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
                            [--logdir DIR]
 
@@ -11,13 +11,14 @@ Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every c
 the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
 (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
 tensorboard extra). It prints the testing score, P/P_best with imperfections, else
-P/Pmax. A progress bar (``ops_jax.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
+P/Pmax. A progress bar (``ops_jax.cli.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
 steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
 (nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
 
+import sys
 import ast
 import csv
 from pathlib import Path
@@ -25,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 import agents
-from agents import base
+from agents import api as base
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
-from ops_jax.progress import exit_interrupted, keep_ctrl_c, progress
-from ops_jax.cli import ArgumentParser
+from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c, progress
+from ops_jax.cli.parser import ArgumentParser
 
 
 def parse_set(items) -> dict:
@@ -74,36 +75,66 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n")[0])
-    presets = "; ".join(f"{algo}: {', '.join(sorted(t.PRESETS))}" for algo, t in sorted(CONFIG_TYPES.items()))
-    ap.add_argument("--algo", required=True, choices=sorted(base.ALGOS), help="the controller or learner")
+    ap = ArgumentParser(prog="python -m agents", description=__doc__.split("\n")[0])
+    presets = "; ".join(
+        f"{algo}: {', '.join(sorted(t.PRESETS))}" for algo, t in sorted(CONFIG_TYPES.items())
+    )
+    ap.add_argument(
+        "--algo", required=True, choices=sorted(base.ALGOS), help="the controller or learner"
+    )
     ap.add_argument("--stages", type=int, default=5, help="delay lines N (default 5)")
-    ap.add_argument("--mode", default="hard", choices=["easy", "medium", "hard", "custom"],
-                    help="the noise and drift of the paper's modes (default hard)")
+    ap.add_argument(
+        "--mode",
+        default="hard",
+        choices=["easy", "medium", "hard", "custom"],
+        help="the noise and drift of the paper's modes (default hard)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="output folder (default runs/<algo>)")
-    ap.add_argument("--steps", type=int, default=None, help="env steps of training (default: the algorithm's)")
+    ap.add_argument(
+        "--steps", type=int, default=None, help="env steps of training (default: the algorithm's)"
+    )
     ap.add_argument("--seed", type=int, default=0, help="the training's random draws (default 0)")
-    ap.add_argument("--config", default=None, help=f"hyperparameter preset (default: the algorithm's); {presets}")
-    ap.add_argument("--episodes", type=int, default=50, help="final evaluation episodes (default 50)")
+    ap.add_argument(
+        "--config",
+        default=None,
+        help=f"hyperparameter preset (default: the algorithm's); {presets}",
+    )
+    ap.add_argument(
+        "--episodes", type=int, default=50, help="final evaluation episodes (default 50)"
+    )
     ap.add_argument("--eval-seed", type=int, default=1, help="seed of the testing environment")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="hyperparameter overrides")
-    ap.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options")
-    ap.add_argument("--logdir", type=Path, default=None,
-                    help="TensorBoard event files of the training curve (needs the tensorboard extra)")
+    ap.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE", help="hyperparameter overrides"
+    )
+    ap.add_argument(
+        "--env", nargs="*", default=[], metavar="KEY=VALUE", help="extra ops_jax.make options"
+    )
+    ap.add_argument(
+        "--logdir",
+        type=Path,
+        default=None,
+        help="TensorBoard event files of the training curve (needs the tensorboard extra)",
+    )
     args = ap.parse_args(argv)
     keep_ctrl_c()
 
     out = args.out or Path("runs") / args.algo
     try:
-        module = base.algo_module(args.algo)  # its extra's imports fail here, before the progress starts
+        module = base.algo_module(
+            args.algo
+        )  # its extra's imports fail here, before the progress starts
     except KeyboardInterrupt:
         exit_interrupted(f"stopped while starting; nothing written to {out}")
     ap.check_least(args, steps=0, episodes=1)
     try:  # every argument checked before the progress starts: a mistake is one line
-        env_config = base.check_env_config({"stages": args.stages, "mode": args.mode, **parse_set(args.env)})
+        env_config = base.check_env_config(
+            {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
+        )
         config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
         if args.steps is not None and not hasattr(config, "total_steps"):
-            raise ValueError(f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out")
+            raise ValueError(
+                f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out"
+            )
         module.make_policy(env_config, config.to_hyper())
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
@@ -114,32 +145,49 @@ def main(argv=None) -> dict:
         try:
             logger = TensorBoardLogger(args.logdir)
         except ImportError as e:  # one line naming the extra, not a traceback
-            raise SystemExit(f"python -m agents.train --logdir: {e}") from None
+            raise SystemExit(f"python -m agents --logdir: {e}") from None
     total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
-    bar = progress(total=total or None, unit="step", unit_scale=True, desc=f"{args.algo} {args.mode} N={args.stages}")
+    bar = progress(
+        total=total or None,
+        unit="step",
+        unit_scale=True,
+        desc=f"{args.algo} {args.mode} N={args.stages}",
+    )
 
     shown = []  # the steps reported so far
 
     def show(step: int, metrics: dict) -> None:
         shown.append(step)
         bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
-        bar.update(max(0, min(int(step), total or int(step)) - bar.n))  # the last chunk may pass the total
+        bar.update(
+            max(0, min(int(step), total or int(step)) - bar.n)
+        )  # the last chunk may pass the total
 
     if logger is not None:
         logger.then, show = show, logger
     try:
-        result = base.train(args.algo, env_config, seed=args.seed, total_steps=args.steps, progress_fn=show,
-                            config=config)
+        result = base.train(
+            args.algo,
+            env_config,
+            seed=args.seed,
+            total_steps=args.steps,
+            progress_fn=show,
+            config=config,
+        )
     except ValueError as exc:
         if shown:  # a failure during training: its traceback
             raise
         bar.close()  # the trainer's own checks of the budget against its config: one line, as the ones above
-        message = str(exc).replace("total_steps", "--steps", 1) if args.steps is not None else str(exc)
+        message = (
+            str(exc).replace("total_steps", "--steps", 1) if args.steps is not None else str(exc)
+        )
         ap.exit(2, f"{ap.prog}: error: {message}\n")
     except KeyboardInterrupt:
         bar.close()
         at = f"at step {bar.n:,} of {total:,}" if total else "during training"
-        exit_interrupted(f"stopped {at}; nothing written to {out}; run the same command again to train from the start")
+        exit_interrupted(
+            f"stopped {at}; nothing written to {out}; run the same command again to train from the start"
+        )
     finally:
         bar.close()
         if logger is not None:
@@ -148,8 +196,10 @@ def main(argv=None) -> dict:
         return finish(args, out, env_config, result)
     except KeyboardInterrupt:
         kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
-        exit_interrupted(f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
-                         "gives the trained policy)")
+        exit_interrupted(
+            f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
+            "gives the trained policy)"
+        )
 
 
 def finish(args, out: Path, env_config: dict, result) -> dict:
@@ -157,19 +207,38 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     agents.save(out / "checkpoint", result)
     write_curve_csv(out / "curve.csv", result.curve)
-    plot_curve(out / "curve.png", result.curve, f"{args.algo}, {args.stages}-stage {args.mode}, seed {args.seed}")
+    plot_curve(
+        out / "curve.png",
+        result.curve,
+        f"{args.algo}, {args.stages}-stage {args.mode}, seed {args.seed}",
+    )
     ev = agents.evaluate(result, env_config, episodes=args.episodes, seed=args.eval_seed)
-    summary = dict(algo=args.algo, env_config=env_config, seed=args.seed, hyper=result.hyper,
-                   wall_time=result.wall_time, evaluation=ev.summary,
-                   train_steps=result.env_steps)
+    summary = dict(
+        algo=args.algo,
+        env_config=env_config,
+        seed=args.seed,
+        hyper=result.hyper,
+        wall_time=result.wall_time,
+        evaluation=ev.summary,
+        train_steps=result.env_steps,
+    )
     write_json_atomic(out / "summary.json", summary)
     s = ev.summary
-    best = "_best" if s["score"] == "P/P_best" else ""  # with imperfections: the ratio to the best reachable P
+    best = (
+        "_best" if s["score"] == "P/P_best" else ""
+    )  # with imperfections: the ratio to the best reachable P
     also = f"; P/Pmax {s['final_mean']:.4f}" if best else ""
-    print(f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
-          f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
-          f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
-          f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
-          f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
-          f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}")
+    print(
+        f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
+        f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
+        f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
+        f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
+        f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
+        f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}"
+    )
     return summary
+
+
+def run() -> None:
+    """The ``ops-train`` command: ``main`` with its exit status (0 trained, 1 not)."""
+    sys.exit(0 if main() else 1)

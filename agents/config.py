@@ -9,7 +9,7 @@ A value out of range raises ValueError naming the field and its accepted range (
 the one range check of the package); an unknown field
 raises TypeError listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``,
 checkpoints): the fields (tuples as lists) and, for the learners, ``config``, the preset's name.
-The presets' tuning is described in each algorithm's module (``agents.ppo``, ``agents.sac``, ...).
+The presets' tuning is described in each algorithm's module (``agents.learners.brax.ppo``, ``agents.learners.brax.sac``, ...).
 """
 
 from __future__ import annotations
@@ -30,8 +30,13 @@ def _flag(name: str, v):
 
 
 def _widths(name: str, v):
-    if (not isinstance(v, (list, tuple)) or not v
-            or not all(isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in v)):
+    if (
+        not isinstance(v, (list, tuple))
+        or not v
+        or not all(
+            isinstance(h, (int, np.integer)) and not isinstance(h, bool) and h >= 1 for h in v
+        )
+    ):
         raise ValueError(f"{name} must be a non-empty sequence of layer widths >= 1, got {v!r}")
     return tuple(int(h) for h in v)
 
@@ -41,13 +46,16 @@ def _choice(*options):
         if v not in options:
             raise ValueError(f"{name} must be one of {list(options)}, got {v!r}")
         return v
+
     return check
 
 
 def _optional(check):
     """``check``, or None left as it is."""
+
     def f(name: str, v):
         return None if v is None else check(name, v)
+
     return f
 
 
@@ -62,10 +70,14 @@ DITHER = Range(1e-6, 0.25, unit="wl")  # a dither's amplitude (SPGD, the trim)
 # the earlier frames the physics-informed fit compares with the latest, through the moves since (1: the frame before it)
 HISTORY = Range(1, 16, integer=True)
 COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
-POSITIVE, NONNEG, UNIT = Range(0, lo_open=True), Range(0), Range(0, 1, lo_open=True)  # > 0, >= 0, (0, 1]
+POSITIVE, NONNEG, UNIT = (
+    Range(0, lo_open=True),
+    Range(0),
+    Range(0, 1, lo_open=True),
+)  # > 0, >= 0, (0, 1]
 # the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
 TRAIN_REWARD = _optional(_choice(*REWARDS))
-# what an off-policy learner adds to its observation, and whether its action corrects the fit's move (``agents.observer``)
+# what an off-policy learner adds to its observation, and whether its action corrects the fit's move (``agents.learners.offpolicy.observer``)
 OBSERVER = _choice("none", "fit", "fit-residual")
 
 
@@ -98,8 +110,10 @@ class AlgoConfig:
     def _check_names(cls, overrides: dict) -> None:
         unknown = set(overrides) - set(cls.names())
         if unknown:
-            raise TypeError(f"unknown {cls.NAME} hyperparameter(s) {sorted(unknown)}; accepted: config, "
-                            f"{sorted(cls.names())}")
+            raise TypeError(
+                f"unknown {cls.NAME} hyperparameter(s) {sorted(unknown)}; accepted: config, "
+                f"{sorted(cls.names())}"
+            )
 
     @classmethod
     def preset(cls, name: str | None = None, **overrides):
@@ -127,14 +141,17 @@ class AlgoConfig:
 
     def to_hyper(self) -> dict:
         """The stored form: field -> value (tuples as lists), with ``config`` for the learners."""
-        return {f.name: list(v) if isinstance(v, tuple) else v
-                for f in dataclasses.fields(self) for v in [getattr(self, f.name)] if f.default is dataclasses.MISSING
-                or v != f.default}
+        return {
+            f.name: list(v) if isinstance(v, tuple) else v
+            for f in dataclasses.fields(self)
+            for v in [getattr(self, f.name)]
+            if f.default is dataclasses.MISSING or v != f.default
+        }
 
 
 @dataclasses.dataclass(frozen=True)
 class EscapeConfig(AlgoConfig):
-    """The stall escape's fields (``agents.escape``), shared by SPGD and the trim: jump (wl), patience
+    """The stall escape's fields (``agents.controllers.escape``), shared by SPGD and the trim: jump (wl), patience
     (steps), p_stall and margin (P/Pmax)."""
 
     jump: float = field(Range(0, 0.5, unit="wl"))
@@ -145,13 +162,27 @@ class EscapeConfig(AlgoConfig):
 
 @dataclasses.dataclass(frozen=True)
 class SPGDConfig(EscapeConfig):
-    """SPGD-PID (``agents.spgd``): dither (wl), gain schedule, PID and the stall escape."""
+    """SPGD-PID (``agents.controllers.spgd``): dither (wl), gain schedule, PID and the stall escape."""
 
     NAME: ClassVar[str] = "SPGD"
     DEFAULT_PRESET: ClassVar[str] = "default"
-    PRESETS: ClassVar[dict] = {"default": dict(
-        delta=0.002, delta0=0.04, anneal=20.0, kp=16.0, kp_min=0.1, kp_pow=2.0, ki=0.0, kd=0.0, leak=0.9,
-        jump=0.25, patience=10.0, p_stall=0.9, margin=0.005)}
+    PRESETS: ClassVar[dict] = {
+        "default": dict(
+            delta=0.002,
+            delta0=0.04,
+            anneal=20.0,
+            kp=16.0,
+            kp_min=0.1,
+            kp_pow=2.0,
+            ki=0.0,
+            kd=0.0,
+            leak=0.9,
+            jump=0.25,
+            patience=10.0,
+            p_stall=0.9,
+            margin=0.005,
+        )
+    }
     # for probes read a frame later, as on a bench (ops_jax EnvConfig.probe="frame"): a dither above the
     # frame-to-frame change of P, a lower gain (docs/imperfections.md)
     PRESETS["bench"] = dict(PRESETS["default"], delta=0.01, kp=8.0, kp_min=0.05)
@@ -169,13 +200,23 @@ class SPGDConfig(EscapeConfig):
 
 @dataclasses.dataclass(frozen=True)
 class TrimConfig(EscapeConfig):
-    """The extremum-seeking trim (``agents.trim``): integral gain, dither (wl), the gate on P/Pmax and the
+    """The extremum-seeking trim (``agents.controllers.trim``): integral gain, dither (wl), the gate on P/Pmax and the
     stall escape."""
 
     NAME: ClassVar[str] = "trim"
     DEFAULT_PRESET: ClassVar[str] = "default"
-    PRESETS: ClassVar[dict] = {"default": dict(ki=0.003, amp=0.002, p_gate=0.0, release=1.0,
-                                               jump=0.0, patience=10.0, p_stall=0.6, margin=0.005)}
+    PRESETS: ClassVar[dict] = {
+        "default": dict(
+            ki=0.003,
+            amp=0.002,
+            p_gate=0.0,
+            release=1.0,
+            jump=0.0,
+            patience=10.0,
+            p_stall=0.6,
+            margin=0.005,
+        )
+    }
     # integrates only above half of P_max and lets the offset decay below: a trim that led a line off the top is
     # undone (docs/learners.md, "Does the trim ever lose?")
     PRESETS["guarded"] = dict(PRESETS["default"], p_gate=0.5, release=0.9)
@@ -188,23 +229,41 @@ class TrimConfig(EscapeConfig):
     p_gate: float = field(Range(0, 1))
     release: float = field(Range(0, 1))
     # the measured P/Pmax at and above which SPGD's proportional step up the probed slope replaces the move
-    # (``agents.spgd.held``; None: never)
+    # (``agents.controllers.spgd.held``; None: never)
     hold: float | None = field(_optional(Range(0, 1)), default=None)
 
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsConfig(AlgoConfig):
-    """The physics-informed controller (``agents.physics_informed``): the fit and the control gain."""
+    """The physics-informed controller (``agents.controllers.physics_informed``): the fit and the control gain."""
 
     NAME: ClassVar[str] = "physics"
     DEFAULT_PRESET: ClassVar[str] = "default"
     PRESETS: ClassVar[dict] = {
         "default": dict(  # identifies the imperfections and reads the calibrated length readout
-            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=True,
-            lengths_only=False, identify=True, forget=0.98),
+            starts=16,
+            iters=8,
+            damping=1e-3,
+            w_hist=1.0,
+            gain=1.0,
+            drift_gain=0.0,
+            use_lengths=True,
+            lengths_only=False,
+            identify=True,
+            forget=0.98,
+        ),
         "frames": dict(  # the detector's frames alone, the ideal model: no identification, no length readout
-            starts=16, iters=8, damping=1e-3, w_hist=1.0, gain=1.0, drift_gain=0.0, use_lengths=False,
-            lengths_only=False, identify=False, forget=0.98),
+            starts=16,
+            iters=8,
+            damping=1e-3,
+            w_hist=1.0,
+            gain=1.0,
+            drift_gain=0.0,
+            use_lengths=False,
+            lengths_only=False,
+            identify=False,
+            forget=0.98,
+        ),
     }
     # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step); it gains over
     # "frames" only where a probe is read in the frame's instant (ops_jax EnvConfig.probe; docs/imperfections.md)
@@ -227,7 +286,9 @@ class PhysicsConfig(AlgoConfig):
 
     def check(self):
         if self.starts == 0 and not self.use_lengths:
-            raise ValueError("starts must be >= 1 unless use_lengths=True (nothing to start the fit from)")
+            raise ValueError(
+                "starts must be >= 1 unless use_lengths=True (nothing to start the fit from)"
+            )
 
 
 _ACTIVATION = _choice("tanh", "relu", "swish", "elu")
@@ -235,23 +296,55 @@ _ACTIVATION = _choice("tanh", "relu", "swish", "elu")
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig(AlgoConfig):
-    """PPO (``agents.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and "fast"."""
+    """PPO (``agents.learners.brax.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and "fast"."""
 
     NAME: ClassVar[str] = "PPO"
     PRESETS: ClassVar[dict] = {
         "paper": dict(
-            num_envs=8, unroll_length=64, batch_size=1, num_minibatches=8, num_updates_per_batch=10,
-            learning_rate=3e-4, entropy_cost=1e-3, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
-            vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=False,
-            hidden=(256, 256), activation="tanh", init_noise_std=1.0, bootstrap_on_timeout=True,
-            total_steps=300_000, num_evals=10, num_eval_envs=64,
+            num_envs=8,
+            unroll_length=64,
+            batch_size=1,
+            num_minibatches=8,
+            num_updates_per_batch=10,
+            learning_rate=3e-4,
+            entropy_cost=1e-3,
+            discounting=0.99,
+            gae_lambda=0.95,
+            clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5,
+            max_grad_norm=0.5,
+            reward_scaling=1.0,
+            normalize_observations=False,
+            hidden=(256, 256),
+            activation="tanh",
+            init_noise_std=1.0,
+            bootstrap_on_timeout=True,
+            total_steps=300_000,
+            num_evals=10,
+            num_eval_envs=64,
         ),
         "fast": dict(
-            num_envs=256, unroll_length=16, batch_size=32, num_minibatches=32, num_updates_per_batch=8,
-            learning_rate=3e-4, entropy_cost=0.0, discounting=0.99, gae_lambda=0.95, clipping_epsilon=0.2,
-            vf_loss_coefficient=0.5, max_grad_norm=0.5, reward_scaling=1.0, normalize_observations=True,
-            hidden=(128, 128), activation="tanh", init_noise_std=0.3, bootstrap_on_timeout=True,
-            total_steps=8_000_000, num_evals=10, num_eval_envs=64,
+            num_envs=256,
+            unroll_length=16,
+            batch_size=32,
+            num_minibatches=32,
+            num_updates_per_batch=8,
+            learning_rate=3e-4,
+            entropy_cost=0.0,
+            discounting=0.99,
+            gae_lambda=0.95,
+            clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5,
+            max_grad_norm=0.5,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(128, 128),
+            activation="tanh",
+            init_noise_std=0.3,
+            bootstrap_on_timeout=True,
+            total_steps=8_000_000,
+            num_evals=10,
+            num_eval_envs=64,
         ),
     }
 
@@ -285,38 +378,78 @@ class PPOConfig(AlgoConfig):
 
     def check(self):
         if (self.batch_size * self.num_minibatches) % self.num_envs:
-            raise ValueError(f"batch_size * num_minibatches must be divisible by num_envs, got "
-                             f"{self.batch_size} * {self.num_minibatches} and {self.num_envs}")
+            raise ValueError(
+                f"batch_size * num_minibatches must be divisible by num_envs, got "
+                f"{self.batch_size} * {self.num_minibatches} and {self.num_envs}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
 class SACConfig(AlgoConfig):
-    """SAC (``agents.sac``, brax's trainer): presets "paper" (the paper's Table 6), "fast" and "budget"
+    """SAC (``agents.learners.brax.sac``, brax's trainer): presets "paper" (the paper's Table 6), "fast" and "budget"
     (<= 20k env steps). Its update-to-data ratio is ``grad_updates_per_step / num_envs`` (brax's)."""
 
     NAME: ClassVar[str] = "SAC"
     PRESETS: ClassVar[dict] = {
         "paper": dict(
-            num_envs=1, batch_size=256, grad_updates_per_step=1, learning_rate=3e-4, discounting=0.99, tau=0.002,
-            max_replay_size=10_000, min_replay_size=1000, reward_scaling=1.0, normalize_observations=False,
-            hidden=(256, 256), activation="relu", total_steps=300_000, num_evals=10, num_eval_envs=64,
+            num_envs=1,
+            batch_size=256,
+            grad_updates_per_step=1,
+            learning_rate=3e-4,
+            discounting=0.99,
+            tau=0.002,
+            max_replay_size=10_000,
+            min_replay_size=1000,
+            reward_scaling=1.0,
+            normalize_observations=False,
+            hidden=(256, 256),
+            activation="relu",
+            total_steps=300_000,
+            num_evals=10,
+            num_eval_envs=64,
         ),
         "fast": dict(
-            num_envs=64, batch_size=256, grad_updates_per_step=16, learning_rate=1e-3, discounting=0.95, tau=0.005,
-            max_replay_size=200_000, min_replay_size=8192, reward_scaling=1.0, normalize_observations=True,
-            hidden=(128, 128), activation="relu", total_steps=400_000, num_evals=10, num_eval_envs=64,
+            num_envs=64,
+            batch_size=256,
+            grad_updates_per_step=16,
+            learning_rate=1e-3,
+            discounting=0.95,
+            tau=0.005,
+            max_replay_size=200_000,
+            min_replay_size=8192,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(128, 128),
+            activation="relu",
+            total_steps=400_000,
+            num_evals=10,
+            num_eval_envs=64,
         ),
         "budget": dict(
-            num_envs=1, batch_size=128, grad_updates_per_step=10, learning_rate=1e-3, discounting=0.9, tau=0.005,
-            max_replay_size=20_000, min_replay_size=500, reward_scaling=1.0, normalize_observations=True,
-            hidden=(64, 64), activation="relu", total_steps=20_000, num_evals=10, num_eval_envs=16,
+            num_envs=1,
+            batch_size=128,
+            grad_updates_per_step=10,
+            learning_rate=1e-3,
+            discounting=0.9,
+            tau=0.005,
+            max_replay_size=20_000,
+            min_replay_size=500,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(64, 64),
+            activation="relu",
+            total_steps=20_000,
+            num_evals=10,
+            num_eval_envs=16,
         ),
     }
 
     config: str = field(_choice("paper", "fast", "budget"))
     num_envs: int = field(COUNT)
     batch_size: int = field(COUNT)
-    grad_updates_per_step: int = field(COUNT)  # per batched env step: the update-to-data ratio x num_envs
+    grad_updates_per_step: int = field(
+        COUNT
+    )  # per batched env step: the update-to-data ratio x num_envs
     learning_rate: float = field(POSITIVE)
     discounting: float = field(UNIT)
     tau: float = field(UNIT)
@@ -335,15 +468,17 @@ class SACConfig(AlgoConfig):
 
     def check(self):
         if self.min_replay_size > self.max_replay_size:
-            raise ValueError(f"min_replay_size must be <= max_replay_size, got {self.min_replay_size} > "
-                             f"{self.max_replay_size}")
+            raise ValueError(
+                f"min_replay_size must be <= max_replay_size, got {self.min_replay_size} > "
+                f"{self.max_replay_size}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
 class ReplayConfig(AlgoConfig):
-    """Base of the off-policy learners' configs (``agents.offpolicy``): gradient steps per iteration are
+    """Base of the off-policy learners' configs (``agents.learners.offpolicy.driver``): gradient steps per iteration are
     ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two); the observer's fields
-    (``agents.observer``), keyword-only, are common to them."""
+    (``agents.learners.offpolicy.observer``), keyword-only, are common to them."""
 
     observer: str = field(OBSERVER, default="none", kw_only=True)
     # with observer="fit-residual": the fit's move plus this times the learner's action is sent
@@ -355,7 +490,7 @@ class ReplayConfig(AlgoConfig):
     fit_history: int | None = field(_optional(HISTORY), default=None, kw_only=True)
 
     def updates_per_step(self) -> float:
-        from agents.replay import updates_per_iter
+        from agents.learners.offpolicy.replay import updates_per_iter
 
         return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
 
@@ -364,45 +499,106 @@ class ReplayConfig(AlgoConfig):
         and batch sizes."""
         c = self
         if (c.updates_per_iter is None) == (c.utd_ratio is None):
-            raise ValueError(f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
-                             f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}")
+            raise ValueError(
+                f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
+                f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}"
+            )
         if c.utd_ratio is not None:
             per_iter = c.utd_ratio * c.num_envs * c.unroll
             if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
-                raise ValueError(f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
-                                 f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}")
+                raise ValueError(
+                    f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
+                    f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}"
+                )
         if c.buffer_size < c.num_envs * c.unroll:
-            raise ValueError(f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}")
+            raise ValueError(
+                f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}"
+            )
         if c.learning_starts < c.batch_size:
-            raise ValueError(f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}")
+            raise ValueError(
+                f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}"
+            )
         if c.batch_size > c.buffer_size:
-            raise ValueError(f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}")
+            raise ValueError(
+                f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayConfig):
-    """TD3 (``agents.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
+    """TD3 (``agents.learners.offpolicy.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
     steps). Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio`` per env step (one of the two)."""
 
     NAME: ClassVar[str] = "TD3"
     PRESETS: ClassVar[dict] = {
         "paper": dict(
-            num_envs=1, unroll=100, updates_per_iter=100, batch_size=100, hidden=(256, 256),
-            actor_lr=3e-4, critic_lr=3e-4, gamma=0.98, tau=0.005, buffer_size=10_000, learning_starts=1000,
-            expl_std=0.7, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=False,
-            total_steps=300_000, eval_every=10_000, eval_episodes=16, utd_ratio=None, train_reward=None,
+            num_envs=1,
+            unroll=100,
+            updates_per_iter=100,
+            batch_size=100,
+            hidden=(256, 256),
+            actor_lr=3e-4,
+            critic_lr=3e-4,
+            gamma=0.98,
+            tau=0.005,
+            buffer_size=10_000,
+            learning_starts=1000,
+            expl_std=0.7,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=False,
+            total_steps=300_000,
+            eval_every=10_000,
+            eval_episodes=16,
+            utd_ratio=None,
+            train_reward=None,
         ),
         "fast": dict(
-            num_envs=32, unroll=1, updates_per_iter=4, batch_size=256, hidden=(256, 256),
-            actor_lr=1e-3, critic_lr=1e-3, gamma=0.98, tau=0.005, buffer_size=100_000, learning_starts=4096,
-            expl_std=0.4, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-            total_steps=300_000, eval_every=20_000, eval_episodes=16, utd_ratio=None, train_reward=None,
+            num_envs=32,
+            unroll=1,
+            updates_per_iter=4,
+            batch_size=256,
+            hidden=(256, 256),
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            gamma=0.98,
+            tau=0.005,
+            buffer_size=100_000,
+            learning_starts=4096,
+            expl_std=0.4,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=True,
+            total_steps=300_000,
+            eval_every=20_000,
+            eval_episodes=16,
+            utd_ratio=None,
+            train_reward=None,
         ),
         "budget": dict(
-            num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
-            actor_lr=1e-3, critic_lr=1e-3, gamma=0.9, tau=0.005, buffer_size=20_000, learning_starts=1000,
-            expl_std=0.2, target_noise=0.2, noise_clip=0.5, policy_delay=2, normalize_obs=True,
-            total_steps=20_000, eval_every=1_000, eval_episodes=16, train_reward=None,
+            num_envs=1,
+            unroll=1,
+            updates_per_iter=None,
+            utd_ratio=10.0,
+            batch_size=128,
+            hidden=(64, 64),
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            gamma=0.9,
+            tau=0.005,
+            buffer_size=20_000,
+            learning_starts=1000,
+            expl_std=0.2,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=True,
+            total_steps=20_000,
+            eval_every=1_000,
+            eval_episodes=16,
+            train_reward=None,
         ),
     }
 
@@ -432,21 +628,44 @@ class TD3Config(ReplayConfig):
 
 @dataclasses.dataclass(frozen=True)
 class DroQConfig(ReplayConfig):
-    """DroQ (``agents.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
+    """DroQ (``agents.learners.offpolicy.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
     ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
 
     NAME: ClassVar[str] = "DroQ"
     DEFAULT_PRESET: ClassVar[str] = "budget"
-    PRESETS: ClassVar[dict] = {"budget": dict(
-        num_envs=1, unroll=1, updates_per_iter=None, utd_ratio=10.0, batch_size=128, hidden=(64, 64),
-        critic_hidden=(64, 64), dropout=0.0, layer_norm=True, actor_lr=1e-3, critic_lr=1e-3, alpha_lr=1e-3,
-        init_alpha=0.1, target_entropy=-1.0, gamma=0.97, tau=0.005, buffer_size=20_000, learning_starts=1000,
-        policy_delay=1, normalize_obs=True, total_steps=20_000, eval_every=1_000, eval_episodes=16,
-        train_reward="linear")}
+    PRESETS: ClassVar[dict] = {
+        "budget": dict(
+            num_envs=1,
+            unroll=1,
+            updates_per_iter=None,
+            utd_ratio=10.0,
+            batch_size=128,
+            hidden=(64, 64),
+            critic_hidden=(64, 64),
+            dropout=0.0,
+            layer_norm=True,
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            alpha_lr=1e-3,
+            init_alpha=0.1,
+            target_entropy=-1.0,
+            gamma=0.97,
+            tau=0.005,
+            buffer_size=20_000,
+            learning_starts=1000,
+            policy_delay=1,
+            normalize_obs=True,
+            total_steps=20_000,
+            eval_every=1_000,
+            eval_episodes=16,
+            train_reward="linear",
+        )
+    }
     # learning on a bench from its frames (``agents.bench --learn droq``): a correction, a quarter of the action
     # range at most, added to the physics-informed fit's move, the fit at 4 starts x 6 iterations (a bench's pace)
-    PRESETS["bench"] = dict(PRESETS["budget"], observer="fit-residual", residual_scale=0.25, fit_starts=4,
-                            fit_iters=6)
+    PRESETS["bench"] = dict(
+        PRESETS["budget"], observer="fit-residual", residual_scale=0.25, fit_starts=4, fit_iters=6
+    )
 
     config: str = field(_choice("budget", "bench"))
     num_envs: int = field(COUNT)

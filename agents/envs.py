@@ -23,8 +23,10 @@ def built(env_config: EnvSpec | dict) -> tuple:
     if isinstance(env_config, EnvSpec):
         env_config = env_config.as_dict()
     if not isinstance(env_config, dict):
-        raise TypeError(f"env_config must be an ops_jax.EnvSpec or a dict of ops_jax.make keyword arguments, "
-                        f"got {type(env_config).__name__}")
+        raise TypeError(
+            f"env_config must be an ops_jax.EnvSpec or a dict of ops_jax.make keyword arguments, "
+            f"got {type(env_config).__name__}"
+        )
     try:
         key = json.dumps(env_config, sort_keys=True)
     except TypeError:  # arrays or numpy scalars: their spec's form

@@ -8,7 +8,7 @@ Command line (``python -m agents.episode [episode|frame] ...``; default ``episod
     python -m agents.episode frame --stages 5 --mode hard --policy random --steps 0 --out scope.png
 
 Episodes start as the 10th reset (hard mode's drift fully on) and run through the same rollout
-as ``agents.evaluate`` (``agents.base.evaluator``); the pictures use the exact field model
+as ``agents.evaluate`` (``agents.api.evaluator``); the pictures use the exact field model
 (``ops_jax.render``). ``--policy PATH`` loads an ``agents.save`` checkpoint and runs on the
 checkpoint's own environment configuration.
 """
@@ -24,9 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ops_jax import physics, render
-from agents import base, registry
-from ops_jax.cli import ArgumentParser, run
-from ops_jax.progress import keep_ctrl_c
+from agents import api as base, registry
+from ops_jax.cli.parser import ArgumentParser, run
+from ops_jax.cli.progress import keep_ctrl_c
 from agents.envs import built
 
 DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in agents.evaluate
@@ -44,8 +44,10 @@ def get_policy(name: str, env_config: dict, seed: int = 0):
         return result.policy(), result.params, env_config
     path = Path(name)
     if not path.exists():
-        raise ValueError(f"policy must be zero, random, one of {sorted(base.ALGOS)} or a checkpoint folder; "
-                         f"{name!r} is none of these")
+        raise ValueError(
+            f"policy must be zero, random, one of {sorted(base.ALGOS)} or a checkpoint folder; "
+            f"{name!r} is none of these"
+        )
     result = base.load(path)
     return result.policy(), result.params, dict(result.env_config)
 
@@ -62,9 +64,16 @@ def builtin_policy(kind: str, stages: int) -> base.Policy:
     return base.Policy(lambda key, obs: (), act)
 
 
-def run_episode(env_config: dict, policy, params=None, *, steps: int | None = None, seed: int = 0,
-                episode: int = DRIFT_EPISODE) -> render.Episode:
-    """One episode of ``policy`` (probes allowed) through ``agents.base.evaluator``: the offsets
+def run_episode(
+    env_config: dict,
+    policy,
+    params=None,
+    *,
+    steps: int | None = None,
+    seed: int = 0,
+    episode: int = DRIFT_EPISODE,
+) -> render.Episode:
+    """One episode of ``policy`` (probes allowed) through ``agents.api.evaluator``: the offsets
     after the reset and after every step, and their exact P / P_max (field model)."""
     env_config = base.check_env_config(env_config)
     env, env_params = built(env_config)
@@ -79,14 +88,23 @@ def run_episode(env_config: dict, policy, params=None, *, steps: int | None = No
 
 
 def _parser():
-    ap = ArgumentParser(prog="python -m agents.episode", description=__doc__.split("\n\n")[0],
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(
+        prog="python -m agents.episode",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("command", nargs="?", default="episode", choices=("episode", "frame"))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--mode", default="hard", help="easy | medium | hard | custom")
     ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
-    ap.add_argument("--policy", default="zero", help="zero | random | spgd (or another agents algo) | checkpoint folder")
-    ap.add_argument("--steps", type=int, default=None, help="control steps (episode: max_steps; frame: 0)")
+    ap.add_argument(
+        "--policy",
+        default="zero",
+        help="zero | random | spgd (or another agents algo) | checkpoint folder",
+    )
+    ap.add_argument(
+        "--steps", type=int, default=None, help="control steps (episode: max_steps; frame: 0)"
+    )
     ap.add_argument("--every", type=int, default=1, help="GIF: keep every k-th step")
     ap.add_argument("--fps", type=float, default=10.0, help="GIF frames per second")
     ap.add_argument("--seed", type=int, default=0)
@@ -119,10 +137,16 @@ def main(argv=None) -> Path:
         info.add_text("Title", scope.title.get_text())  # what the frame's title reads
         Image.fromarray(frame).save(out, pnginfo=info)
     else:
-        titles = [render.frame_title(stages, ep.normalized_power[i], i)
-                  for i in render.frame_steps(len(ep.deltas_wl), args.every)]
-        render.write_gif(render.episode_frames(ep, every=args.every, dpi=args.dpi or 80), out, fps=args.fps,
-                         comment="\n".join(titles))
+        titles = [
+            render.frame_title(stages, ep.normalized_power[i], i)
+            for i in render.frame_steps(len(ep.deltas_wl), args.every)
+        ]
+        render.write_gif(
+            render.episode_frames(ep, every=args.every, dpi=args.dpi or 80),
+            out,
+            fps=args.fps,
+            comment="\n".join(titles),
+        )
     print(f"wrote {out}  (final P/Pmax = {ep.normalized_power[-1]:.3f})")
     return out
 

@@ -4,7 +4,7 @@ command line's ``--algo`` choices, the sweep's learners, the lab-budget section'
 estimates and table names all read this registry.
 
 The entries are registered by ``agents.algos`` (imported with the package), above the algorithms' modules:
-this module names none of them, so the algorithms may use ``agents.base``, which looks them up here. A new
+this module names none of them, so the algorithms may use ``agents.api``, which looks them up here. A new
 algorithm is its module (meeting ``AlgoModule``) plus one ``register`` line in ``agents.algos``::
 
     register(Algo("mine", "agents.mine", MineConfig, "Mine", sweep=SweepPresets(...), cost=CostModel(...)))
@@ -19,27 +19,37 @@ from typing import Any, Callable, Protocol
 
 
 class AlgoModule(Protocol):
-    """What an algorithm's module provides (see ``agents.base``)."""
+    """What an algorithm's module provides (see ``agents.api``)."""
 
-    def train(self, env_config: dict, *, seed: int, total_steps: int | None, progress_fn: Callable | None,
-              **hyper): ...  # -> TrainResult
+    def train(
+        self,
+        env_config: dict,
+        *,
+        seed: int,
+        total_steps: int | None,
+        progress_fn: Callable | None,
+        **hyper,
+    ): ...  # -> TrainResult
 
     def make_policy(self, env_config: dict, hyper: dict): ...  # -> Policy
 
-    def params_template(self, env_config: dict, hyper: dict): ...  # pytree of the parameters' structure
+    def params_template(
+        self, env_config: dict, hyper: dict
+    ): ...  # pytree of the parameters' structure
 
 
 class SeedsModule(AlgoModule, Protocol):
     """An ``AlgoModule`` that trains several seeds in one vmapped call (``Algo.vmaps_seeds``)."""
 
-    def train_seeds(self, env_config: dict, *, seeds, total_steps: int | None = None, progress_fn=None,
-                    **hyper): ...  # -> list[TrainResult]
+    def train_seeds(
+        self, env_config: dict, *, seeds, total_steps: int | None = None, progress_fn=None, **hyper
+    ): ...  # -> list[TrainResult]
 
 
 class OffPolicyModule(SeedsModule, Protocol):
-    """A ``SeedsModule`` of ``agents.offpolicy`` (``Algo.off_policy``): its one run passes every checkpoint."""
+    """A ``SeedsModule`` of ``agents.learners.offpolicy.driver`` (``Algo.off_policy``): its one run passes every checkpoint."""
 
-    LEARNER: Any  # agents.offpolicy.Learner
+    LEARNER: Any  # agents.learners.offpolicy.driver.Learner
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,15 +67,16 @@ class CostModel:
 
     def train_s(self, steps: int, updates: float = 0.0, stages: int = 5) -> float:
         """Seconds of one training run of ``steps`` env steps and ``updates`` gradient steps on ``stages`` stages."""
-        return (self.fixed_s + self.s_per_step * steps + self.s_per_update * updates) * self.stage_growth ** max(
-            0, stages - 5)
+        return (
+            self.fixed_s + self.s_per_step * steps + self.s_per_update * updates
+        ) * self.stage_growth ** max(0, stages - 5)
 
 
 @dataclasses.dataclass(frozen=True)
 class SweepPresets:
     """An algorithm's part of the sweep's presets ("quick", "default", "paper"): training budget (env
     steps) and hyperparameter overrides per preset, the reality section's own budgets; ``lab_budget``: its
-    hyperparameters in the lab-budget section (benchmarks.budget) per preset of that section ("quick",
+    hyperparameters in the lab-budget section (benchmarks.budget.plan) per preset of that section ("quick",
     "default", "full"), where it is trained if a learner, else evaluated as a reference."""
 
     budgets: dict
@@ -78,7 +89,7 @@ class SweepPresets:
 class Algo:
     """One algorithm: ``name`` (``agents.train``'s ``algo``), ``module`` (an ``AlgoModule``), ``config``
     (its type of ``agents.config``), ``display`` (tables, figures), ``vmaps_seeds`` (the module is a
-    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``), ``sweep`` (its presets of benchmarks.sweep),
+    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``), ``sweep`` (its presets of benchmarks.sweep.command),
     ``cost`` (its cells' seconds in the sweep and the lab-budget section)."""
 
     name: str
@@ -102,20 +113,29 @@ class Algo:
 
     def train_s(self, hyper: dict, steps: int, stages: int = 5) -> float:
         """``cost.train_s`` of a run of ``steps`` env steps with ``hyper`` (its gradient steps from the config)."""
-        return self.cost.train_s(steps, steps * self.config.from_hyper(hyper).updates_per_step(), stages)
+        return self.cost.train_s(
+            steps, steps * self.config.from_hyper(hyper).updates_per_step(), stages
+        )
 
     def members(self) -> tuple:
         """The names its module must provide: ``AlgoModule``'s, and ``SeedsModule``'s / ``OffPolicyModule``'s where
         declared."""
-        return ("train", "make_policy", "params_template", *("train_seeds",) * (self.vmaps_seeds or self.off_policy),
-                *("LEARNER",) * self.off_policy)
+        return (
+            "train",
+            "make_policy",
+            "params_template",
+            *("train_seeds",) * (self.vmaps_seeds or self.off_policy),
+            *("LEARNER",) * self.off_policy,
+        )
 
     def load(self) -> AlgoModule:
         """Its module (TypeError naming what the module lacks of ``members``)."""
         module = importlib.import_module(self.module)
         missing = [m for m in self.members() if not hasattr(module, m)]
         if missing:
-            raise TypeError(f"algo {self.name!r}: module {self.module} lacks {missing}, which its entry declares")
+            raise TypeError(
+                f"algo {self.name!r}: module {self.module} lacks {missing}, which its entry declares"
+            )
         return module
 
 

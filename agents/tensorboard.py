@@ -4,7 +4,7 @@ evaluation's metrics as scalars against env steps (tensorboardX's event-file wri
 
     log = agents.tensorboard.TensorBoardLogger("runs/td3/tb")
     agents.train("td3", env, progress_fn=log); log.close()
-    python -m agents.train --algo td3 --out runs/td3 --logdir runs/td3/tb   # the same from the command line
+    python -m agents --algo td3 --out runs/td3 --logdir runs/td3/tb   # the same from the command line
     tensorboard --logdir runs                                                  # to look at them
 
 Tags: ``eval/normalized_power`` (evaluation P/Pmax; with imperfections the learners evaluate P/Pmax too),
@@ -20,7 +20,7 @@ import math
 from pathlib import Path
 from typing import Callable
 
-from ops_jax import extras
+from ops_jax.cli import extras
 
 
 def tag(name: str) -> str:
@@ -42,14 +42,20 @@ class TensorBoardLogger:
         try:
             from tensorboardX import SummaryWriter
         except ModuleNotFoundError as e:
-            raise ImportError(f"TensorBoard logging needs tensorboardX: {extras.install_command('tensorboard')}") from e
+            raise ImportError(
+                f"TensorBoard logging needs tensorboardX: {extras.install_command('tensorboard')}"
+            ) from e
         self.logdir = Path(logdir)
         self.then = then
         self._writer = SummaryWriter(logdir=str(self.logdir))
 
     def __call__(self, step: int, metrics: dict) -> None:
         for name, value in metrics.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not math.isfinite(value)
+            ):
                 continue
             self._writer.add_scalar(tag(name), float(value), global_step=int(step))
         self._writer.flush()

@@ -62,6 +62,8 @@ class CellStore:
             self.reused += 1
             return result
         result = compute()
-        write_json_atomic(self.path(label, config), {"config": config, "result": result, **self.meta})
+        write_json_atomic(
+            self.path(label, config), {"config": config, "result": result, **self.meta}
+        )
         self.computed += 1
         return result

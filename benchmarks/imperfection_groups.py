@@ -6,7 +6,7 @@ group of imperfections taken away at a time (the same test seed).
 
 A bench: 5-stage hard mode (phasor model), the lab preset at ``--scale`` times its magnitudes, frames only (no
 length readouts; ``--lengths`` to observe them); with ``--unseen`` each bench's per-stage errors are re-drawn from its
-seed as protocol (b)'s unseen benches (``benchmarks.budget.unseen_bench``). The controller: ``--algo`` (one with
+seed as protocol (b)'s unseen benches (``benchmarks.budget.plan.unseen_bench``). The controller: ``--algo`` (one with
 nothing to learn: ``physics`` or ``spgd``) with ``--set`` overrides, or ``--policy DIR`` (an ``agents.save``
 folder). Score: the final step's P / P_best, mean over ``--episodes`` test episodes (``--eval-seed``), P_best of
 the bench as changed. ``--ceiling`` adds two columns for the bench as it is: "held", P / P_best with the lines
@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ops_jax.cli import ArgumentParser
-from ops_jax.progress import keep_ctrl_c
+from ops_jax.cli.parser import ArgumentParser
+from ops_jax.cli.progress import keep_ctrl_c
 
 # The lab preset's fields by what they model; taking a group away sets its fields to the ideal values
 # (``ops_jax.imperfections.Imperfections()``). "backlash" and "actuator gain" are parts of "actuators".
@@ -46,8 +46,8 @@ GROUPS = {
 def bench(seed: int, scale: float, unseen: bool, lengths: bool, probe: str = "instant") -> dict:
     """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0), its probes
     measured as ``probe`` says (``ops_jax.env.PROBES``)."""
-    from benchmarks.budget import unseen_bench
-    from benchmarks.reality import BASE_ENV, level_env
+    from benchmarks.budget.plan import unseen_bench
+    from benchmarks.sweep.reality import BASE_ENV, level_env
 
     if unseen:
         return dict(unseen_bench(dict(BASE_ENV, observe_lengths=lengths), seed, scale), probe=probe)
@@ -69,9 +69,13 @@ def score(args, env_config: dict) -> float:
     from agents.envs import best_ratio
 
     if args.policy:
-        ev = agents.evaluate(agents.load(args.policy), env_config, episodes=args.episodes, seed=args.eval_seed)
+        ev = agents.evaluate(
+            agents.load(args.policy), env_config, episodes=args.episodes, seed=args.eval_seed
+        )
         return float(ev.normalized_power_best[:, -1].mean())
-    result = agents.train(args.algo, env_config, seed=args.eval_seed, curve_episodes=args.episodes, **args.sets)
+    result = agents.train(
+        args.algo, env_config, seed=args.eval_seed, curve_episodes=args.episodes, **args.sets
+    )
     return float(result.curve["normalized_power"][-1] * best_ratio(env_config))
 
 
@@ -81,14 +85,22 @@ def measure(args) -> list[dict]:
     for i, seed in enumerate(args.benches, 1):
         t0 = time.perf_counter()
         env = bench(seed, args.scale, args.unseen, args.lengths, args.probe)
-        row = {"bench": seed, "all": score(args, env), **(ceiling(env, args.eval_seed) if args.ceiling else {}),
-               **{group: score(args, without(env, group)) for group in args.groups}}
+        row = {
+            "bench": seed,
+            "all": score(args, env),
+            **(ceiling(env, args.eval_seed) if args.ceiling else {}),
+            **{group: score(args, without(env, group)) for group in args.groups},
+        }
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
         print(table(rows[-1:], columns(args)).splitlines()[-1], flush=True)
         elapsed = time.perf_counter() - t_start
-        print(f"bench {i}/{len(args.benches)} in {row['seconds']:.0f} s; about "
-              f"{elapsed / i * (len(args.benches) - i):.0f} s left", file=sys.stderr, flush=True)
+        print(
+            f"bench {i}/{len(args.benches)} in {row['seconds']:.0f} s; about "
+            f"{elapsed / i * (len(args.benches) - i):.0f} s left",
+            file=sys.stderr,
+            flush=True,
+        )
     return rows
 
 
@@ -102,8 +114,10 @@ def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
 
     env, params = ops_jax.make(**env_config)
     p_best, key = float(params.lab.p_best), jax.random.key(seed)
-    return {k: held_power(env.config, params.lab, key, samples, predict=k == "predicted") / p_best
-            for k in ("held", "predicted")}
+    return {
+        k: held_power(env.config, params.lab, key, samples, predict=k == "predicted") / p_best
+        for k in ("held", "predicted")
+    }
 
 
 def columns(args) -> list:
@@ -116,7 +130,9 @@ def table(rows: list, cols) -> str:
     head = "| bench | " + " | ".join(map(title, cols)) + " |\n" + "|---" * (len(cols) + 1) + "|"
     body = [f"| {r['bench']} | " + " | ".join(f"{r[c]:.4f}" for c in cols) + " |" for r in rows]
     if len(rows) > 1:
-        body.append("| mean | " + " | ".join(f"{np.mean([r[c] for r in rows]):.4f}" for c in cols) + " |")
+        body.append(
+            "| mean | " + " | ".join(f"{np.mean([r[c] for r in rows]):.4f}" for c in cols) + " |"
+        )
     return "\n".join([head, *body])
 
 
@@ -126,19 +142,51 @@ def main(argv=None) -> dict:
     from agents.registry import get
     from ops_jax.env import PROBES
 
-    ap = ArgumentParser(prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0])
-    ap.add_argument("--algo", default="physics", choices=["physics", "spgd"], help="a controller with nothing to learn")
+    ap = ArgumentParser(
+        prog="python -m benchmarks.imperfection_groups", description=__doc__.split("\n")[0]
+    )
+    ap.add_argument(
+        "--algo",
+        default="physics",
+        choices=["physics", "spgd"],
+        help="a controller with nothing to learn",
+    )
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="its hyperparameters")
-    ap.add_argument("--policy", type=Path, default=None, metavar="DIR", help="instead: a policy stored by agents.save")
-    ap.add_argument("--scale", type=float, default=1.0, help="the lab preset's magnitudes x this, in (0, 10]")
-    ap.add_argument("--unseen", action="store_true", help="per-stage errors re-drawn from each bench's seed")
-    ap.add_argument("--lengths", action="store_true", help="benches with the length readouts in the observation")
-    ap.add_argument("--benches", nargs="+", type=int, default=[1011, 1012, 1013], help="the benches' seeds")
-    ap.add_argument("--groups", nargs="*", default=list(GROUPS), choices=list(GROUPS),
-                    help="groups to take away one at a time (none: the bench as it is only)")
-    ap.add_argument("--probe", choices=PROBES, default="instant",
-                    help="how a probe is measured: instant (the default) or frame (a frame later, as on a bench)")
-    ap.add_argument("--ceiling", action="store_true", help="add the held and predicted ceilings of each bench")
+    ap.add_argument(
+        "--policy",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="instead: a policy stored by agents.save",
+    )
+    ap.add_argument(
+        "--scale", type=float, default=1.0, help="the lab preset's magnitudes x this, in (0, 10]"
+    )
+    ap.add_argument(
+        "--unseen", action="store_true", help="per-stage errors re-drawn from each bench's seed"
+    )
+    ap.add_argument(
+        "--lengths", action="store_true", help="benches with the length readouts in the observation"
+    )
+    ap.add_argument(
+        "--benches", nargs="+", type=int, default=[1011, 1012, 1013], help="the benches' seeds"
+    )
+    ap.add_argument(
+        "--groups",
+        nargs="*",
+        default=list(GROUPS),
+        choices=list(GROUPS),
+        help="groups to take away one at a time (none: the bench as it is only)",
+    )
+    ap.add_argument(
+        "--probe",
+        choices=PROBES,
+        default="instant",
+        help="how a probe is measured: instant (the default) or frame (a frame later, as on a bench)",
+    )
+    ap.add_argument(
+        "--ceiling", action="store_true", help="add the held and predicted ceilings of each bench"
+    )
     ap.add_argument("--episodes", type=int, default=32)
     ap.add_argument("--eval-seed", type=int, default=4242)
     ap.add_argument("--out", type=Path, default=Path("results/imperfection_groups"))
@@ -155,9 +203,13 @@ def main(argv=None) -> dict:
     except (TypeError, ValueError) as exc:
         ap.error(str(exc))
     rows = measure(args)
-    result = {"command": "python -m benchmarks.imperfection_groups",
-              "args": {k: str(v) for k, v in vars(args).items()}, "host": platform.node(),
-              "date": time.strftime("%Y-%m-%d"), "rows": rows}
+    result = {
+        "command": "python -m benchmarks.imperfection_groups",
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "host": platform.node(),
+        "date": time.strftime("%Y-%m-%d"),
+        "rows": rows,
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "imperfection_groups.json").write_text(json.dumps(result, indent=1))
     print(table(rows, columns(args)))

@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from agents.io import write_json_atomic
-from ops_jax.cli import ArgumentParser
-from ops_jax.progress import keep_ctrl_c
+from ops_jax.cli.parser import ArgumentParser
+from ops_jax.cli.progress import keep_ctrl_c
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:
@@ -47,10 +47,19 @@ def expected_hyper(algo: str, steps, config) -> dict:
     return json.loads(json.dumps(h))
 
 
-def run_one(algo: str, stages: int, mode: str, seed: int, steps, config, episodes: int, ckpt_dir: Path | None) -> dict:
+def run_one(
+    algo: str,
+    stages: int,
+    mode: str,
+    seed: int,
+    steps,
+    config,
+    episodes: int,
+    ckpt_dir: Path | None,
+) -> dict:
     """Train and evaluate one (algo, mode, seed); returns the run record."""
     import agents
-    from agents import base
+    from agents import api as base
 
     env_config = {"stages": stages, "mode": mode}
     hyper = {} if config is None else {"config": config}
@@ -61,13 +70,25 @@ def run_one(algo: str, stages: int, mode: str, seed: int, steps, config, episode
     if ckpt_dir is not None:
         agents.save(ckpt_dir / f"{algo}_{mode}_s{seed}", result)
     s = ev.summary
-    return dict(algo=algo, mode=mode, seed=seed, stages=stages, status="ok", episodes=episodes,
-                testing_p_pmax=s["final_mean"], testing_p_pmax_std_over_episodes=s["final_std"],
-                mean_last10=s["mean_last10"], steps_to_0p9=s["steps_to_0p9_median"],
-                fraction_reached_0p9=s["fraction_reached_0p9"], measurements_per_step=s["measurements_per_step"],
-                train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0,
-                wall_time=dict(result.wall_time), train_call_s=train_s,
-                curve={k: np.asarray(v).tolist() for k, v in result.curve.items()}, hyper=result.hyper)
+    return dict(
+        algo=algo,
+        mode=mode,
+        seed=seed,
+        stages=stages,
+        status="ok",
+        episodes=episodes,
+        testing_p_pmax=s["final_mean"],
+        testing_p_pmax_std_over_episodes=s["final_std"],
+        mean_last10=s["mean_last10"],
+        steps_to_0p9=s["steps_to_0p9_median"],
+        fraction_reached_0p9=s["fraction_reached_0p9"],
+        measurements_per_step=s["measurements_per_step"],
+        train_steps=int(np.asarray(result.curve["step"])[-1]) if len(result.curve["step"]) else 0,
+        wall_time=dict(result.wall_time),
+        train_call_s=train_s,
+        curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
+        hyper=result.hyper,
+    )
 
 
 def aggregate(runs: list[dict]) -> dict:
@@ -82,7 +103,10 @@ def aggregate(runs: list[dict]) -> dict:
         st = np.array([r["steps_to_0p9"] for r in ok], float)
         wt = np.array([r["wall_time"].get("total", np.nan) for r in ok], float)
         out[f"{algo}/{mode}"] = dict(
-            algo=algo, mode=mode, seeds=len(ok), failed=len(rs) - len(ok),
+            algo=algo,
+            mode=mode,
+            seeds=len(ok),
+            failed=len(rs) - len(ok),
             p_pmax_mean=float(p.mean()) if p.size else float("nan"),
             p_pmax_std=float(p.std()) if p.size else float("nan"),
             steps_to_0p9_mean=float(np.nanmean(st)) if np.isfinite(st).any() else float("nan"),
@@ -93,30 +117,47 @@ def aggregate(runs: list[dict]) -> dict:
 
 
 def format_table(agg: dict) -> str:
-    lines = [f"{'algo':8s} {'mode':7s} {'seeds':>5s} {'testing P/Pmax':>18s} {'steps to 0.9':>12s} {'wall s/run':>10s}"]
+    lines = [
+        f"{'algo':8s} {'mode':7s} {'seeds':>5s} {'testing P/Pmax':>18s} {'steps to 0.9':>12s} {'wall s/run':>10s}"
+    ]
     for row in agg.values():
         fail = f"  ({row['failed']} failed)" if row["failed"] else ""
-        lines.append(f"{row['algo']:8s} {row['mode']:7s} {row['seeds']:5d} "
-                     f"{row['p_pmax_mean']:8.4f} +- {row['p_pmax_std']:6.4f} {row['steps_to_0p9_mean']:12.1f} "
-                     f"{row['wall_time_s_mean']:10.1f}{fail}")
+        lines.append(
+            f"{row['algo']:8s} {row['mode']:7s} {row['seeds']:5d} "
+            f"{row['p_pmax_mean']:8.4f} +- {row['p_pmax_std']:6.4f} {row['steps_to_0p9_mean']:12.1f} "
+            f"{row['wall_time_s_mean']:10.1f}{fail}"
+        )
     return "\n".join(lines)
 
 
 def main(argv=None) -> dict:
-    from agents.base import ALGOS, algo_module
+    from agents.api import ALGOS, algo_module
 
-    ap = ArgumentParser(prog="python -m benchmarks.learning", description=__doc__,
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(
+        prog="python -m benchmarks.learning",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--algos", nargs="+", default=[a for a in ALGOS], choices=sorted(ALGOS))
-    ap.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"])
+    ap.add_argument(
+        "--modes", nargs="+", default=["easy", "medium", "hard"], choices=["easy", "medium", "hard"]
+    )
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--seed0", type=int, default=0, help="first seed")
     ap.add_argument("--stages", type=int, default=5)
-    ap.add_argument("--steps", type=int, default=None, help="env steps per run (default: each algorithm's)")
-    ap.add_argument("--config", default=None, help="hyperparameter set passed as config= (default: the algorithm's)")
+    ap.add_argument(
+        "--steps", type=int, default=None, help="env steps per run (default: each algorithm's)"
+    )
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="hyperparameter set passed as config= (default: the algorithm's)",
+    )
     ap.add_argument("--episodes", type=int, default=50)
     ap.add_argument("--out", type=Path, default=Path("results/learning"))
-    ap.add_argument("--fresh", action="store_true", help="ignore runs already in <out>/learning.json")
+    ap.add_argument(
+        "--fresh", action="store_true", help="ignore runs already in <out>/learning.json"
+    )
     ap.add_argument("--no-checkpoints", action="store_true")
     args = ap.parse_args(argv)
     keep_ctrl_c()
@@ -124,15 +165,23 @@ def main(argv=None) -> dict:
     for algo in args.algos:  # a missing extra stops here, at once, naming its install command
         algo_module(algo)
 
-    from ops_jax.progress import progress
+    from ops_jax.cli.progress import progress
 
     path = args.out / "learning.json"
     done = {}
     if path.exists() and not args.fresh:
-        done = {run_key(r["algo"], r["mode"], r["seed"]): r for r in json.loads(path.read_text())["runs"]
-                if r["status"] == "ok" and r["stages"] == args.stages}
+        done = {
+            run_key(r["algo"], r["mode"], r["seed"]): r
+            for r in json.loads(path.read_text())["runs"]
+            if r["status"] == "ok" and r["stages"] == args.stages
+        }
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
-    jobs = [(a, m, s) for a in args.algos for m in args.modes for s in range(args.seed0, args.seed0 + args.seeds)]
+    jobs = [
+        (a, m, s)
+        for a in args.algos
+        for m in args.modes
+        for s in range(args.seed0, args.seed0 + args.seeds)
+    ]
     runs = dict(done)
     bar = progress(jobs, unit="run")
     for algo, mode, seed in bar:
@@ -140,27 +189,60 @@ def main(argv=None) -> dict:
         bar.set_description(key)
         stored = done.get(key)
         same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
-            expected_hyper(algo, args.steps, args.config), args.episodes)
+            expected_hyper(algo, args.steps, args.config),
+            args.episodes,
+        )
         if same:
-            bar.write(f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it")
+            bar.write(
+                f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it"
+            )
             continue
         if stored is not None:
             bar.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
         try:
-            rec = run_one(algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir)
+            rec = run_one(
+                algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir
+            )
             wall = rec["wall_time"].get("total", float("nan"))
-            bar.write(f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
-                       f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s")
+            bar.write(
+                f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
+                f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s"
+            )
         except Exception as exc:  # recorded and printed, never silently skipped
-            rec = dict(algo=algo, mode=mode, seed=seed, stages=args.stages, status="error",
-                       error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=5))
+            rec = dict(
+                algo=algo,
+                mode=mode,
+                seed=seed,
+                stages=args.stages,
+                status="error",
+                error=f"{type(exc).__name__}: {exc}",
+                traceback=traceback.format_exc(limit=5),
+            )
             bar.write(f"{key}: FAILED {rec['error']}")
         runs[key] = rec
-        write_json_atomic(path, dict(stages=args.stages, steps=args.steps, config=args.config, episodes=args.episodes,
-                                     runs=list(runs.values()), summary=aggregate(list(runs.values()))))
+        write_json_atomic(
+            path,
+            dict(
+                stages=args.stages,
+                steps=args.steps,
+                config=args.config,
+                episodes=args.episodes,
+                runs=list(runs.values()),
+                summary=aggregate(list(runs.values())),
+            ),
+        )
     agg = aggregate(list(runs.values()))
-    write_json_atomic(path, dict(stages=args.stages, steps=args.steps, config=args.config, episodes=args.episodes,
-                                 runs=list(runs.values()), summary=agg))
+    write_json_atomic(
+        path,
+        dict(
+            stages=args.stages,
+            steps=args.steps,
+            config=args.config,
+            episodes=args.episodes,
+            runs=list(runs.values()),
+            summary=agg,
+        ),
+    )
     print(format_table(agg))
     print(f"written to {path}")
     return agg
@@ -169,4 +251,6 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     failed = sum(row["failed"] for row in main().values())
     if failed:  # the table and the file hold the others
-        sys.exit(f"python -m benchmarks.learning: {failed} run(s) failed; their errors are above and in learning.json")
+        sys.exit(
+            f"python -m benchmarks.learning: {failed} run(s) failed; their errors are above and in learning.json"
+        )

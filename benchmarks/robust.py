@@ -10,9 +10,11 @@ import numpy as np
 REPS = 2000  # bootstrap resamples
 CONFIDENCE = 0.95
 SEED = 0  # the bootstrap's generator seed: every report's intervals are reproducible
-NOTE = (f"IQM: interquartile mean, the mean of the middle 50 % of the scores (25 % cut at each end); [lo, hi]: its "
-        f"{100 * CONFIDENCE:.0f} % percentile stratified-bootstrap confidence interval ({REPS:,} resamples of the seeds, "
-        "within each task; rliable's estimators).")
+NOTE = (
+    f"IQM: interquartile mean, the mean of the middle 50 % of the scores (25 % cut at each end); [lo, hi]: its "
+    f"{100 * CONFIDENCE:.0f} % percentile stratified-bootstrap confidence interval ({REPS:,} resamples of the seeds, "
+    "within each task; rliable's estimators)."
+)
 
 
 def _matrix(scores, name: str = "scores") -> np.ndarray:
@@ -20,7 +22,9 @@ def _matrix(scores, name: str = "scores") -> np.ndarray:
     x = np.asarray(scores, float)
     x = x[:, None] if x.ndim == 1 else x
     if x.ndim != 2 or x.shape[0] < 1 or x.shape[1] < 1:
-        raise ValueError(f"{name} must be a non-empty (runs,) or (runs, tasks) array, got shape {np.shape(scores)}")
+        raise ValueError(
+            f"{name} must be a non-empty (runs,) or (runs, tasks) array, got shape {np.shape(scores)}"
+        )
     return x
 
 
@@ -29,10 +33,12 @@ def iqm(scores) -> float:
     (scipy's ``trim_mean(scores, 0.25, axis=None)``, rliable's ``aggregate_iqm``)."""
     x = np.sort(_matrix(scores).ravel())
     cut = int(0.25 * x.size)
-    return float(x[cut:x.size - cut].mean())
+    return float(x[cut : x.size - cut].mean())
 
 
-def bootstrap_ci(scores, statistic=iqm, reps: int = REPS, confidence: float = CONFIDENCE, seed: int = SEED):
+def bootstrap_ci(
+    scores, statistic=iqm, reps: int = REPS, confidence: float = CONFIDENCE, seed: int = SEED
+):
     """(point estimate, lo, hi) of ``statistic`` (a function of a (runs, tasks) matrix): percentile interval of
     its values on ``reps`` stratified bootstrap resamples, each task's runs resampled with replacement."""
     if not 0 < confidence < 1:
@@ -44,7 +50,7 @@ def bootstrap_ci(scores, statistic=iqm, reps: int = REPS, confidence: float = CO
     if statistic is iqm:  # all resamples at once
         flat = np.sort(samples.reshape(len(samples), -1), axis=1)
         cut = int(0.25 * flat.shape[1])
-        values = flat[:, cut:flat.shape[1] - cut].mean(axis=1)
+        values = flat[:, cut : flat.shape[1] - cut].mean(axis=1)
     else:
         values = np.array([statistic(sample) for sample in samples])
     tail = 100 * (1 - confidence) / 2
@@ -64,7 +70,9 @@ def probability_of_improvement(scores_x, scores_y) -> float:
     (the Mann-Whitney U statistic over n_x n_y per task; rliable's ``probability_of_improvement``)."""
     x, y = _matrix(scores_x, "scores_x"), _matrix(scores_y, "scores_y")
     if x.shape[1] != y.shape[1]:
-        raise ValueError(f"scores_x and scores_y must have as many tasks, got {x.shape[1]} and {y.shape[1]}")
+        raise ValueError(
+            f"scores_x and scores_y must have as many tasks, got {x.shape[1]} and {y.shape[1]}"
+        )
     a, b = x[:, None, :], y[None, :, :]
     return float(np.mean(np.mean((a > b) + 0.5 * (a == b), axis=(0, 1))))
 

@@ -1,4 +1,4 @@
-"""Whether the trim (``agents.trim``) loses: policies alone and trimmed, on the same test episodes.
+"""Whether the trim (``agents.controllers.trim``) loses: policies alone and trimmed, on the same test episodes.
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
@@ -29,30 +29,38 @@ import numpy as np
 
 from agents.config import TrimConfig
 from ops_jax.env import PROBES
-from ops_jax.progress import keep_ctrl_c
-from benchmarks.reality import LEVELS, level_env
+from ops_jax.cli.progress import keep_ctrl_c
+from benchmarks.sweep.reality import LEVELS, level_env
 
-ENVS = {"hard": dict(stages=5, mode="hard", model="phasor"),
-        "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab"),
-        # the reality section's 2x lab, the detector's frames alone
-        "hard + 2x lab, frames only": dict(level_env(dict(LEVELS)["2x lab"]), observe_lengths=False)}
+ENVS = {
+    "hard": dict(stages=5, mode="hard", model="phasor"),
+    "hard + lab": dict(stages=5, mode="hard", model="phasor", imperfections="lab"),
+    # the reality section's 2x lab, the detector's frames alone
+    "hard + 2x lab, frames only": dict(level_env(dict(LEVELS)["2x lab"]), observe_lengths=False),
+}
 DEFAULT_ENVS = ("hard", "hard + lab")
 
 
 def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
     """The comparison of final P / P_best per episode, alone against trimmed (same episodes, same order)."""
     diff = trimmed - alone
-    return {"alone": float(alone.mean()), "trimmed": float(trimmed.mean()), "episodes": int(diff.size),
-            "lost": int(np.sum(diff < -margin)), "gained": int(np.sum(diff > margin)),
-            "worst": float(diff.min()), "worst_alone": float(alone[diff.argmin()]),
-            "worst_trimmed": float(trimmed[diff.argmin()])}
+    return {
+        "alone": float(alone.mean()),
+        "trimmed": float(trimmed.mean()),
+        "episodes": int(diff.size),
+        "lost": int(np.sum(diff < -margin)),
+        "gained": int(np.sum(diff > margin)),
+        "worst": float(diff.min()),
+        "worst_alone": float(alone[diff.argmin()]),
+        "worst_trimmed": float(trimmed[diff.argmin()]),
+    }
 
 
 def shifted(result, offset: float):
     """``(Policy, params)``: ``result``'s policy with every action shifted by ``offset`` (clipped to [-1, 1])."""
     import jax.numpy as jnp
 
-    from agents.base import Policy
+    from agents.api import Policy
 
     policy = result.policy()
 
@@ -63,13 +71,23 @@ def shifted(result, offset: float):
     return Policy(policy.init, act), result.params
 
 
-def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, steps: int,
-            trims=("default",), offsets=(), algo: str = "droq", config: str = "budget",
-            probe: str = "instant") -> list[dict]:
+def measure(
+    env_name: str,
+    seeds,
+    episodes: int,
+    eval_seed: int,
+    margin: float,
+    steps: int,
+    trims=("default",),
+    offsets=(),
+    algo: str = "droq",
+    config: str = "budget",
+    probe: str = "instant",
+) -> list[dict]:
     """Train ``algo`` (its ``config`` preset) on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset,
     then per seed and offset, the test episodes' probes read as ``probe`` says (``ops_jax.env.PROBES``)."""
     import agents
-    from agents import trim
+    from agents.controllers import trim
 
     env = ENVS[env_name]
     t0 = time.perf_counter()
@@ -77,42 +95,75 @@ def measure(env_name: str, seeds, episodes: int, eval_seed: int, margin: float, 
     train_s = time.perf_counter() - t0
     rows = []
     for seed, result in zip(seeds, results):
-        final = lambda policy: agents.evaluate(policy, dict(env, probe=probe), episodes=episodes,
-                                               seed=eval_seed).normalized_power_best[:, -1]
+        final = lambda policy: agents.evaluate(
+            policy, dict(env, probe=probe), episodes=episodes, seed=eval_seed
+        ).normalized_power_best[:, -1]
         alone = final(result)
         variants = [(name, trim.trimmed(result, {"config": name})) for name in trims]
         variants += [(f"none, action {offset:+g}", shifted(result, offset)) for offset in offsets]
-        rows += [{"env": env_name, "algo": algo, "seed": int(seed), "trim": name, **paired(alone, final(policy), margin),
-                  "train_s": train_s / len(seeds)} for name, policy in variants]
+        rows += [
+            {
+                "env": env_name,
+                "algo": algo,
+                "seed": int(seed),
+                "trim": name,
+                **paired(alone, final(policy), margin),
+                "train_s": train_s / len(seeds),
+            }
+            for name, policy in variants
+        ]
     return rows
 
 
 def table(rows: list, margin: float) -> str:
-    head = (f"| environment | seed | trim | alone | trimmed | episodes | lost by > {margin:g} | gained by > {margin:g} | "
-            "worst difference (alone -> trimmed) |\n" + "|---" * 9 + "|")
-    body = [f"| {r['env']} | {r['seed']} | {r['trim']} | {r['alone']:.4f} | {r['trimmed']:.4f} | {r['episodes']} | "
-            f"{r['lost']} | {r['gained']} | {r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |"
-            for r in rows]
+    head = (
+        f"| environment | seed | trim | alone | trimmed | episodes | lost by > {margin:g} | gained by > {margin:g} | "
+        "worst difference (alone -> trimmed) |\n" + "|---" * 9 + "|"
+    )
+    body = [
+        f"| {r['env']} | {r['seed']} | {r['trim']} | {r['alone']:.4f} | {r['trimmed']:.4f} | {r['episodes']} | "
+        f"{r['lost']} | {r['gained']} | {r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |"
+        for r in rows
+    ]
     return "\n".join([head, *body])
 
 
 def main(argv=None) -> dict:
     keep_ctrl_c()
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.trim_loss", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.trim_loss", description=__doc__.split("\n")[0]
+    )
     ap.add_argument("--algo", default="droq", help="the policy's algorithm (agents.train's name)")
     ap.add_argument("--config", default="budget", help="its preset")
     ap.add_argument("--envs", nargs="+", default=list(DEFAULT_ENVS), choices=list(ENVS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
     ap.add_argument("--episodes", type=int, default=128)
     ap.add_argument("--eval-seed", type=int, default=4242)
-    ap.add_argument("--margin", type=float, default=0.05, help="a loss or gain counts beyond this P / P_best")
+    ap.add_argument(
+        "--margin", type=float, default=0.05, help="a loss or gain counts beyond this P / P_best"
+    )
     ap.add_argument("--steps", type=int, default=20_000, help="env steps of training per seed")
-    ap.add_argument("--trims", nargs="+", default=["default"], choices=sorted(TrimConfig.PRESETS),
-                    help="the trim's presets (TrimConfig)")
-    ap.add_argument("--offsets", nargs="*", type=float, default=[], metavar="A",
-                    help="also the policy alone with every action shifted by A (action units, |A| < 1), no trim")
-    ap.add_argument("--probe", choices=PROBES, default="instant",
-                    help="how the test episodes read a probe: instant (the default) or frame (a frame later, as on a bench)")
+    ap.add_argument(
+        "--trims",
+        nargs="+",
+        default=["default"],
+        choices=sorted(TrimConfig.PRESETS),
+        help="the trim's presets (TrimConfig)",
+    )
+    ap.add_argument(
+        "--offsets",
+        nargs="*",
+        type=float,
+        default=[],
+        metavar="A",
+        help="also the policy alone with every action shifted by A (action units, |A| < 1), no trim",
+    )
+    ap.add_argument(
+        "--probe",
+        choices=PROBES,
+        default="instant",
+        help="how the test episodes read a probe: instant (the default) or frame (a frame later, as on a bench)",
+    )
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.steps < 1 or not args.margin >= 0:
@@ -124,16 +175,32 @@ def main(argv=None) -> dict:
     if args.algo not in REGISTRY:
         ap.error(f"--algo must be one of {sorted(REGISTRY)}, got {args.algo!r}")
     if args.config not in get(args.algo).config.PRESETS:
-        ap.error(f"--config must be one of {args.algo}'s presets {sorted(get(args.algo).config.PRESETS)}, "
-                 f"got {args.config!r}")
+        ap.error(
+            f"--config must be one of {args.algo}'s presets {sorted(get(args.algo).config.PRESETS)}, "
+            f"got {args.config!r}"
+        )
     rows = []
     for env_name in args.envs:
-        new = measure(env_name, args.seeds, args.episodes, args.eval_seed, args.margin, args.steps, args.trims,
-                      args.offsets, args.algo, args.config, args.probe)
+        new = measure(
+            env_name,
+            args.seeds,
+            args.episodes,
+            args.eval_seed,
+            args.margin,
+            args.steps,
+            args.trims,
+            args.offsets,
+            args.algo,
+            args.config,
+            args.probe,
+        )
         print("\n".join(table(new, args.margin).splitlines()[2:]), flush=True)
         rows += new
-    result = {"command": "python -m benchmarks.trim_loss", "args": {k: str(v) for k, v in vars(args).items()},
-              "rows": rows}
+    result = {
+        "command": "python -m benchmarks.trim_loss",
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "rows": rows,
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "trim_loss.json").write_text(json.dumps(result, indent=1))
     print(table(rows, args.margin))

@@ -49,17 +49,33 @@ def make_model(algo: str, env, seed: int):
         from stable_baselines3.common.noise import NormalActionNoise
 
         torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
-        return TD3("MlpPolicy", env, learning_starts=1000, action_noise=NormalActionNoise(np.zeros(n), 0.1 * np.ones(n)),
-                   seed=seed, verbose=0)
+        return TD3(
+            "MlpPolicy",
+            env,
+            learning_starts=1000,
+            action_noise=NormalActionNoise(np.zeros(n), 0.1 * np.ones(n)),
+            seed=seed,
+            verbose=0,
+        )
     if algo == "sbx-crossq":
         from sbx import CrossQ
 
         return CrossQ("MlpPolicy", env, seed=seed, verbose=0)
-    if algo == "sbx-droq":  # SBX's DroQ recipe: SAC with dropout + LayerNorm critics, 20 updates per step
+    if (
+        algo == "sbx-droq"
+    ):  # SBX's DroQ recipe: SAC with dropout + LayerNorm critics, 20 updates per step
         from sbx import SAC
 
-        return SAC("MlpPolicy", env, learning_starts=1000, gradient_steps=20, policy_delay=20,
-                   policy_kwargs=dict(dropout_rate=0.01, layer_norm=True), seed=seed, verbose=0)
+        return SAC(
+            "MlpPolicy",
+            env,
+            learning_starts=1000,
+            gradient_steps=20,
+            policy_delay=20,
+            policy_kwargs=dict(dropout_rate=0.01, layer_norm=True),
+            seed=seed,
+            verbose=0,
+        )
     raise ValueError(f"algo must be one of {list(ALGOS)}, got {algo!r}")
 
 
@@ -76,17 +92,31 @@ def main(argv=None) -> dict:
     try:
         model = make_model(args.algo, env, args.seed)
     except ImportError as exc:
-        raise SystemExit(f"{exc}: install the baselines with `pip install torch stable-baselines3 sbx-rl`")
+        raise SystemExit(
+            f"{exc}: install the baselines with `pip install torch stable-baselines3 sbx-rl`"
+        )
     t0 = time.perf_counter()
     model.learn(total_timesteps=args.steps)
     train_s = time.perf_counter() - t0
     test_env = gymnasium.make("ops_jax/OPS-v0", **ENV_KWARGS)
-    finals = _final_power()(test_env, lambda obs: model.predict(obs, deterministic=True)[0], args.episodes,
-                            args.eval_seed)
-    out = dict(algo=args.algo, steps=args.steps, seed=args.seed, final_mean=float(finals.mean()),
-               final_std=float(finals.std()), train_s=train_s)
-    print(f"{args.algo}, {args.steps} steps on {ENV_KWARGS}, seed {args.seed}: final P/Pmax {finals.mean():.3f} "
-          f"+- {finals.std():.3f} over {args.episodes} episodes ({train_s:.0f} s of training)")
+    finals = _final_power()(
+        test_env,
+        lambda obs: model.predict(obs, deterministic=True)[0],
+        args.episodes,
+        args.eval_seed,
+    )
+    out = dict(
+        algo=args.algo,
+        steps=args.steps,
+        seed=args.seed,
+        final_mean=float(finals.mean()),
+        final_std=float(finals.std()),
+        train_s=train_s,
+    )
+    print(
+        f"{args.algo}, {args.steps} steps on {ENV_KWARGS}, seed {args.seed}: final P/Pmax {finals.mean():.3f} "
+        f"+- {finals.std():.3f} over {args.episodes} episodes ({train_s:.0f} s of training)"
+    )
     return out
 
 

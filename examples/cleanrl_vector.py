@@ -37,8 +37,13 @@ ENV_KWARGS = dict(stages=3, mode="easy", model="phasor", max_steps=50)
 def make_envs(mode: str, num_envs: int, **env_kwargs):
     """``gymnasium.make_vec`` in ``mode`` ("vector_entry_point", "sync" or "async"), with episode statistics."""
     vector_kwargs = {"context": "forkserver"} if mode == "async" else {}
-    envs = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=num_envs, vectorization_mode=mode,
-                              vector_kwargs=vector_kwargs, **{**ENV_KWARGS, **env_kwargs})
+    envs = gymnasium.make_vec(
+        "ops_jax/OPS-v0",
+        num_envs=num_envs,
+        vectorization_mode=mode,
+        vector_kwargs=vector_kwargs,
+        **{**ENV_KWARGS, **env_kwargs},
+    )
     return RecordEpisodeStatistics(envs)
 
 
@@ -82,8 +87,18 @@ def gae(rewards, values, dones, next_value, next_done, gamma: float, lam: float)
     return advantages
 
 
-def train(mode: str = "vector_entry_point", num_envs: int = 64, iterations: int = 30, num_steps: int = 100,
-          seed: int = 0, lr: float = 0.05, gamma: float = 0.99, lam: float = 0.95, log=print, **env_kwargs):
+def train(
+    mode: str = "vector_entry_point",
+    num_envs: int = 64,
+    iterations: int = 30,
+    num_steps: int = 100,
+    seed: int = 0,
+    lr: float = 0.05,
+    gamma: float = 0.99,
+    lam: float = 0.95,
+    log=print,
+    **env_kwargs,
+):
     """Run the loop; returns one dict per iteration (mean episodic return and final P/Pmax of the
     episodes that ended in it, env-steps/s)."""
     envs = make_envs(mode, num_envs, **env_kwargs)
@@ -107,7 +122,9 @@ def train(mode: str = "vector_entry_point", num_envs: int = 64, iterations: int 
             obs[step], dones[step] = next_obs, next_done
             valid[step] = ~(next_step_reset & (next_done > 0))  # NEXT_STEP: this step only resets
             actions[step] = agent.act(next_obs, rng)
-            next_obs, reward, terminations, truncations, infos = envs.step(np.clip(actions[step], -1, 1))
+            next_obs, reward, terminations, truncations, infos = envs.step(
+                np.clip(actions[step], -1, 1)
+            )
             rewards[step] = reward
             next_done = np.logical_or(terminations, truncations).astype(float)
             if "episode" in infos:
@@ -120,29 +137,52 @@ def train(mode: str = "vector_entry_point", num_envs: int = 64, iterations: int 
         m = valid.reshape(-1)
         adv = advantages.reshape(-1)[m]
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        agent.update(obs.reshape(-1, obs_dim)[m], actions.reshape(-1, act_dim)[m], adv, ret.reshape(-1)[m], lr)
-        row = dict(iteration=iteration, episodes=len(returns),
-                   episodic_return=float(np.mean(returns)) if returns else None,
-                   final_normalized_power=float(np.mean(finals)) if finals else None,
-                   env_steps_per_s=num_steps * num_envs / (time.perf_counter() - t0))
+        agent.update(
+            obs.reshape(-1, obs_dim)[m],
+            actions.reshape(-1, act_dim)[m],
+            adv,
+            ret.reshape(-1)[m],
+            lr,
+        )
+        row = dict(
+            iteration=iteration,
+            episodes=len(returns),
+            episodic_return=float(np.mean(returns)) if returns else None,
+            final_normalized_power=float(np.mean(finals)) if finals else None,
+            env_steps_per_s=num_steps * num_envs / (time.perf_counter() - t0),
+        )
         history.append(row)
         if log is not None and returns:
-            log(f"iteration {iteration:3d}: {len(returns):4d} episodes, return {row['episodic_return']:8.3f}, "
-                f"final P/Pmax {row['final_normalized_power']:.3f}, {row['env_steps_per_s']:,.0f} env-steps/s")
+            log(
+                f"iteration {iteration:3d}: {len(returns):4d} episodes, return {row['episodic_return']:8.3f}, "
+                f"final P/Pmax {row['final_normalized_power']:.3f}, {row['env_steps_per_s']:,.0f} env-steps/s"
+            )
     envs.close()
     return history
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--mode", default="vector_entry_point", choices=["vector_entry_point", "sync", "async"])
-    ap.add_argument("--num-envs", type=int, default=None,
-                    help="instances (default 64; async: one process each, default the CPU core count)")
+    ap.add_argument(
+        "--mode", default="vector_entry_point", choices=["vector_entry_point", "sync", "async"]
+    )
+    ap.add_argument(
+        "--num-envs",
+        type=int,
+        default=None,
+        help="instances (default 64; async: one process each, default the CPU core count)",
+    )
     ap.add_argument("--iterations", type=int, default=30)
     ap.add_argument("--num-steps", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    return train(args.mode, args.num_envs or default_num_envs(args.mode), args.iterations, args.num_steps, args.seed)
+    return train(
+        args.mode,
+        args.num_envs or default_num_envs(args.mode),
+        args.iterations,
+        args.num_steps,
+        args.seed,
+    )
 
 
 def default_num_envs(mode: str) -> int:

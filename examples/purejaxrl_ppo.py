@@ -22,8 +22,20 @@ import jax.numpy as jnp
 import numpy as np
 
 ENV_KWARGS = dict(stages=3, mode="easy", model="phasor", max_steps=50)
-CONFIG = dict(lr=3e-4, num_envs=32, num_steps=50, update_epochs=4, num_minibatches=4, gamma=0.99, gae_lambda=0.95,
-              clip_eps=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, hidden=64)
+CONFIG = dict(
+    lr=3e-4,
+    num_envs=32,
+    num_steps=50,
+    update_epochs=4,
+    num_minibatches=4,
+    gamma=0.99,
+    gae_lambda=0.95,
+    clip_eps=0.2,
+    ent_coef=0.0,
+    vf_coef=0.5,
+    max_grad_norm=0.5,
+    hidden=64,
+)
 
 
 def _libraries():
@@ -32,11 +44,13 @@ def _libraries():
         import optax
         from gymnax.wrappers import LogWrapper
 
-        from ops_jax import gymnax_env
+        from ops_jax.adapters import gymnax as gymnax_env
     except ImportError as e:
-        sys.exit(f"examples/purejaxrl_ppo.py needs gymnax >= 1.0, flax and optax ({e}): pip install -e \".[gymnax,agents]\"")
+        sys.exit(
+            f'examples/purejaxrl_ppo.py needs gymnax >= 1.0, flax and optax ({e}): pip install -e ".[gymnax,agents]"'
+        )
     if not gymnax_env.SIX_VALUE_STEP:
-        sys.exit("examples/purejaxrl_ppo.py needs gymnax >= 1.0: pip install -e \".[gymnax,agents]\"")
+        sys.exit('examples/purejaxrl_ppo.py needs gymnax >= 1.0: pip install -e ".[gymnax,agents]"')
     return nn, optax, LogWrapper, gymnax_env
 
 
@@ -52,7 +66,9 @@ class Transition(NamedTuple):
 
 def gaussian_log_prob(x, mean, log_std):
     """log N(x; mean, exp(log_std)^2) summed over the last axis."""
-    return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
+    return jnp.sum(
+        -0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), axis=-1
+    )
 
 
 def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
@@ -75,7 +91,11 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
             log_std = self.param("log_std", nn.initializers.constant(-0.5), (n_act,))
             v = nn.tanh(nn.Dense(c["hidden"])(x))
             v = nn.tanh(nn.Dense(c["hidden"])(v))
-            return mean, log_std, jnp.squeeze(nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(v), -1)
+            return (
+                mean,
+                log_std,
+                jnp.squeeze(nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(v), -1),
+            )
 
     network = ActorCritic()
     tx = optax.chain(optax.clip_by_global_norm(c["max_grad_norm"]), optax.adam(c["lr"], eps=1e-5))
@@ -98,7 +118,8 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
                 log_prob = gaussian_log_prob(action, mean, log_std)
                 clipped = jnp.clip(action, space.low, space.high)
                 obs2, env_state, reward, terminated, truncated, info = vstep(
-                    jax.random.split(k_env, c["num_envs"]), env_state, clipped, env_params)
+                    jax.random.split(k_env, c["num_envs"]), env_state, clipped, env_params
+                )
                 t = Transition(terminated | truncated, action, value, reward, log_prob, obs, info)
                 return (params, opt_state, env_state, obs2, key), t
 
@@ -112,16 +133,22 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
                 adv = delta + c["gamma"] * c["gae_lambda"] * (1 - t.done) * adv
                 return (adv, t.value), adv
 
-            _, advantages = jax.lax.scan(gae, (jnp.zeros_like(last_val), last_val), traj, reverse=True)
+            _, advantages = jax.lax.scan(
+                gae, (jnp.zeros_like(last_val), last_val), traj, reverse=True
+            )
             targets = advantages + traj.value
 
             def update_epoch(state, _):
                 params, opt_state, key = state
                 key, k_perm = jax.random.split(key)
-                batch = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]),
-                                     (traj.obs, traj.action, traj.log_prob, advantages, targets))
+                batch = jax.tree.map(
+                    lambda x: x.reshape((-1,) + x.shape[2:]),
+                    (traj.obs, traj.action, traj.log_prob, advantages, targets),
+                )
                 perm = jax.random.permutation(k_perm, batch[0].shape[0])
-                mbs = jax.tree.map(lambda x: x[perm].reshape((c["num_minibatches"], -1) + x.shape[1:]), batch)
+                mbs = jax.tree.map(
+                    lambda x: x[perm].reshape((c["num_minibatches"], -1) + x.shape[1:]), batch
+                )
 
                 def update_minibatch(state, mb):
                     params, opt_state = state
@@ -132,25 +159,37 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
                         log_prob = gaussian_log_prob(action, mean, log_std)
                         ratio = jnp.exp(log_prob - old_log_prob)
                         a = (adv - adv.mean()) / (adv.std() + 1e-8)
-                        actor = -jnp.minimum(ratio * a, jnp.clip(ratio, 1 - c["clip_eps"], 1 + c["clip_eps"]) * a).mean()
+                        actor = -jnp.minimum(
+                            ratio * a, jnp.clip(ratio, 1 - c["clip_eps"], 1 + c["clip_eps"]) * a
+                        ).mean()
                         critic = 0.5 * ((value - target) ** 2).mean()
                         entropy = jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e))
-                        return actor + c["vf_coef"] * critic - c["ent_coef"] * entropy, (actor, critic)
+                        return actor + c["vf_coef"] * critic - c["ent_coef"] * entropy, (
+                            actor,
+                            critic,
+                        )
 
-                    (loss, (actor, critic)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
+                    (loss, (actor, critic)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+                        params
+                    )
                     updates, opt_state = tx.update(grads, opt_state)
                     return (optax.apply_updates(params, updates), opt_state), (loss, actor, critic)
 
-                (params, opt_state), losses = jax.lax.scan(update_minibatch, (params, opt_state), mbs)
+                (params, opt_state), losses = jax.lax.scan(
+                    update_minibatch, (params, opt_state), mbs
+                )
                 return (params, opt_state, key), losses
 
-            (params, opt_state, key), losses = jax.lax.scan(update_epoch, (params, opt_state, key), None,
-                                                            c["update_epochs"])
+            (params, opt_state, key), losses = jax.lax.scan(
+                update_epoch, (params, opt_state, key), None, c["update_epochs"]
+            )
             info = traj.info
             done = info["returned_episode"]
             metrics = {
-                "episode_return": jnp.where(done, info["returned_episode_returns"], 0).sum() / jnp.maximum(done.sum(), 1),
-                "final_normalized_power": jnp.where(done, info["normalized_power"], 0).sum() / jnp.maximum(done.sum(), 1),
+                "episode_return": jnp.where(done, info["returned_episode_returns"], 0).sum()
+                / jnp.maximum(done.sum(), 1),
+                "final_normalized_power": jnp.where(done, info["normalized_power"], 0).sum()
+                / jnp.maximum(done.sum(), 1),
                 "episodes": done.sum(),
                 "loss": losses[0].mean(),
             }
@@ -162,29 +201,38 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
     return train, c
 
 
-def train(timesteps: int = 200_000, seed: int = 0, config: dict | None = None, **env_kwargs) -> dict:
+def train(
+    timesteps: int = 200_000, seed: int = 0, config: dict | None = None, **env_kwargs
+) -> dict:
     """Run ``make_train`` jitted; returns per update the env steps, mean episode return, final P/Pmax, loss."""
     fn, c = make_train(timesteps, config, **env_kwargs)
     start = time.perf_counter()
     _, metrics = jax.block_until_ready(jax.jit(fn)(jax.random.key(seed)))
     metrics = jax.tree.map(np.asarray, metrics)
     per_update = c["num_envs"] * c["num_steps"]
-    return {"env_steps": [per_update * (i + 1) for i in range(c["num_updates"])], "seconds": time.perf_counter() - start,
-            **{k: v.tolist() for k, v in metrics.items()}}
+    return {
+        "env_steps": [per_update * (i + 1) for i in range(c["num_updates"])],
+        "seconds": time.perf_counter() - start,
+        **{k: v.tolist() for k, v in metrics.items()},
+    }
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--timesteps", type=int, default=200_000, help="env steps in all")
     ap.add_argument("--num-envs", type=int, default=CONFIG["num_envs"])
-    ap.add_argument("--num-steps", type=int, default=CONFIG["num_steps"], help="steps per instance per update")
+    ap.add_argument(
+        "--num-steps", type=int, default=CONFIG["num_steps"], help="steps per instance per update"
+    )
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     out = train(a.timesteps, a.seed, {"num_envs": a.num_envs, "num_steps": a.num_steps})
     every = max(1, len(out["env_steps"]) // 10)
     for i in range(0, len(out["env_steps"]), every):
-        print(f"{out['env_steps'][i]:>8} env steps   return {out['episode_return'][i]:8.3f}   "
-              f"final P/Pmax {out['final_normalized_power'][i]:.3f}   loss {out['loss'][i]:.4f}")
+        print(
+            f"{out['env_steps'][i]:>8} env steps   return {out['episode_return'][i]:8.3f}   "
+            f"final P/Pmax {out['final_normalized_power'][i]:.3f}   loss {out['loss'][i]:.4f}"
+        )
     print(f"{out['env_steps'][-1]} env steps in {out['seconds']:.1f} s (compilation included)")
 
 

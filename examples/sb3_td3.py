@@ -47,7 +47,12 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=6000, help="TD3 training steps")
     ap.add_argument("--episodes", type=int, default=10, help="test episodes")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--torch-threads", type=int, default=1, help="torch's CPU threads (default 1: JAX uses the cores)")
+    ap.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch's CPU threads (default 1: JAX uses the cores)",
+    )
     args = ap.parse_args(argv)
 
     try:
@@ -55,26 +60,41 @@ def main(argv=None):
         from stable_baselines3 import TD3
         from stable_baselines3.common.noise import NormalActionNoise
     except ImportError as exc:
-        raise SystemExit(f"examples/sb3_td3.py needs torch and stable-baselines3 ({exc}): "
-                         "pip install torch stable-baselines3")
+        raise SystemExit(
+            f"examples/sb3_td3.py needs torch and stable-baselines3 ({exc}): "
+            "pip install torch stable-baselines3"
+        )
     torch.set_num_threads(args.torch_threads)
 
     env = gymnasium.make("ops_jax/OPS-v0", **ENV_KWARGS)
     n = env.action_space.shape[0]
     model = TD3(
-        "MlpPolicy", env, learning_rate=1e-3, buffer_size=100_000, learning_starts=500, batch_size=256,
-        train_freq=1, gradient_steps=1, action_noise=NormalActionNoise(np.zeros(n), 0.2 * np.ones(n)),
-        policy_kwargs=dict(net_arch=[64, 64]), seed=args.seed, verbose=0,
+        "MlpPolicy",
+        env,
+        learning_rate=1e-3,
+        buffer_size=100_000,
+        learning_starts=500,
+        batch_size=256,
+        train_freq=1,
+        gradient_steps=1,
+        action_noise=NormalActionNoise(np.zeros(n), 0.2 * np.ones(n)),
+        policy_kwargs=dict(net_arch=[64, 64]),
+        seed=args.seed,
+        verbose=0,
     )
     t0 = time.perf_counter()
     model.learn(total_timesteps=args.steps)
     train_s = time.perf_counter() - t0
 
     test_env = gymnasium.make("ops_jax/OPS-v0", **ENV_KWARGS)
-    td3 = final_power(test_env, lambda obs: model.predict(obs, deterministic=True)[0], args.episodes, 10_000)
+    td3 = final_power(
+        test_env, lambda obs: model.predict(obs, deterministic=True)[0], args.episodes, 10_000
+    )
     idle = final_power(test_env, lambda obs: np.zeros(n, np.float32), args.episodes, 10_000)
     print(f"TD3, {args.steps} steps on {ENV_KWARGS} ({train_s:.0f} s)")
-    print(f"final P/Pmax  TD3: {td3.mean():.3f} +- {td3.std():.3f}   no control: {idle.mean():.3f} +- {idle.std():.3f}")
+    print(
+        f"final P/Pmax  TD3: {td3.mean():.3f} +- {td3.std():.3f}   no control: {idle.mean():.3f} +- {idle.std():.3f}"
+    )
     return td3
 
 

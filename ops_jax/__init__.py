@@ -4,7 +4,8 @@
 the Brax adapter, the agents and rendering import their own dependencies when used.
 """
 
-from ops_jax import extras, noise, physics
+from ops_jax.cli import extras
+from ops_jax import noise, physics
 from ops_jax.env import (
     MODES,
     REWARDS,
@@ -37,7 +38,7 @@ __all__ = [
 
 def _register_gymnasium() -> None:
     """Register "ops_jax/OPS-v0" with Gymnasium (a light dependency; brax/matplotlib not imported)."""
-    from ops_jax.gym_env import register
+    from ops_jax.adapters.gymnasium.env import register
 
     register()
 

@@ -41,7 +41,10 @@ INT32_MAX = 2**31 - 1  # step counters are int32
 
 MODES = ("easy", "medium", "hard", "custom")
 REWARDS = ("paper", "reference", "linear")
-PROBES = ("instant", "frame")  # EnvConfig.probe: how a dither probe (``OPSEnv.probe_step``) is measured
+PROBES = (
+    "instant",
+    "frame",
+)  # EnvConfig.probe: how a dither probe (``OPSEnv.probe_step``) is measured
 
 # Reference values of the difficulty modes (physics.md section 5).
 MODE_PARAMS = {
@@ -55,16 +58,16 @@ MODE_PARAMS = {
 class EnvConfig:
     """Static configuration: changing it recompiles.
 
-    stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
-    reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation length.
-    feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
-    stacked. observe_lengths: the N length readouts in the observation (False: the detector's frames
-only). include_noise: append the noise state to the observation. imperfect: apply
-    ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
-    probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed offsets in the
-    same instant as the last frame: nothing moves, no time passes) | "frame" (as on a bench: the lines move
-    to the probed offsets through the actuators, one frame passes, the detector reads P; the next step's
-    move starts from there).
+        stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
+        reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation length.
+        feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
+        stacked. observe_lengths: the N length readouts in the observation (False: the detector's frames
+    only). include_noise: append the noise state to the observation. imperfect: apply
+        ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
+        probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed offsets in the
+        same instant as the last frame: nothing moves, no time passes) | "frame" (as on a bench: the lines move
+        to the probed offsets through the actuators, one frame passes, the detector reads P; the next step's
+        move starts from there).
     """
 
     stages: int = 5
@@ -99,7 +102,9 @@ class EnvParams:
     observations drowned in noise (entries live in about [-1, 1]).
     """
 
-    init_spread: ArrayLike = ranged(Range(0.0, 1.0, unit="wl"), 0.13)  # 0: every episode starts at the optimum
+    init_spread: ArrayLike = ranged(
+        Range(0.0, 1.0, unit="wl"), 0.13
+    )  # 0: every episode starts at the optimum
     step_sigma: ArrayLike = ranged(Range(0.0, 0.1, unit="wl"), 5e-4)  # 0: noise-free
     drift_cap: ArrayLike = ranged(Range(0.0, 10.0), 0.0)
     drift_ramp: ArrayLike = ranged(Range(0.0), 0.1)
@@ -108,7 +113,9 @@ class EnvParams:
     action_scale: ArrayLike = ranged(Range(0.0, 1.0, lo_open=True, unit="wl per unit action"), 0.01)
     obs_noise: ArrayLike = ranged(Range(0.0, 1.0), 1e-4)  # 0: noise-free observations
     window: ArrayLike = ranged(Range(0.0, lo_open=True, unit="wl"), 3.0)
-    lab: imperfections.Imperfections = dataclasses.field(default_factory=imperfections.Imperfections)
+    lab: imperfections.Imperfections = dataclasses.field(
+        default_factory=imperfections.Imperfections
+    )
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -135,8 +142,10 @@ class EnvState:
 def _validate_params(params: EnvParams) -> None:
     check_fields(params)
     if not np.all(np.asarray(params.window) > np.asarray(params.init_spread)):
-        raise ValueError(f"window must be > init_spread (most episodes would end at their first step), "
-                         f"got window={params.window!r}, init_spread={params.init_spread!r}")
+        raise ValueError(
+            f"window must be > init_spread (most episodes would end at their first step), "
+            f"got window={params.window!r}, init_spread={params.init_spread!r}"
+        )
 
 
 def _validate_config(cfg: EnvConfig) -> None:
@@ -199,12 +208,16 @@ class OPSEnv:
         return imperfections.sense(self.config, deltas, lab, self.p_max, self.peak)
 
     def _mu(self, state, params):
-        drift = noise.piecewise_linear(state.knots[0], state.knots[1], state.t, params.drift_segment)
+        drift = noise.piecewise_linear(
+            state.knots[0], state.knots[1], state.t, params.drift_segment
+        )
         return state.mu_episode + drift
 
     def _frame(self, z, m, deltas, mu, params):
         """The observation frame; ``z`` (frame_size,) standard normals for the observation noise."""
-        frame = self.layout.encode(m.power / self.p_max, m.samples / self.peak, deltas, params.window, mu)
+        frame = self.layout.encode(
+            m.power / self.p_max, m.samples / self.peak, deltas, params.window, mu
+        )
         return frame.astype(jnp.float32) + params.obs_noise * z
 
     def reward(self, power, p_init):
@@ -217,8 +230,11 @@ class OPSEnv:
 
     def _reset_draws(self, key):
         n = self.config.stages
-        d = noise.draws(key, normal={"init": (n,), "obs": (self.frame_size,)},
-                        uniform={"drift": (), "knots": (2, n)})
+        d = noise.draws(
+            key,
+            normal={"init": (n,), "obs": (self.frame_size,)},
+            uniform={"drift": (), "knots": (2, n)},
+        )
         return {**d, "key": key} if self.config.imperfect else d
 
     def _reset_state(self, d, params, episode, p_init):
@@ -231,8 +247,17 @@ class OPSEnv:
         mu_episode = jnp.full((n,), r * params.step_sigma)
         frames = jnp.zeros((self.config.frame_stack, self.frame_size), jnp.float32)
         lab = imperfections.reset(d["key"], n, params.lab) if self.config.imperfect else ()
-        return EnvState(deltas, mu_episode, knots, jnp.int32(0), jnp.asarray(episode, jnp.int32),
-                        jnp.asarray(p_init, jnp.float32), frames, jnp.zeros((n,), jnp.float32), lab)
+        return EnvState(
+            deltas,
+            mu_episode,
+            knots,
+            jnp.int32(0),
+            jnp.asarray(episode, jnp.int32),
+            jnp.asarray(p_init, jnp.float32),
+            frames,
+            jnp.zeros((n,), jnp.float32),
+            lab,
+        )
 
     def _observe_reset(self, z, state, params):
         _, m, x_seen = self._sense(state.deltas, state.lab)
@@ -252,14 +277,19 @@ class OPSEnv:
         """Raise ValueError unless ``action`` has trailing shape (N,) (checked at trace time)."""
         n = self.config.stages
         if jnp.shape(action)[-1:] != (n,):
-            raise ValueError(f"action must have shape ({n},) for stages={n}, got {jnp.shape(action)}")
+            raise ValueError(
+                f"action must have shape ({n},) for stages={n}, got {jnp.shape(action)}"
+            )
 
     def _tick(self, key, state: EnvState, move, params: EnvParams):
         """One frame: free run, the lines moved by ``move`` (N,) wl through the actuators, the drift's
         clock advanced, the detector read. Returns (state, true measurement, detected measurement, frame)."""
         c = self.config
-        d = noise.draws(key, normal={"run": (c.feedback_k, c.stages), "obs": (self.frame_size,)},
-                        uniform={"knot": (c.stages,)})
+        d = noise.draws(
+            key,
+            normal={"run": (c.feedback_k, c.stages), "obs": (self.frame_size,)},
+            uniform={"knot": (c.stages,)},
+        )
         mu = self._mu(state, params)
         deltas = state.deltas + noise.free_run(d["run"], mu, params.step_sigma)
         lab = state.lab
@@ -273,7 +303,12 @@ class OPSEnv:
         knots = jnp.where(seg_end, jnp.stack([state.knots[1], new_knot]), state.knots)
         m_true, m, x_seen = self._sense(deltas, lab)
         frame = self._frame(d["obs"], m, x_seen, mu, params)
-        return dataclasses.replace(state, deltas=deltas, knots=knots, t=t, lab=lab), m_true, m, frame
+        return (
+            dataclasses.replace(state, deltas=deltas, knots=knots, t=t, lab=lab),
+            m_true,
+            m,
+            frame,
+        )
 
     def step_env(self, key, state: EnvState, action, params: EnvParams):
         """One control period without auto-reset: free run, action, measurement. After a "frame" probe
@@ -283,7 +318,9 @@ class OPSEnv:
         finite = jnp.isfinite(action)
         action = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
         move = action * params.action_scale
-        if c.probe == "frame":  # back from the probed offsets (static: an instant probe never moves the lines)
+        if (
+            c.probe == "frame"
+        ):  # back from the probed offsets (static: an instant probe never moves the lines)
             move = move - state.probed
         state, m_true, m, frame = self._tick(key, state, move, params)
         frames = jnp.concatenate([state.frames[1:], frame[None]])
@@ -293,7 +330,8 @@ class OPSEnv:
         info = {
             "power": m_true.power,
             "normalized_power": m_true.power / self.p_max,
-            "normalized_power_best": m_true.power / jnp.where(params.lab.p_best > 0, params.lab.p_best, self.p_max),
+            "normalized_power_best": m_true.power
+            / jnp.where(params.lab.p_best > 0, params.lab.p_best, self.p_max),
             "deltas_wl": state.deltas,
             "action_nonfinite": ~jnp.all(finite),
         }
@@ -308,7 +346,9 @@ class OPSEnv:
 
     @staticmethod
     def _params_axes(params):
-        axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) > 0 else None, dataclasses.replace(params, lab=None))
+        axes = jax.tree.map(
+            lambda x: 0 if jnp.ndim(x) > 0 else None, dataclasses.replace(params, lab=None)
+        )
         return dataclasses.replace(axes, lab=imperfections.batch_axes(params.lab))
 
     def auto_reset(self, done, key, state: EnvState, fallback, params: EnvParams):
@@ -322,9 +362,13 @@ class OPSEnv:
         ``info["final_observation"]`` is the last observation of the finished one."""
         self.check_action(action)
         k_step, k_reset = jax.random.split(key)
-        obs, state, reward, terminated, truncated, info = self.step_env(k_step, state, action, params)
+        obs, state, reward, terminated, truncated, info = self.step_env(
+            k_step, state, action, params
+        )
         info["final_observation"] = obs
-        new_obs, new_state = self.auto_reset(terminated | truncated, k_reset, state, (obs, state), params)
+        new_obs, new_state = self.auto_reset(
+            terminated | truncated, k_reset, state, (obs, state), params
+        )
         return new_obs, new_state, reward, terminated, truncated, info
 
     def probe(self, state: EnvState, offsets, params: EnvParams):
@@ -342,7 +386,9 @@ class OPSEnv:
             return self.probe(state, offsets, params), state
         move = jnp.asarray(offsets, jnp.float32) - state.probed
         state, _, m, _ = self._tick(key, state, move, params)
-        return m.power / self.p_max, dataclasses.replace(state, probed=jnp.asarray(offsets, jnp.float32))
+        return m.power / self.p_max, dataclasses.replace(
+            state, probed=jnp.asarray(offsets, jnp.float32)
+        )
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""
@@ -350,7 +396,9 @@ class OPSEnv:
 
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
         """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched (B,)."""
-        return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(keys, states, actions, params)
+        return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(
+            keys, states, actions, params
+        )
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -362,7 +410,9 @@ def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
 @_auto_reset_ad.defjvp
 def _auto_reset_jvp(env, primals, tangents):
     def plain(done, key, state, fallback, params):
-        return jax.tree.map(lambda a, b: jnp.where(done, a, b), env.next_episode(key, state, params), fallback)
+        return jax.tree.map(
+            lambda a, b: jnp.where(done, a, b), env.next_episode(key, state, params), fallback
+        )
 
     return _auto_reset_ad(env, *primals), jax.jvp(plain, primals, tangents)[1]
 
@@ -384,8 +434,11 @@ def _auto_reset(env: OPSEnv, levels: tuple):
     @auto_reset.def_vmap
     def rule(axis_size, in_batched, done, key, state, fallback, params):
         # The fallback (hence the result) carries every batch axis, so both cond branches agree.
-        fallback = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
-                                fallback, in_batched[3])
+        fallback = jax.tree.map(
+            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+            fallback,
+            in_batched[3],
+        )
         in_batched[3] = jax.tree.map(lambda b: True, in_batched[3])
         out = _auto_reset(env, (tuple(in_batched), *levels))(done, key, state, fallback, params)
         return out, jax.tree.map(lambda x: True, out)
@@ -410,7 +463,9 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     config, params = configure(stages, mode, **overrides)
     env = OPSEnv(config)
     p_best = imperfections.best_power(config, params.lab) if config.imperfect else env.p_max
-    params = dataclasses.replace(params, lab=dataclasses.replace(params.lab, p_best=np.asarray(p_best, np.float32)))
+    params = dataclasses.replace(
+        params, lab=dataclasses.replace(params.lab, p_best=np.asarray(p_best, np.float32))
+    )
     return env, params
 
 
@@ -420,7 +475,9 @@ def configure(stages: int = 5, mode: str = "hard", **overrides):
     physics._check_choice("mode", mode, MODES)
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}
-    par_fields = {f.name for f in dataclasses.fields(EnvParams)} - {"lab"}  # lab: built from the options below
+    par_fields = {f.name for f in dataclasses.fields(EnvParams)} - {
+        "lab"
+    }  # lab: built from the options below
     unknown = set(overrides) - set(option_names())
     if unknown:
         raise TypeError(f"unknown option(s) {sorted(unknown)}; accepted: {sorted(option_names())}")
@@ -433,7 +490,13 @@ def configure(stages: int = 5, mode: str = "hard", **overrides):
     params = EnvParams(**base)
     _validate_params(params)
     # Fixed dtypes (not Python scalars): a jitted step then never retraces on a weak-type change.
-    params = EnvParams(**{k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
-                          for k, v in vars(params).items() if k != "lab"}, lab=lab)
+    params = EnvParams(
+        **{
+            k: np.asarray(v, np.int32 if k == "drift_segment" else np.float32)
+            for k, v in vars(params).items()
+            if k != "lab"
+        },
+        lab=lab,
+    )
     _validate_config(config)
     return config, params

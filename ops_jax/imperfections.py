@@ -24,7 +24,9 @@ from ops_jax.ranges import Range, ranged, ranges
 
 NUM_RESONANCES = 2
 PRESETS = ("none", "lab")
-_TAG = 0x1AB  # folded into a step's key for the imperfection draws (the ideal draws stay as they were)
+_TAG = (
+    0x1AB  # folded into a step's key for the imperfection draws (the ideal draws stay as they were)
+)
 
 
 @partial(jax.tree_util.register_dataclass)
@@ -49,7 +51,9 @@ class Imperfections:
     are each permuted over the stages, every entry's sign flipped at random (before ``randomize`` scales them).
     """
 
-    waveplate_error_deg: ArrayLike = ranged(Range(-10.0, 10.0, unit="deg", shape="stage", scaled=True), 0.0)
+    waveplate_error_deg: ArrayLike = ranged(
+        Range(-10.0, 10.0, unit="deg", shape="stage", scaled=True), 0.0
+    )
     pbs_leakage: ArrayLike = ranged(Range(0.0, 0.5, shape="stage", scaled=True), 0.0)
     pulse_amplitude_noise: ArrayLike = ranged(Range(0.0, 0.5, scaled=True), 0.0)
     pulse_phase_noise: ArrayLike = ranged(Range(0.0, math.pi, unit="rad", scaled=True), 0.0)
@@ -66,9 +70,13 @@ class Imperfections:
     adc_bits: ArrayLike = ranged(Range(0.0, 32.0), 0.0)
     vib_rms: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", scaled=True), 0.0)
     vib_alpha: ArrayLike = ranged(Range(0.0, 2.0), 1.0)
-    resonance_freq: ArrayLike = ranged(Range(1e-4, 0.5, unit="cycles per step", shape="resonance"), (0.02, 0.3))
+    resonance_freq: ArrayLike = ranged(
+        Range(1e-4, 0.5, unit="cycles per step", shape="resonance"), (0.02, 0.3)
+    )
     resonance_q: ArrayLike = ranged(Range(0.5, 1e4, shape="resonance"), (20.0, 20.0))
-    resonance_rms: ArrayLike = ranged(Range(0.0, 1.0, unit="wl", shape="resonance", scaled=True), (0.0, 0.0))
+    resonance_rms: ArrayLike = ranged(
+        Range(0.0, 1.0, unit="wl", shape="resonance", scaled=True), (0.0, 0.0)
+    )
     p_best: ArrayLike = ranged(Range(0.0, inf_ok=True), 0.0)
     randomize: ArrayLike = ranged(Range(0.0, 1.0), 0.0)
     randomize_layout: ArrayLike = ranged(Range(0.0, 1.0), 0.0)
@@ -78,8 +86,12 @@ FIELDS = tuple(f.name for f in dataclasses.fields(Imperfections))
 RANGES = ranges(Imperfections)  # field -> Range: bounds, shape, scaled
 PER_STAGE = tuple(k for k, r in RANGES.items() if r.shape == "stage")
 PER_RESONANCE = tuple(k for k, r in RANGES.items() if r.shape == "resonance")
-SCALED = tuple(k for k, r in RANGES.items() if r.scaled)  # error magnitudes; bits, span, saturation, shapes are not
-LAYOUT = tuple(k for k in PER_STAGE if k in SCALED and RANGES[k].lo < 0)  # signed per-stage errors (leakage is >= 0)
+SCALED = tuple(
+    k for k, r in RANGES.items() if r.scaled
+)  # error magnitudes; bits, span, saturation, shapes are not
+LAYOUT = tuple(
+    k for k in PER_STAGE if k in SCALED and RANGES[k].lo < 0
+)  # signed per-stage errors (leakage is >= 0)
 
 # The "lab" preset (docs/imperfections.md: sources and assumptions). Per-stage patterns repeat
 # over the stages; signs alternate so that no error cancels by symmetry.
@@ -132,7 +144,9 @@ def build(stages: int, **values) -> Imperfections:
             raise ValueError(f"{name} must be {RANGES[name]}, got {v}")
         if name in PER_STAGE:
             if v.ndim and v.shape[-1] not in (1, stages):
-                raise ValueError(f"{name} must be a scalar or have trailing shape ({stages},), got {v.shape}")
+                raise ValueError(
+                    f"{name} must be a scalar or have trailing shape ({stages},), got {v.shape}"
+                )
             v = np.broadcast_to(v, (*v.shape[:-1], stages) if v.ndim else (stages,))
         if name in PER_RESONANCE and (v.ndim == 0 or v.shape[-1] != NUM_RESONANCES):
             raise ValueError(f"{name} must have trailing shape ({NUM_RESONANCES},), got {v.shape}")
@@ -149,11 +163,15 @@ def from_options(stages: int, options: dict):
     """Pop the imperfection options of ``ops_jax.make`` from ``options``: ``imperfections`` (preset
     name), ``imperfection_scale``, any ``Imperfections`` field, or ``lab`` (an ``Imperfections``).
     Returns (validated ``Imperfections`` without p_best, whether anything is set)."""
-    values = preset(options.pop("imperfections", "none"), stages, options.pop("imperfection_scale", 1.0))
+    values = preset(
+        options.pop("imperfections", "none"), stages, options.pop("imperfection_scale", 1.0)
+    )
     lab = options.pop("lab", None)
     if lab is not None:
         if not isinstance(lab, Imperfections):
-            raise TypeError(f"lab must be an ops_jax.imperfections.Imperfections, got {type(lab).__name__}")
+            raise TypeError(
+                f"lab must be an ops_jax.imperfections.Imperfections, got {type(lab).__name__}"
+            )
         values.update({k: v for k, v in vars(lab).items() if k != "p_best"})
     values.update({k: options.pop(k) for k in FIELDS if k in options})
     return build(stages, **values), bool(values)
@@ -165,7 +183,9 @@ def observation_bounds(lab: Imperfections, x_max):
     calibration error and up to 6 RMS of vibration."""
     sat = float(np.max(lab.detector_saturation))
     vib = 6.0 * float(np.max(lab.vib_rms) + np.max(np.sum(lab.resonance_rms, axis=-1)))
-    x = (x_max + vib) * (1 + float(np.max(np.abs(lab.readout_gain_error)))) + float(np.max(np.abs(lab.readout_offset)))
+    x = (x_max + vib) * (1 + float(np.max(np.abs(lab.readout_gain_error)))) + float(
+        np.max(np.abs(lab.readout_offset))
+    )
     return max(1.0, 2 * sat - 1), x
 
 
@@ -195,7 +215,9 @@ def _draws(key, stages, fresh):
     """Standard normals of one reset (``fresh``: the filters' stationary start) or one step."""
     n, r = stages, NUM_RESONANCES
     shapes = {"pulse": (2, 2**n)}
-    shapes.update({"fir": (vibration.FIR_TAPS, n), "osc": (2, r, n)} if fresh else {"bg": (n,), "res": (r, n)})
+    shapes.update(
+        {"fir": (vibration.FIR_TAPS, n), "osc": (2, r, n)} if fresh else {"bg": (n,), "res": (r, n)}
+    )
     return noise.draws(jax.random.fold_in(key, _TAG), normal=shapes)
 
 
@@ -222,8 +244,12 @@ def episode_values(key, lab: Imperfections) -> Imperfections:
     """This episode's imperfections: the ``LAYOUT`` patterns re-drawn (``randomize_layout``), then each
     ``SCALED`` entry v becomes v (1 + randomize u)."""
     lab = dataclasses.replace(lab, **_layout(key, lab))
-    u = noise.draws(jax.random.fold_in(key, _TAG + 1), uniform={k: jnp.shape(getattr(lab, k)) for k in SCALED})
-    return dataclasses.replace(lab, **{k: getattr(lab, k) * (1 + lab.randomize * u[k]) for k in SCALED})
+    u = noise.draws(
+        jax.random.fold_in(key, _TAG + 1), uniform={k: jnp.shape(getattr(lab, k)) for k in SCALED}
+    )
+    return dataclasses.replace(
+        lab, **{k: getattr(lab, k) * (1 + lab.randomize * u[k]) for k in SCALED}
+    )
 
 
 def reset(key, stages, lab: Imperfections) -> LabState:
@@ -232,7 +258,9 @@ def reset(key, stages, lab: Imperfections) -> LabState:
     d = _draws(key, stages, True)
     lab = episode_values(key, lab)
     zero = jnp.zeros((stages,), jnp.float32)
-    osc = vibration.stationary_lags(d["osc"], jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q))
+    osc = vibration.stationary_lags(
+        d["osc"], jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q)
+    )
     return LabState(zero, zero, zero, d["fir"], osc, _pulses(d["pulse"], lab), lab)
 
 
@@ -241,11 +269,27 @@ def advance(key, state: LabState, move):
     lab = state.values
     d = _draws(key, state.command.shape[-1], False)
     command, play, position = hardware.actuate(
-        state.command, state.play, state.position, move, lab.actuator_gain_error, lab.backlash_wl,
-        lab.lag_steps, lab.actuator_span_wl, lab.dac_bits)
-    fir, osc, _ = vibration.step(state.fir, state.osc, d["bg"], d["res"], lab.vib_alpha, lab.vib_rms,
-                                 jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q),
-                                 jnp.asarray(lab.resonance_rms))
+        state.command,
+        state.play,
+        state.position,
+        move,
+        lab.actuator_gain_error,
+        lab.backlash_wl,
+        lab.lag_steps,
+        lab.actuator_span_wl,
+        lab.dac_bits,
+    )
+    fir, osc, _ = vibration.step(
+        state.fir,
+        state.osc,
+        d["bg"],
+        d["res"],
+        lab.vib_alpha,
+        lab.vib_rms,
+        jnp.asarray(lab.resonance_freq),
+        jnp.asarray(lab.resonance_q),
+        jnp.asarray(lab.resonance_rms),
+    )
     new = LabState(command, play, position, fir, osc, _pulses(d["pulse"], lab), lab)
     return new, position - state.position
 
@@ -254,12 +298,21 @@ def sense(config, deltas, state: LabState, p_max, peak):
     """What happens and what is seen at slow offsets ``deltas`` (N,) wl: (true Measurement,
     detected Measurement, length readout (N,) wl). Vibration adds to the lengths."""
     lab = state.values
-    x = deltas + vibration.displacement(state.fir, state.osc, lab.vib_alpha, lab.vib_rms,
-                                        jnp.asarray(lab.resonance_rms))
-    m = optics.measure(x, optics.rotation(lab.waveplate_error_deg), lab.pbs_leakage, state.pulses,
-                       stages=config.stages, model=config.model, detector=config.detector)
-    det = lambda v: hardware.detect(v, lab.detector_gain_error, lab.detector_offset, lab.detector_saturation,
-                                    lab.adc_bits)
+    x = deltas + vibration.displacement(
+        state.fir, state.osc, lab.vib_alpha, lab.vib_rms, jnp.asarray(lab.resonance_rms)
+    )
+    m = optics.measure(
+        x,
+        optics.rotation(lab.waveplate_error_deg),
+        lab.pbs_leakage,
+        state.pulses,
+        stages=config.stages,
+        model=config.model,
+        detector=config.detector,
+    )
+    det = lambda v: hardware.detect(
+        v, lab.detector_gain_error, lab.detector_offset, lab.detector_saturation, lab.adc_bits
+    )
     seen = physics.Measurement(p_max * det(m.power / p_max), peak * det(m.samples / peak), None)
     return m, seen, (1 + lab.readout_gain_error) * x + lab.readout_offset
 
@@ -285,12 +338,16 @@ def _best(config, lab: Imperfections):
     """(P_best (B,), its offsets (B, N)) of ``lab``'s instances flattened to a batch B."""
     n = config.stages
     batch = np.shape(lab.pbs_leakage)[:-1]
-    rot = jnp.broadcast_to(optics.rotation(jnp.asarray(lab.waveplate_error_deg)), (*batch, n)).reshape(-1, n)
+    rot = jnp.broadcast_to(
+        optics.rotation(jnp.asarray(lab.waveplate_error_deg)), (*batch, n)
+    ).reshape(-1, n)
     leak = jnp.broadcast_to(jnp.asarray(lab.pbs_leakage), (*batch, n)).reshape(-1, n)
     return _best_power_fn(n, config.model, config.detector)(rot, leak)
 
 
-def held_power(config, lab: Imperfections, key, samples: int = 4096, predict: bool = False) -> float:
+def held_power(
+    config, lab: Imperfections, key, samples: int = 4096, predict: bool = False
+) -> float:
     """Mean P (units of P) with the lines held at the ``best_offsets``, over ``samples`` draws of the vibration
     and the input pulses from their stationary law: the most that a controller can hold which follows the drift
     exactly but not the vibration. ``predict``: the lines held at those offsets less the
@@ -300,10 +357,14 @@ def held_power(config, lab: Imperfections, key, samples: int = 4096, predict: bo
     ``lab`` without randomisation."""
     n = config.stages
     if np.shape(lab.pbs_leakage) != (n,):
-        raise ValueError(f"lab must be one bench (per-stage leaves of shape ({n},)), got {np.shape(lab.pbs_leakage)}")
+        raise ValueError(
+            f"lab must be one bench (per-stage leaves of shape ({n},)), got {np.shape(lab.pbs_leakage)}"
+        )
     if float(lab.randomize) or float(lab.randomize_layout):
-        raise ValueError("lab must not be randomised (randomize = randomize_layout = 0), got "
-                         f"randomize={float(lab.randomize)}, randomize_layout={float(lab.randomize_layout)}")
+        raise ValueError(
+            "lab must not be randomised (randomize = randomize_layout = 0), got "
+            f"randomize={float(lab.randomize)}, randomize_layout={float(lab.randomize_layout)}"
+        )
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
     offsets = jnp.asarray(best_offsets(config, lab))
@@ -321,9 +382,17 @@ def _held_power_fn(config, predict):
         state = reset(key, n, lab)
         if predict:
             zero = jnp.zeros((n,), jnp.float32)
-            ahead = vibration.step(state.fir, state.osc, zero, jnp.zeros_like(state.osc[0]), lab.vib_alpha,
-                                   lab.vib_rms, jnp.asarray(lab.resonance_freq), jnp.asarray(lab.resonance_q),
-                                   jnp.asarray(lab.resonance_rms))[2]
+            ahead = vibration.step(
+                state.fir,
+                state.osc,
+                zero,
+                jnp.zeros_like(state.osc[0]),
+                lab.vib_alpha,
+                lab.vib_rms,
+                jnp.asarray(lab.resonance_freq),
+                jnp.asarray(lab.resonance_q),
+                jnp.asarray(lab.resonance_rms),
+            )[2]
             state, _ = advance(jax.random.fold_in(key, 1), state, zero)
             offsets = offsets - ahead
         return sense(config, offsets, state, p_max, peak)[0].power
@@ -337,10 +406,20 @@ def _best_power_fn(n, model, detector):
     p_max = physics.p_max(n, detector)
 
     def one(rot, leak):
-        f = lambda x: optics.measure(x, rot, leak, optics.ideal_pulses(n), stages=n, model=model,
-                                     detector=detector).power / p_max
-        starts = jnp.concatenate([jnp.zeros((1, n)), jax.random.uniform(
-            jax.random.key(0), (P_BEST_STARTS - 1, n), minval=-0.1, maxval=0.1)])
+        f = lambda x: (
+            optics.measure(
+                x, rot, leak, optics.ideal_pulses(n), stages=n, model=model, detector=detector
+            ).power
+            / p_max
+        )
+        starts = jnp.concatenate(
+            [
+                jnp.zeros((1, n)),
+                jax.random.uniform(
+                    jax.random.key(0), (P_BEST_STARTS - 1, n), minval=-0.1, maxval=0.1
+                ),
+            ]
+        )
         grad = jax.vmap(jax.grad(f))
 
         def body(carry, i):
@@ -353,10 +432,14 @@ def _best_power_fn(n, model, detector):
             return (x + step, m, v), None
 
         zeros = jnp.zeros_like(starts)
-        x, _, _ = jax.lax.scan(body, (starts, zeros, zeros), jnp.arange(P_BEST_ITERS, dtype=jnp.float32))[0]
+        x, _, _ = jax.lax.scan(
+            body, (starts, zeros, zeros), jnp.arange(P_BEST_ITERS, dtype=jnp.float32)
+        )[0]
         ends = jax.vmap(f)(x)
         best = jnp.argmax(ends)
         beats_ideal = ends[best] > f(starts[0])
-        return jnp.where(beats_ideal, ends[best], f(starts[0])) * p_max, jnp.where(beats_ideal, x[best], starts[0])
+        return jnp.where(beats_ideal, ends[best], f(starts[0])) * p_max, jnp.where(
+            beats_ideal, x[best], starts[0]
+        )
 
     return jax.jit(jax.vmap(one))

@@ -58,10 +58,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from ops_jax import runtime
-from ops_jax.cli import ArgumentParser
+from ops_jax.cli import runtime
+from ops_jax.cli.parser import ArgumentParser
 from ops_jax.env import option_names
-from ops_jax.gym_codec import FlatCodec
+from ops_jax.adapters.gymnasium.codec import FlatCodec
 
 STATUS_OK, STATUS_OUTSIDE = "running", "outside window"
 TICK_REPORT = 1000  # ticks per line of the tick-time report on stdout
@@ -80,24 +80,38 @@ def parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m ops_jax.ioc", description=__doc__.split("\n")[0])
     ap.add_argument("--prefix", default="OPS:", help="PV name prefix (default OPS:)")
     ap.add_argument("--rate", type=float, default=100.0, help="ticks per second (Hz, default 100)")
-    ap.add_argument("--lockstep", action="store_true", help="advance one tick per write to ADVANCE instead")
+    ap.add_argument(
+        "--lockstep", action="store_true", help="advance one tick per write to ADVANCE instead"
+    )
     ap.add_argument("--seed", type=int, default=0, help="seed of the simulated run")
-    ap.add_argument("--drift-episode", type=int, default=10, help="the reset's episode count (hard-mode drift)")
-    ap.add_argument("--interface", default="127.0.0.1", help="address to serve on (default localhost only)")
-    ap.add_argument("--tick-log", metavar="FILE", help="append each tick's time stamp and applied setpoints to FILE "
-                    "(JSON lines)")
+    ap.add_argument(
+        "--drift-episode", type=int, default=10, help="the reset's episode count (hard-mode drift)"
+    )
+    ap.add_argument(
+        "--interface", default="127.0.0.1", help="address to serve on (default localhost only)"
+    )
+    ap.add_argument(
+        "--tick-log",
+        metavar="FILE",
+        help="append each tick's time stamp and applied setpoints to FILE (JSON lines)",
+    )
     env = ap.add_argument_group("simulator (ops_jax.make options)")
     env.add_argument("--stages", type=int, default=5)
     env.add_argument("--mode", default="hard")
     for name in option_names():
-        env.add_argument(f"--{name.replace('_', '-')}", dest=name, type=_literal, default=None, metavar="VALUE")
+        env.add_argument(
+            f"--{name.replace('_', '-')}", dest=name, type=_literal, default=None, metavar="VALUE"
+        )
     return ap
 
 
 def make_options(args: argparse.Namespace) -> dict:
     """The ``ops_jax.make`` keyword options given on the command line (``action_scale``, the largest
     move per tick, 1 wl unless given)."""
-    return {"action_scale": 1.0, **{k: getattr(args, k) for k in option_names() if getattr(args, k) is not None}}
+    return {
+        "action_scale": 1.0,
+        **{k: getattr(args, k) for k in option_names() if getattr(args, k) is not None},
+    }
 
 
 class Bench:
@@ -105,11 +119,17 @@ class Bench:
     state is kept as one float32 vector and a tick's outputs come back as another (``gym_codec``): one
     argument in and one copy out per tick instead of one per leaf."""
 
-    def __init__(self, stages: int, mode: str, options: dict, seed: int = 0, drift_episode: int = 10):
+    def __init__(
+        self, stages: int, mode: str, options: dict, seed: int = 0, drift_episode: int = 10
+    ):
         self.env, self.params = ops_jax.make(stages, mode, **options)
         self.n = self.env.num_actions
         self.scale = float(self.params.action_scale)
-        self.span = float(np.max(self.params.lab.actuator_span_wl)) if self.env.config.imperfect else math.inf
+        self.span = (
+            float(np.max(self.params.lab.actuator_span_wl))
+            if self.env.config.imperfect
+            else math.inf
+        )
         self._k_reset, _, self._k_run = jax.random.split(jax.random.key(seed), 3)
         reset = jax.jit(self.env.reset, static_argnums=2)
         self._reset = lambda key: reset(key, self.params, drift_episode)
@@ -128,8 +148,12 @@ class Bench:
         obs, state = self._reset(jax.random.fold_in(self._k_reset, self.resets))
         self._packed = self._pack(state)
         self.command = np.zeros(self.n)  # what has been applied of the setpoints (wl)
-        self.frame = self._decode(self.env.layout.latest(np.asarray(obs)), np.zeros(self.n),
-                                  *self._true_power(state), False)
+        self.frame = self._decode(
+            self.env.layout.latest(np.asarray(obs)),
+            np.zeros(self.n),
+            *self._true_power(state),
+            False,
+        )
         return self.frame
 
     def _true_power(self, state):
@@ -142,17 +166,30 @@ class Bench:
         """(packed state, [frame, position (N,) wl, P / P_max, P / P_best, outside]) after step ``t``."""
         k_env = jax.random.split(jax.random.fold_in(self._k_run, t - 1))[1]
         state = self._codec.unflatten(packed)
-        obs, state, _, terminated, _, info = self.env.step_env(jax.random.fold_in(k_env, 0), state, action, self.params)
+        obs, state, _, terminated, _, info = self.env.step_env(
+            jax.random.fold_in(k_env, 0), state, action, self.params
+        )
         position = state.lab.position if self.env.config.imperfect else jnp.zeros(self.n)
-        out = [self.env.layout.latest(obs), position, info["normalized_power"], info["normalized_power_best"],
-               terminated]
-        return self._codec.flatten(state), jnp.concatenate([jnp.ravel(jnp.asarray(x, jnp.float32)) for x in out])
+        out = [
+            self.env.layout.latest(obs),
+            position,
+            info["normalized_power"],
+            info["normalized_power_best"],
+            terminated,
+        ]
+        return self._codec.flatten(state), jnp.concatenate(
+            [jnp.ravel(jnp.asarray(x, jnp.float32)) for x in out]
+        )
 
     def _decode(self, frame, position, npow, npow_best, outside) -> dict:
         """PV values of one observation frame (float64: the client re-encodes it exactly)."""
-        return {**self.env.layout.decode(frame, self.params.window),
-                "position": np.asarray(position, np.float64), "p_pmax": float(npow), "p_pbest": float(npow_best),
-                "outside": bool(outside)}
+        return {
+            **self.env.layout.decode(frame, self.params.window),
+            "position": np.asarray(position, np.float64),
+            "p_pmax": float(npow),
+            "p_pbest": float(npow_best),
+            "outside": bool(outside),
+        }
 
     def tick(self, setpoints) -> dict:
         """Advance one control step towards ``setpoints`` (N,) wl; returns the new PV values."""
@@ -162,7 +199,7 @@ class Bench:
         self.t += 1
         self._packed, out = self._step(self._packed, action.astype(np.float32), self.t)
         out = np.asarray(out)
-        frame, position, (npow, best, outside) = out[:-self.n - 3], out[-self.n - 3:-3], out[-3:]
+        frame, position, (npow, best, outside) = out[: -self.n - 3], out[-self.n - 3 : -3], out[-3:]
         if not self.env.config.imperfect:
             position = self.command
         self.frame = self._decode(frame, position, npow, best, outside != 0)
@@ -179,23 +216,42 @@ def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool, tick_log=No
     lim = bench.span / 2 if math.isfinite(bench.span) else 1e6
     ns = {}
     for i in range(1, n + 1):
-        ns[f"sp{i}"] = pvproperty(value=0.0, name=f"LINE{i}:SP", lower_ctrl_limit=-lim, upper_ctrl_limit=lim,
-                                  units="wl", precision=6, doc=f"line {i} setpoint (wl)")
-        ns[f"rbv{i}"] = pvproperty(value=0.0, name=f"LINE{i}:RBV", read_only=True, units="wl", precision=6)
-        if bench.env.layout.lengths:  # a bench without length readouts (observe_lengths=False) serves none
-            ns[f"len{i}"] = pvproperty(value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6)
+        ns[f"sp{i}"] = pvproperty(
+            value=0.0,
+            name=f"LINE{i}:SP",
+            lower_ctrl_limit=-lim,
+            upper_ctrl_limit=lim,
+            units="wl",
+            precision=6,
+            doc=f"line {i} setpoint (wl)",
+        )
+        ns[f"rbv{i}"] = pvproperty(
+            value=0.0, name=f"LINE{i}:RBV", read_only=True, units="wl", precision=6
+        )
+        if (
+            bench.env.layout.lengths
+        ):  # a bench without length readouts (observe_lengths=False) serves none
+            ns[f"len{i}"] = pvproperty(
+                value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6
+            )
     ns["power"] = pvproperty(value=0.0, name="DET:POWER", read_only=True, precision=6)
     ns["trace"] = pvproperty(value=[0.0] * m, name="SCOPE:TRACE", read_only=True, max_length=m)
     ns["p_pmax"] = pvproperty(value=0.0, name="EVAL:P_PMAX", read_only=True, precision=6)
     ns["p_pbest"] = pvproperty(value=0.0, name="EVAL:P_PBEST", read_only=True, precision=6)
     ns["tick"] = pvproperty(value=0, name="TICK", read_only=True, dtype=ChannelType.LONG)
     ns["overruns"] = pvproperty(value=0, name="OVERRUNS", read_only=True, dtype=ChannelType.LONG)
-    ns["rate"] = pvproperty(value=0.0 if lockstep else float(rate), name="RATE", read_only=True, units="Hz")
-    ns["status"] = pvproperty(value="starting", name="STATUS", read_only=True, dtype=ChannelType.STRING)
-    ns["advance"] = pvproperty(value=0, name="ADVANCE", dtype=ChannelType.LONG,
-                               doc="lockstep: a write advances one tick").putter(_advance)
-    ns["reset"] = pvproperty(value=0, name="RESET", dtype=ChannelType.LONG,
-                             doc="a non-zero write starts the bench again").putter(_reset)
+    ns["rate"] = pvproperty(
+        value=0.0 if lockstep else float(rate), name="RATE", read_only=True, units="Hz"
+    )
+    ns["status"] = pvproperty(
+        value="starting", name="STATUS", read_only=True, dtype=ChannelType.STRING
+    )
+    ns["advance"] = pvproperty(
+        value=0, name="ADVANCE", dtype=ChannelType.LONG, doc="lockstep: a write advances one tick"
+    ).putter(_advance)
+    ns["reset"] = pvproperty(
+        value=0, name="RESET", dtype=ChannelType.LONG, doc="a non-zero write starts the bench again"
+    ).putter(_reset)
     group_type = type("OPSBench", (_group_class(),), ns)
     return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep, tick_log=tick_log)
 
@@ -224,7 +280,10 @@ class _BenchGroupBase:
         stamp, t0 = time.time(), time.perf_counter()
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
         if self.tick_log is not None:
-            self.tick_log.write(json.dumps({"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints}) + "\n")
+            self.tick_log.write(
+                json.dumps({"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints})
+                + "\n"
+            )
         values = self.bench.tick(setpoints)
         t1 = time.perf_counter()
         await self.publish(values, stamp)
@@ -235,9 +294,12 @@ class _BenchGroupBase:
     def report_ticks(self):
         """One line on the last ``TICK_REPORT`` ticks' host time: the simulator step, then the PV writes (ms)."""
         step, write = np.percentile(np.asarray(self.tick_ms), [50, 99], axis=0).T
-        print(f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 / p99 "
-              f"{step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} ms, overruns "
-              f"{self.overruns.value}", flush=True)
+        print(
+            f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 / p99 "
+            f"{step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} ms, overruns "
+            f"{self.overruns.value}",
+            flush=True,
+        )
         self.tick_ms = []
 
     async def clock(self):
@@ -255,8 +317,11 @@ class _BenchGroupBase:
 
     async def start(self, async_lib):
         await self.publish(self.bench.frame)
-        print(f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} lines, "
-              f"{'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}", flush=True)
+        print(
+            f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} lines, "
+            f"{'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}",
+            flush=True,
+        )
         if not self.lockstep:
             asyncio.get_running_loop().create_task(self.clock())
 
@@ -343,8 +408,10 @@ def port_warning(port: int) -> str | None:
     client's search times out."""
     first, last = ephemeral_ports()
     if first <= port <= last:
-        return (f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports ({first}-{last}); "
-                f"a client given the same port misses the IOC's search replies: set EPICS_CA_SERVER_PORT below {first}")
+        return (
+            f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports ({first}-{last}); "
+            f"a client given the same port misses the IOC's search replies: set EPICS_CA_SERVER_PORT below {first}"
+        )
     return None
 
 
@@ -370,13 +437,21 @@ def main(argv=None) -> None:
         ap.error(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
     runtime.start_single_threaded()  # a tick is one small call
     try:
-        bench = Bench(args.stages, args.mode, make_options(args), seed=args.seed, drift_episode=args.drift_episode)
+        bench = Bench(
+            args.stages,
+            args.mode,
+            make_options(args),
+            seed=args.seed,
+            drift_episode=args.drift_episode,
+        )
     except (TypeError, ValueError) as exc:
         ap.error(str(exc))
     from caproto.server import run
 
     try:
-        tick_log = None if args.tick_log is None else open(args.tick_log, "a", buffering=1)  # a line per write
+        tick_log = (
+            None if args.tick_log is None else open(args.tick_log, "a", buffering=1)
+        )  # a line per write
     except OSError as exc:
         raise SystemExit(f"ops_jax.ioc: --tick-log: {exc}")
     tune_server(args.rate)

@@ -42,7 +42,7 @@ def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> di
     values = jnp.concatenate(jax.lax.optimization_barrier((z, u[n_normal:])))
     out, start = {}, 0
     for name, shape, size in specs:
-        out[name] = values[start:start + size].reshape(shape)
+        out[name] = values[start : start + size].reshape(shape)
         start += size
     return out
 

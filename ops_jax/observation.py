@@ -67,16 +67,20 @@ class ObservationLayout:
 
     def describe(self) -> str:
         """The layout in words, e.g. for an error message."""
-        return (f"stages={self.stages}, frame_stack={self.frame_stack}, observe_lengths={self.lengths}, "
-                f"include_noise={self.noise} ({self.size} entries, {self.stages} actions)")
+        return (
+            f"stages={self.stages}, frame_stack={self.frame_stack}, observe_lengths={self.lengths}, "
+            f"include_noise={self.noise} ({self.size} entries, {self.stages} actions)"
+        )
 
     # -- reading -----------------------------------------------------------------------------------
     def latest(self, obs):
         """The newest frame (..., frame_size) of observations (..., size)."""
         if obs.shape[-1] != self.size:
-            raise ValueError(f"an observation of this environment has {self.size} entries ({self.describe()}), "
-                             f"got trailing shape {obs.shape[-1:]}")
-        return obs[..., obs.shape[-1] - self.frame_size:]
+            raise ValueError(
+                f"an observation of this environment has {self.size} entries ({self.describe()}), "
+                f"got trailing shape {obs.shape[-1:]}"
+            )
+        return obs[..., obs.shape[-1] - self.frame_size :]
 
     def power(self, obs):
         """P / P_max of the newest frame (...,)."""
@@ -84,7 +88,7 @@ class ObservationLayout:
 
     def detector(self, obs):
         """The newest frame's detector entries (..., 2^N): the encoded P and samples."""
-        return self.latest(obs)[..., :self.detector_size]
+        return self.latest(obs)[..., : self.detector_size]
 
     def length_readouts(self, obs, window):
         """The newest frame's length readouts (..., N) in wl; ``window`` (wl) their scale. ValueError
@@ -105,17 +109,24 @@ class ObservationLayout:
             parts.append(xp.asarray(lengths) / window)
         if self.noise:
             if noise_state is None:
-                raise ValueError("this layout holds the noise state (include_noise=True): give noise_state")
+                raise ValueError(
+                    "this layout holds the noise state (include_noise=True): give noise_state"
+                )
             parts.append(xp.asarray(noise_state) / noise.REFERENCE_SIGMA_WL)
         frame = xp.concatenate(parts)
         if frame.shape != (self.frame_size,):
-            raise ValueError(f"a frame of this environment has {self.frame_size} entries ({self.describe()}), "
-                             f"got {frame.shape[0]}: {2**self.stages - 1} samples expected, got {np.shape(samples)}")
+            raise ValueError(
+                f"a frame of this environment has {self.frame_size} entries ({self.describe()}), "
+                f"got {frame.shape[0]}: {2**self.stages - 1} samples expected, got {np.shape(samples)}"
+            )
         return frame
 
     def decode(self, frame, window) -> dict:
         """A frame's readings (float64): ``power`` P / P_max, ``trace`` the samples / I_peak, ``length``
         the readouts (wl; None without them)."""
         f = np.asarray(frame, np.float64)
-        return {"power": (f[0] + 1) / 2, "trace": (f[self.samples_slice] + 1) / 2,
-                "length": f[self.lengths_slice] * float(window) if self.lengths else None}
+        return {
+            "power": (f[0] + 1) / 2,
+            "trace": (f[self.samples_slice] + 1) / 2,
+            "length": f[self.lengths_slice] * float(window) if self.lengths else None,
+        }

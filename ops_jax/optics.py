@@ -41,8 +41,14 @@ def _entry_spectra(stages: int):
     order = (np.arange(g.n) + g.n // 2) % g.n
     p, s = [], []
     for k, lab in enumerate(physics.labels(stages)):
-        Ak = (-1.0 if lab.startswith("-") else 1.0) * A0 * np.exp(-1j * g.w * k * physics.PERIOD_PS / 2)
-        (p if lab.endswith("p") else s).append(Ak[order].reshape(2**stages, physics.POINTS_PER_PERIOD))
+        Ak = (
+            (-1.0 if lab.startswith("-") else 1.0)
+            * A0
+            * np.exp(-1j * g.w * k * physics.PERIOD_PS / 2)
+        )
+        (p if lab.endswith("p") else s).append(
+            Ak[order].reshape(2**stages, physics.POINTS_PER_PERIOD)
+        )
     return np.stack(p), np.stack(s)
 
 
@@ -76,8 +82,10 @@ def _field(x, rot, leak, pulses, stages, detector):
     def stage(carry, d):
         p, s = carry
         aq_re, aq_im, ar_re, ar_im, *k = d
-        delay = lambda f: physics._cmul(physics._cmul(f, (ar_re[..., None, :], ar_im[..., None, :])),
-                                        (aq_re[..., :, None], aq_im[..., :, None]))
+        delay = lambda f: physics._cmul(
+            physics._cmul(f, (ar_re[..., None, :], ar_im[..., None, :])),
+            (aq_re[..., :, None], aq_im[..., :, None]),
+        )
         k = [v[..., None, None] for v in k]
         return _split_recombine_rotate(p, delay(s), delay(p), s, k[2], k[3], k[0], k[1]), None
 
@@ -85,23 +93,36 @@ def _field(x, rot, leak, pulses, stages, detector):
     p, s = jax.lax.scan(stage, (p, s), xs)[0]
     I = physics._intensity(p, s, detector, jnp)
     ppp = physics.POINTS_PER_PERIOD
-    return physics.Measurement(physics._power(I, physics._field_constants(stages)["dt"]),
-                               I[..., ppp::ppp][..., : 2**stages - 1], I)
+    return physics.Measurement(
+        physics._power(I, physics._field_constants(stages)["dt"]),
+        I[..., ppp::ppp][..., : 2**stages - 1],
+        I,
+    )
 
 
 def _phasor(x, rot, leak, pulses, stages, detector):
     c = physics._phasor_constants(stages)
     dtype = x.dtype
     d = physics._expi(jnp.asarray(np.angle(c["D_opt"]), dtype) + 4 * np.pi * x, jnp)  # (..., N)
-    cw = lambda carrier, sl: physics._cmul((pulses[0][..., sl], pulses[1][..., sl]),
-                                           (jnp.asarray(carrier.real, dtype), jnp.asarray(carrier.imag, dtype)))
+    cw = lambda carrier, sl: physics._cmul(
+        (pulses[0][..., sl], pulses[1][..., sl]),
+        (jnp.asarray(carrier.real, dtype), jnp.asarray(carrier.imag, dtype)),
+    )
     p, s = cw(c["Ep"], slice(0, None, 2)), cw(c["Es"], slice(1, None, 2))
     k = _per_stage(rot, leak)
     # Stage 1 (s already on the 20 ps grid); its leaked light lies off the grid and is dropped.
     zero = (jnp.zeros_like(p[0]), jnp.zeros_like(p[1]))
     first = [v[0][..., None] for v in k]
-    p, s = _split_recombine_rotate(p, physics._cmul(s, (d[0][..., :1], d[1][..., :1])), zero, zero,
-                                   first[2], 0.0, first[0], first[1])
+    p, s = _split_recombine_rotate(
+        p,
+        physics._cmul(s, (d[0][..., :1], d[1][..., :1])),
+        zero,
+        zero,
+        first[2],
+        0.0,
+        first[0],
+        first[1],
+    )
     pad = lambda a: jnp.concatenate([a, jnp.zeros_like(a)], axis=-1)
     p, s = (pad(p[0]), pad(p[1])), (pad(s[0]), pad(s[1]))
     slots = 2**stages
@@ -109,8 +130,9 @@ def _phasor(x, rot, leak, pulses, stages, detector):
     def stage(carry, d):
         p, s = carry
         shift, d_re, d_im, *k = d
-        roll = lambda f: tuple(jax.lax.dynamic_slice_in_dim(jnp.concatenate([a, a], -1), shift, slots, -1)
-                               for a in f)
+        roll = lambda f: tuple(
+            jax.lax.dynamic_slice_in_dim(jnp.concatenate([a, a], -1), shift, slots, -1) for a in f
+        )
         delay = lambda f: physics._cmul(roll(f), (d_re[..., None], d_im[..., None]))
         k = [v[..., None] for v in k]
         return _split_recombine_rotate(p, delay(s), delay(p), s, k[2], k[3], k[0], k[1]), None
@@ -121,7 +143,9 @@ def _phasor(x, rot, leak, pulses, stages, detector):
     return physics._phasor_detect(p, s, stages, detector)
 
 
-def measure(deltas_wl, rot, leak, pulses, *, stages: int, model: str = "field", detector: str = "total"):
+def measure(
+    deltas_wl, rot, leak, pulses, *, stages: int, model: str = "field", detector: str = "total"
+):
     """Detect the stacked output of imperfect optics: offsets ``deltas_wl`` (..., N) wl, wave plate
     rotations ``rot`` (..., N) rad, PBS leakage ``leak`` (..., N), input pulse weights ``pulses``
     (re, im) each (..., 2^N). With rot = pi/4, leak = 0 and unit pulses this is ``physics.measure``."""
@@ -130,7 +154,9 @@ def measure(deltas_wl, rot, leak, pulses, *, stages: int, model: str = "field", 
         x = x.astype(jnp.result_type(float))
     shape = x.shape
     rot, leak = (jnp.broadcast_to(jnp.asarray(v, x.dtype), shape) for v in (rot, leak))
-    pulses = tuple(jnp.broadcast_to(jnp.asarray(v, x.dtype), (*shape[:-1], 2**stages)) for v in pulses)
+    pulses = tuple(
+        jnp.broadcast_to(jnp.asarray(v, x.dtype), (*shape[:-1], 2**stages)) for v in pulses
+    )
     fn = _field if model == "field" else _phasor
     return fn(x, rot, leak, pulses, stages, detector)
 
@@ -140,7 +166,10 @@ def ideal_pulses(stages: int, batch=()):
     return jnp.ones((*batch, 2**stages)), jnp.zeros((*batch, 2**stages))
 
 
-PHASOR_ERROR = (2e-4, 0.2)  # |P_phasor - P_field| <= (c0 + c1 leak_1) P_max (E / E_ideal)^2, docs/imperfections.md
+PHASOR_ERROR = (
+    2e-4,
+    0.2,
+)  # |P_phasor - P_field| <= (c0 + c1 leak_1) P_max (E / E_ideal)^2, docs/imperfections.md
 
 
 def phasor_error_bound(leak_1, pulses=None, *, stages: int, detector: str = "total"):
@@ -148,4 +177,6 @@ def phasor_error_bound(leak_1, pulses=None, *, stages: int, detector: str = "tot
     input pulse weights ``pulses`` (re, im) (..., 2^N) (None: identical pulses), whose mean energy
     E / E_ideal scales P_max by its square."""
     energy = 1.0 if pulses is None else jnp.mean(pulses[0] ** 2 + pulses[1] ** 2, axis=-1)
-    return (PHASOR_ERROR[0] + PHASOR_ERROR[1] * leak_1) * physics.p_max(stages, detector) * energy**2
+    return (
+        (PHASOR_ERROR[0] + PHASOR_ERROR[1] * leak_1) * physics.p_max(stages, detector) * energy**2
+    )

@@ -168,13 +168,19 @@ def _field_spectra(x, stages, xp):
     per-offset phase vector (the phase is linear in k)."""
     c = _field_constants(stages)
     as_x = lambda a: xp.asarray(a, x.dtype)
-    p = tuple(xp.broadcast_to(as_x(v), (*x.shape[:-1], *c["Ep"].shape)) for v in (c["Ep"].real, c["Ep"].imag))
+    p = tuple(
+        xp.broadcast_to(as_x(v), (*x.shape[:-1], *c["Ep"].shape))
+        for v in (c["Ep"].real, c["Ep"].imag)
+    )
     s = tuple(xp.broadcast_to(as_x(v), p[0].shape) for v in (c["Es"].real, c["Es"].imag))
 
     def stage(carry, d):
         p, s = carry
         aq_re, aq_im, ar_re, ar_im = d
-        S = _cmul(_cmul(s, (ar_re[..., None, :], ar_im[..., None, :])), (aq_re[..., :, None], aq_im[..., :, None]))
+        S = _cmul(
+            _cmul(s, (ar_re[..., None, :], ar_im[..., None, :])),
+            (aq_re[..., :, None], aq_im[..., :, None]),
+        )
         return _stage(p, S), None
 
     # Scanned so that XLA fuses within a stage only (fused across stages, each output recomputes
@@ -226,7 +232,7 @@ def _power(I, dt):
 def _field_measure(x, stages, detector, xp=jnp):
     p, s = _field_spectra(x, stages, xp)
     I = _intensity(p, s, detector, xp)
-    samples = I[..., POINTS_PER_PERIOD :: POINTS_PER_PERIOD][..., : 2**stages - 1]
+    samples = I[..., POINTS_PER_PERIOD::POINTS_PER_PERIOD][..., : 2**stages - 1]
     return Measurement(_power(I, _field_constants(stages)["dt"]), samples, I)
 
 
@@ -261,7 +267,10 @@ def _phasor_measure(x, stages, detector):
     dtype = x.dtype
     d = _expi(jnp.asarray(np.angle(c["D_opt"]), dtype) + 4 * np.pi * x, jnp)  # (..., N)
     batch = x.shape[:-1]
-    p = tuple(jnp.broadcast_to(jnp.asarray(v, dtype), (*batch, half)) for v in (c["Ep"].real, c["Ep"].imag))
+    p = tuple(
+        jnp.broadcast_to(jnp.asarray(v, dtype), (*batch, half))
+        for v in (c["Ep"].real, c["Ep"].imag)
+    )
     s = (jnp.asarray(c["Es"].real, dtype), jnp.asarray(c["Es"].imag, dtype))
     # Stage 1 (already aligned onto the 20 ps grid) on 2^(N-1) slots; the output window holds
     # 2^N slots, the upper half empty so far.
@@ -274,7 +283,9 @@ def _phasor_measure(x, stages, detector):
         # Stage i+1 delays s by 2^(i-1) slots, circularly as the FFT delay of the field model.
         p, s = carry
         shift, d_re, d_im = d
-        rolled = tuple(jax.lax.dynamic_slice_in_dim(jnp.concatenate([a, a], -1), shift, slots, -1) for a in s)
+        rolled = tuple(
+            jax.lax.dynamic_slice_in_dim(jnp.concatenate([a, a], -1), shift, slots, -1) for a in s
+        )
         return _stage(p, _cmul(rolled, (d_re[..., None], d_im[..., None]))), None
 
     # Scanned, not unrolled: see _field_spectra.
@@ -295,7 +306,9 @@ def _phasor_detect(p, s, stages, detector):
     # I(t) = sum_j I_j u_j^2 + 2 coh_j u_j u_j+1 (nearest neighbours; the next are 40 ps away).
     I_next = nxt(I_slot)
     power = jnp.sum(
-        c["K0"] * I_slot**2 + 2 * c["K2"] * (I_slot * I_next + 2 * coh**2) + 4 * c["K3"] * coh * (I_slot + I_next),
+        c["K0"] * I_slot**2
+        + 2 * c["K2"] * (I_slot * I_next + 2 * coh**2)
+        + 4 * c["K3"] * coh * (I_slot + I_next),
         axis=-1,
     )
     # With a(t) = fft(A), a delay tau moves a pulse to t = -tau: slot j sits at t = -20 j ps, so
@@ -305,7 +318,9 @@ def _phasor_detect(p, s, stages, detector):
     return Measurement(power, samples, None)
 
 
-def measure(deltas_wl, *, stages: int, model: str = "field", detector: str = "total") -> Measurement:
+def measure(
+    deltas_wl, *, stages: int, model: str = "field", detector: str = "total"
+) -> Measurement:
     """Detect the stacked output for delay-line offsets ``deltas_wl`` (..., N) in wavelengths.
 
     ``model="field"`` is the exact model of physics.md (FFT on the 40 * 2^N grid);
@@ -322,7 +337,9 @@ def measure(deltas_wl, *, stages: int, model: str = "field", detector: str = "to
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(float))
     if x.ndim < 1 or x.shape[-1] != stages:
-        raise ValueError(f"deltas_wl must have shape (..., {stages}) for stages={stages}, got {x.shape}")
+        raise ValueError(
+            f"deltas_wl must have shape (..., {stages}) for stages={stages}, got {x.shape}"
+        )
     fn = _field_measure if model == "field" else _phasor_measure
     return fn(x, stages, detector)
 

@@ -31,22 +31,30 @@ class Range:
     scaled: bool = False
 
     def __str__(self):
-        fmt = lambda v: "inf" if v == math.inf else (str(int(v)) if float(v).is_integer() else f"{v:g}")
+        fmt = lambda v: (
+            "inf" if v == math.inf else (str(int(v)) if float(v).is_integer() else f"{v:g}")
+        )
         right = ")" if self.hi_open or (self.hi == math.inf and not self.inf_ok) else "]"
         what = "an integer" if self.integer else ("a number" if self.inf_ok else "a finite number")
         return f"{what} in {'(' if self.lo_open else '['}{fmt(self.lo)}, {fmt(self.hi)}{right}" + (
-            f" {self.unit}" if self.unit else "")
+            f" {self.unit}" if self.unit else ""
+        )
 
     def contains(self, value) -> bool:
         """Whether every entry of ``value`` (a number or an array) is accepted."""
         v = np.asarray(value)
         if v.dtype == bool or not np.issubdtype(v.dtype, np.number) or np.any(np.isnan(v)):
             return False
-        if not np.all(np.isfinite(v)) and not (self.inf_ok and np.all((v == math.inf) | np.isfinite(v))):
+        if not np.all(np.isfinite(v)) and not (
+            self.inf_ok and np.all((v == math.inf) | np.isfinite(v))
+        ):
             return False
         above = v > self.lo if self.lo_open else v >= self.lo
         below = v < self.hi if self.hi_open else v <= self.hi
-        return bool(np.all(above & below) and (not self.integer or np.all(v[np.isfinite(v)] == np.round(v[np.isfinite(v)]))))
+        return bool(
+            np.all(above & below)
+            and (not self.integer or np.all(v[np.isfinite(v)] == np.round(v[np.isfinite(v)])))
+        )
 
     def __call__(self, name: str, v):
         """A Python scalar option: the accepted value as int / float, else ValueError naming ``name``

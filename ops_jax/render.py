@@ -32,13 +32,22 @@ import jax
 import numpy as np
 
 from ops_jax import physics
-from ops_jax.cli import ArgumentParser, run
+from ops_jax.cli.parser import ArgumentParser, run
 from ops_jax.env import make
-from ops_jax.progress import keep_ctrl_c
+from ops_jax.cli.progress import keep_ctrl_c
 
 DEFAULT_FIGSIZE = (6.4, 3.4)  # inches
 DEFAULT_DPI = 100
-_NON_INTERACTIVE = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template", "module://matplotlib_inline.backend_inline"}
+_NON_INTERACTIVE = {
+    "agg",
+    "pdf",
+    "ps",
+    "svg",
+    "pgf",
+    "cairo",
+    "template",
+    "module://matplotlib_inline.backend_inline",
+}
 
 
 @functools.lru_cache(maxsize=None)
@@ -84,17 +93,27 @@ class Oscilloscope:
     """Reusable oscilloscope plot of an N-stage output: ``frame(deltas_wl (N,), step)`` -> (H, W, 3)
     uint8 RGB. The x axis is time in ps over the 2^N x 20 ps window, the y axis I(t) / I_peak."""
 
-    def __init__(self, stages: int, detector: str = "total", figsize=DEFAULT_FIGSIZE, dpi: int = DEFAULT_DPI):
+    def __init__(
+        self, stages: int, detector: str = "total", figsize=DEFAULT_FIGSIZE, dpi: int = DEFAULT_DPI
+    ):
         self.stages = physics.check_stages(stages)
         self.detector = physics._check_choice("detector", detector, physics.DETECTORS)
         g = physics.grid(stages)
         self.t = g.t
-        self.sample_idx = (np.arange(1, 2**stages) * physics.POINTS_PER_PERIOD)
+        self.sample_idx = np.arange(1, 2**stages) * physics.POINTS_PER_PERIOD
         self.fig = _figure(figsize, dpi)
         ax = self.fig.add_subplot()
-        (self.line,) = ax.plot(self.t, np.zeros_like(self.t), color="tab:blue", lw=1.2, label="I(t)")
-        (self.dots,) = ax.plot(self.t[self.sample_idx], np.zeros(self.sample_idx.size), "o", ms=3.5,
-                               color="tab:red", label="oscilloscope samples")
+        (self.line,) = ax.plot(
+            self.t, np.zeros_like(self.t), color="tab:blue", lw=1.2, label="I(t)"
+        )
+        (self.dots,) = ax.plot(
+            self.t[self.sample_idx],
+            np.zeros(self.sample_idx.size),
+            "o",
+            ms=3.5,
+            color="tab:red",
+            label="oscilloscope samples",
+        )
         ax.set_xlim(self.t[0], self.t[-1])
         ax.set_ylim(-0.02, 1.1)
         ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
@@ -114,7 +133,9 @@ class Oscilloscope:
 
     def frame(self, deltas_wl, step=None) -> np.ndarray:
         """The frame for offsets ``deltas_wl`` (N,) wl (exact field model)."""
-        p, intensity = measure_frames(np.reshape(deltas_wl, (1, self.stages)), self.stages, self.detector)
+        p, intensity = measure_frames(
+            np.reshape(deltas_wl, (1, self.stages)), self.stages, self.detector
+        )
         return self.draw(intensity[0], float(p[0]), step)
 
     def frames(self, deltas_wl, steps=None) -> list:
@@ -137,7 +158,9 @@ _human = {}
 
 
 def _headless() -> bool:
-    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    )
 
 
 def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
@@ -160,12 +183,14 @@ def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
     if not _human.get("warned"):
         logging.getLogger("ops_jax").warning(
             "render_mode='human': no display or interactive matplotlib backend; frames are not shown "
-            "(use render_mode='rgb_array')")
+            "(use render_mode='rgb_array')"
+        )
         _human["warned"] = True
     return False
 
 
 # -- episodes ---------------------------------------------------------------------------------
+
 
 class Episode(NamedTuple):
     """deltas_wl (T + 1, N) after reset and after each step; normalized_power (T + 1,) exact."""
@@ -177,14 +202,16 @@ class Episode(NamedTuple):
 
 def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: int = 80) -> list:
     """Oscilloscope frames of every ``every``-th step of an episode (the last step always included)."""
-    from ops_jax.progress import progress
+    from ops_jax.cli.progress import progress
 
     env, _ = make(**ep.env_config)
     scope = Oscilloscope(env.config.stages, env.config.detector, figsize=figsize, dpi=dpi)
     idx = frame_steps(len(ep.deltas_wl), every)
     _, intensity = measure_frames(ep.deltas_wl[idx], env.config.stages, env.config.detector)
-    frames = [scope.draw(intensity[j], float(ep.normalized_power[i]), i)
-              for j, i in enumerate(progress(idx, desc="frames", unit="frame", leave=False))]
+    frames = [
+        scope.draw(intensity[j], float(ep.normalized_power[i]), i)
+        for j, i in enumerate(progress(idx, desc="frames", unit="frame", leave=False))
+    ]
     scope.close()
     return frames
 
@@ -209,15 +236,27 @@ def write_gif(frames, path, fps: float = 10.0, comment: str = "") -> Path:
     images = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
-                   optimize=True, comment=comment.encode())
+    images[0].save(
+        path,
+        save_all=True,
+        append_images=images[1:],
+        duration=int(round(1000 / fps)),
+        loop=0,
+        optimize=True,
+        comment=comment.encode(),
+    )
     return path
 
 
 # -- objective landscape -----------------------------------------------------------------------
 
+
 def _check_stage(stage, stages):
-    if isinstance(stage, bool) or not isinstance(stage, (int, np.integer)) or not 1 <= stage <= stages:
+    if (
+        isinstance(stage, bool)
+        or not isinstance(stage, (int, np.integer))
+        or not 1 <= stage <= stages
+    ):
         raise ValueError(f"stage must be an integer in [1, {stages}] (1-based), got {stage!r}")
     return int(stage) - 1
 
@@ -228,10 +267,14 @@ LANDSCAPE_CHUNK = 16_384  # offsets per field-model call of ``landscape``: its m
 @functools.lru_cache(maxsize=None)
 def _landscape_fn(stages: int, detector: str):
     p_max = physics.p_max(stages, detector)
-    return jax.jit(lambda x: physics.measure(x, stages=stages, model="field", detector=detector).power / p_max)
+    return jax.jit(
+        lambda x: physics.measure(x, stages=stages, model="field", detector=detector).power / p_max
+    )
 
 
-def landscape(stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str = "total") -> np.ndarray:
+def landscape(
+    stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str = "total"
+) -> np.ndarray:
     """P / P_max with the 1-based stages ``stage_ids`` (one or two) moved by ``offsets_wl`` (M,) wl
     from ``base_wl`` (N,) (default: the optimum), computed in one batched field-model call.
     One stage: shape (M,); two stages (a, b): shape (M, M), row i = offset i of stage b."""
@@ -254,8 +297,12 @@ def landscape(stages: int, stage_ids, offsets_wl, *, base_wl=None, detector: str
         deltas[:, ids[0]] += xa.ravel()
         deltas[:, ids[1]] += xb.ravel()
     fn, chunk = _landscape_fn(stages, detector), min(LANDSCAPE_CHUNK, len(deltas))
-    padded = np.concatenate([deltas, np.tile(base, (-len(deltas) % chunk, 1))])  # whole chunks: one compilation
-    p = np.concatenate([np.asarray(fn(padded[i:i + chunk])) for i in range(0, len(padded), chunk)])[:len(deltas)]
+    padded = np.concatenate(
+        [deltas, np.tile(base, (-len(deltas) % chunk, 1))]
+    )  # whole chunks: one compilation
+    p = np.concatenate(
+        [np.asarray(fn(padded[i : i + chunk])) for i in range(0, len(padded), chunk)]
+    )[: len(deltas)]
     return p if len(ids) == 1 else p.reshape(x.size, x.size)
 
 
@@ -268,8 +315,16 @@ def matplotlib_ticks(span: float, max_ticks: int = 5) -> np.ndarray:
     return np.arange(-k, k + 1) * step
 
 
-def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 401, detector: str = "total",
-                   figsize=(5.6, 3.6), dpi: int = 120):
+def plot_landscape(
+    stages: int,
+    stage_ids,
+    *,
+    span: float = 1.0,
+    points: int = 401,
+    detector: str = "total",
+    figsize=(5.6, 3.6),
+    dpi: int = 120,
+):
     """Figure of the landscape: a line plot (one stage) or a heat map (two stages)."""
     if not (np.isfinite(span) and span > 0):
         raise ValueError(f"span must be > 0 (wl), got {span}")
@@ -287,11 +342,22 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
         ax.set_ylim(0, 1.05)
         ax.set_xlim(-span, span)
         ax.grid(alpha=0.3)
-        ax.set_title(f"P/Pmax along stage {ids[0]}'s delay (N = {stages}, other stages optimal), "
-                     f"max {p.max():.3f}", fontsize=10)
+        ax.set_title(
+            f"P/Pmax along stage {ids[0]}'s delay (N = {stages}, other stages optimal), "
+            f"max {p.max():.3f}",
+            fontsize=10,
+        )
     else:
-        im = ax.imshow(p, origin="lower", extent=(-span, span, -span, span), cmap="viridis", vmin=0, vmax=1,
-                       aspect="equal", interpolation="bilinear")
+        im = ax.imshow(
+            p,
+            origin="lower",
+            extent=(-span, span, -span, span),
+            cmap="viridis",
+            vmin=0,
+            vmax=1,
+            aspect="equal",
+            interpolation="bilinear",
+        )
         ax.set_xlabel(f"stage {ids[0]} delay offset (wl)")
         ax.set_ylabel(f"stage {ids[1]} delay offset (wl)")
         ticks = matplotlib_ticks(span)
@@ -299,18 +365,24 @@ def plot_landscape(stages: int, stage_ids, *, span: float = 1.0, points: int = 4
         ax.set_yticks(ticks)
         fig.colorbar(im, ax=ax, label="P / Pmax", shrink=0.9)
         rest = "" if stages == 2 else ", other stages optimal"
-        ax.set_title(f"P/Pmax over stages {ids[0]} and {ids[1]} (N = {stages}{rest}), max {p.max():.3f}",
-                     fontsize=10)
+        ax.set_title(
+            f"P/Pmax over stages {ids[0]} and {ids[1]} (N = {stages}{rest}), max {p.max():.3f}",
+            fontsize=10,
+        )
     fig.tight_layout()
     return fig
 
 
 # -- command line ------------------------------------------------------------------------------
 
+
 def _parser():
-    ap = ArgumentParser(prog="python -m ops_jax.render", description="The objective landscape of OPS as a picture (the "
-                        "oscilloscope frames and episode GIFs: python -m agents.episode).",
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(
+        prog="python -m ops_jax.render",
+        description="The objective landscape of OPS as a picture (the "
+        "oscilloscope frames and episode GIFs: python -m agents.episode).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("command", choices=("landscape",))
     ap.add_argument("--stages", type=int, default=5, help="number of stages N")
     ap.add_argument("--detector", default="total", choices=physics.DETECTORS)
@@ -327,7 +399,9 @@ def main(argv=None) -> Path:
     args = _parser().parse_args(argv)
     out = Path(args.out)
     points = args.points or (401 if len(args.stage) == 1 else 201)
-    fig = plot_landscape(args.stages, args.stage, span=args.span, points=points, detector=args.detector, dpi=args.dpi)
+    fig = plot_landscape(
+        args.stages, args.stage, span=args.span, points=points, detector=args.detector, dpi=args.dpi
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, metadata={"Title": fig.axes[0].get_title()})
     print(f"wrote {out}")

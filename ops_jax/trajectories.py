@@ -24,7 +24,9 @@ class Rollout(NamedTuple):
     metrics: dict
 
 
-def rollout(env: OPSEnv, params: EnvParams, policy_fn: Callable, key, num_envs: int, num_steps: int):
+def rollout(
+    env: OPSEnv, params: EnvParams, policy_fn: Callable, key, num_envs: int, num_steps: int
+):
     """Run ``policy_fn(key, obs (num_envs, D)) -> actions (num_envs, N)`` for ``num_steps`` in one
     jitted ``lax.scan``. Instance i uses keys folded from ``key`` by i, so its trajectory does not
     depend on ``num_envs``. Returns a ``Rollout``; ``metrics`` holds the mean return, final P/Pmax
@@ -51,7 +53,8 @@ def _rollout(env, policy_fn, num_envs, num_steps, params, key):
         return (obs2, state2, jnp.where(done, 0.0, ret)), out
 
     _, (o, a, r, te, tr, npow, ret, done) = jax.lax.scan(
-        body, (obs, state, jnp.zeros(num_envs)), jnp.arange(num_steps))
+        body, (obs, state, jnp.zeros(num_envs)), jnp.arange(num_steps)
+    )
     count = done.sum()
     safe = jnp.maximum(count, 1)
     metrics = {

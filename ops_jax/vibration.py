@@ -61,4 +61,6 @@ def stationary_lags(z, freq, q):
 
 def displacement(fir, osc, alpha, bg_rms, res_rms):
     """The current displacement (N,) wl from a state (without advancing it)."""
-    return jnp.tensordot(fir_taps(alpha, bg_rms), fir, axes=1) + jnp.sum(res_rms[:, None] * osc[0], axis=0)
+    return jnp.tensordot(fir_taps(alpha, bg_rms), fir, axes=1) + jnp.sum(
+        res_rms[:, None] * osc[0], axis=0
+    )

@@ -47,11 +47,16 @@ def _share_compilations():
     if "JAX_COMPILATION_CACHE_DIR" in os.environ or not importlib.util.find_spec("filelock"):
         return None  # inherited or set outside (jax read it when imported), or no file lock
     folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
-    settings = {"jax_compilation_cache_dir": str(folder), "jax_persistent_cache_min_compile_time_secs": 0.5,
-                "jax_compilation_cache_max_size": 4 << 30}
+    settings = {
+        "jax_compilation_cache_dir": str(folder),
+        "jax_persistent_cache_min_compile_time_secs": 0.5,
+        "jax_compilation_cache_max_size": 4 << 30,
+    }
     for name, value in settings.items():
         jax.config.update(name, value)  # this process's jax is imported already
-        os.environ[name.upper()] = str(value)  # the processes started later read it when they import jax
+        os.environ[name.upper()] = str(
+            value
+        )  # the processes started later read it when they import jax
     os.environ["OPS_JAX_CACHE"] = str(folder)  # the sweep's cache
     return folder
 
@@ -86,7 +91,9 @@ def reference():
 def _count_compiles():
     n = [0]
 
-    def listen(event, duration, **kwargs):  # also fired for a program loaded from the persistent cache
+    def listen(
+        event, duration, **kwargs
+    ):  # also fired for a program loaded from the persistent cache
         n[0] += event == "/jax/core/compile/backend_compile_duration"
 
     jax.monitoring.register_event_duration_secs_listener(listen)

@@ -1,0 +1,445 @@
+"""The one interface of all controllers: ``train`` / ``evaluate`` / ``save`` / ``load``.
+
+A controller is a ``Policy``: ``init(key, obs) -> carry`` and
+``act(params, carry, obs, key, probe) -> (actions, carry)`` on a batch (obs (B, D), actions
+(B, N) in [-1, 1]). ``probe(offsets (B, N) wl, active=None) -> P / P_max (B,)`` is an extra detector reading
+at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,) bool, None: all,
+leaves it out where False (nothing moves, no frame passes, the result is NaN there). ``evaluate`` counts every
+reading made as a measurement (``measurements_per_step``: the observation's frame plus the probes made, the mean
+over steps and episodes). Learned policies ignore carry and probe. A policy that compares frames through its own
+last move (the physics-informed fit, the fit observer) has ``sent``: a wrapper that moves the lines otherwise (the
+trim) tells it the move it sent instead.
+
+Each algorithm module (``agents.controllers.spgd``, ``agents.learners.brax.ppo``, ...; registered in ``agents.registry``,
+its interface ``agents.registry.AlgoModule``) provides
+``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
+(``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
+fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
+``normalized_power``), ``make_policy(env_config, hyper) -> Policy`` and
+``params_template(env_config, hyper)`` (a pytree of the parameters' structure, for ``load``);
+``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may depend only on
+``hyper`` and the static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
+from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
+serves a policy trained in any mode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import time
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agents import registry
+from agents.envs import built, check_env_config
+from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
+from ops_jax import EnvSpec
+
+ALGOS = registry.REGISTRY  # name -> registry.Algo
+CHECKPOINT_VERSION = 1
+
+
+class Policy(NamedTuple):
+    init: Callable  # (key, obs (B, D)) -> carry
+    act: Callable  # (params, carry, obs (B, D), key, probe) -> (actions (B, N), carry)
+    # (params, carry, actions (B, N)) -> carry: the move really sent where a wrapper (the trim) sent another than
+    # ``act``'s, for a policy that reads its own last move (the fit's); None: the policy keeps no record of it
+    sent: Callable | None = None
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What training returns. ``curve``: arrays keyed 'step' (env steps) and at least
+    'normalized_power' (evaluation P/Pmax at that step); ``wall_time``: seconds split into
+    'simulation', 'optimisation' and 'total'; ``state``: the off-policy learners' training state
+    without replay buffer and environment (critics, targets, optimiser states), which a later run
+    continues with ``start_from``; kept in memory only (``save`` writes the policy)."""
+
+    algo: str
+    env_config: dict
+    hyper: dict
+    params: Any
+    curve: dict
+    wall_time: dict
+    seed: int
+    state: Any = None
+
+    @property
+    def env_steps(self) -> int:
+        """Env steps trained (the last curve point; 0 for a controller with nothing to train)."""
+        steps = np.asarray(self.curve.get("step", ()))
+        return int(steps[-1]) if steps.size else 0
+
+    @property
+    def env_spec(self) -> EnvSpec:
+        """The training environment's ``ops_jax.EnvSpec``."""
+        return EnvSpec.from_options(self.env_config)
+
+    def policy(self) -> Policy:
+        return algo_module(self.algo).make_policy(self.env_config, self.hyper)
+
+
+class EvalResult(NamedTuple):
+    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``normalized_power_best``:
+    P/P_best, P_best the best P reachable with the configuration's static imperfections (P_max on the
+    ideal system: then the same array); ``summary``: final mean/std, steps to reach 0.9 (median over
+    episodes that reach it) and the fraction that do, measurements per control step, inference time per
+    control step (s, batched), ``final_mean_best``, ``final_std_best`` and ``mean_last10_best`` (of P/P_best;
+    P/Pmax's on the ideal system), ``score``: the ratio to report ("P/P_best" with imperfections, else
+    "P/Pmax")."""
+
+    normalized_power: np.ndarray
+    terminated: np.ndarray
+    summary: dict
+    normalized_power_best: np.ndarray
+
+
+def algo_module(algo: str) -> registry.AlgoModule:
+    return registry.get(algo).load()
+
+
+def train(
+    algo: str,
+    env_config: EnvSpec | dict,
+    *,
+    seed: int = 0,
+    total_steps: int | None = None,
+    progress_fn: Callable[[int, dict], None] | None = None,
+    **hyper,
+) -> TrainResult:
+    """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
+    dict of ``ops_jax.make`` options, converted once: ``TrainResult.env_config`` is its dict form).
+    ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
+    fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
+    module = algo_module(algo)
+    env_config = check_env_config(env_config)
+    if total_steps is not None and (
+        not isinstance(total_steps, (int, np.integer)) or total_steps < 0
+    ):
+        raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
+    return module.train(
+        env_config, seed=seed, total_steps=total_steps, progress_fn=progress_fn, **hyper
+    )
+
+
+def train_seeds(
+    algo: str, env_config: EnvSpec | dict, *, seeds, total_steps: int | None = None, **hyper
+) -> list[TrainResult]:
+    """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
+    (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``), else one call per seed."""
+    module = algo_module(algo)
+    env_config = check_env_config(env_config)
+    seeds = list(seeds)
+    if registry.get(algo).vmaps_seeds:
+        return module.train_seeds(env_config, seeds=seeds, total_steps=total_steps, **hyper)
+    return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
+
+
+def evaluated_result(
+    algo: str,
+    env_config: dict,
+    hyper: dict,
+    params,
+    seed: int,
+    episodes: int = 32,
+    progress_fn: Callable[[int, dict], None] | None = None,
+) -> TrainResult:
+    """The TrainResult of a controller with nothing to train (SPGD, physics-informed): its curve is
+    a short evaluation (``episodes`` episodes, seed ``seed``), P/Pmax per control step, reported
+    to ``progress_fn(0, metrics)`` (0 env steps of training). Evaluated as the result itself, so
+    later evaluations of it reuse the compiled program."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"curve_episodes must be an integer >= 1, got {episodes!r}")
+    t0 = time.perf_counter()
+    result = TrainResult(algo, env_config, hyper, params, {}, {}, int(seed))
+    npow = evaluate(result, env_config, episodes=episodes, seed=int(seed)).normalized_power.mean(0)
+    total = time.perf_counter() - t0
+    result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
+    result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
+    if progress_fn is not None:
+        progress_fn(0, {"normalized_power": float(npow[-1]), "elapsed_s": total})
+    return result
+
+
+def _as_policy(result_or_policy):
+    if isinstance(result_or_policy, TrainResult):
+        return result_or_policy.policy(), result_or_policy.params
+    if (
+        isinstance(result_or_policy, tuple)
+        and len(result_or_policy) == 2
+        and isinstance(result_or_policy[0], Policy)
+    ):
+        return result_or_policy
+    if isinstance(result_or_policy, Policy):
+        return result_or_policy, None
+    raise TypeError("evaluate takes a TrainResult, a Policy or a (Policy, params) pair")
+
+
+def evaluate(
+    result_or_policy,
+    env_config: EnvSpec | dict,
+    *,
+    episodes: int = 20,
+    seed: int = 0,
+    steps: int | None = None,
+    drift_episode: int = 10,
+) -> EvalResult:
+    """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
+    configuration's max_steps) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a dict) in
+    one jitted scan, without auto-reset. Each episode starts as the ``drift_episode``-th reset of its
+    environment, so hard mode's drift is fully on (r in [-1, 1]);
+    a different ``seed`` gives a different drift realisation (the paper's testing environment).
+    The evaluation is deterministic: a repeated call computes the same numbers again (only the compiled
+    program is kept). A ``TrainResult`` evaluated on an environment whose observation or action layout
+    differs from its training environment's raises ValueError naming both layouts."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    env_config = check_env_config(env_config)
+    env, env_params = built(env_config)
+    if isinstance(result_or_policy, TrainResult):
+        trained_layout = built(result_or_policy.env_config)[0].layout
+        if trained_layout != env.layout:
+            raise ValueError(
+                f"the {result_or_policy.algo} policy was trained on observations of "
+                f"{trained_layout.describe()}; env_config gives {env.layout.describe()}"
+            )
+    policy, params = _as_policy(result_or_policy)
+    steps = int(steps or env.config.max_steps)
+    run, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
+    key = jax.random.key(seed)
+    ids = episode_ids(int(episodes))
+    signature = (
+        int(episodes),
+        str(jax.tree.map(lambda x: (jnp.shape(x), jnp.result_type(x)), params)),
+    )
+    if signature not in warm:  # compile and warm up once per argument signature
+        jax.block_until_ready(run(params, env_params, key, ids))
+        warm.add(signature)
+    t0 = time.perf_counter()
+    npow, term, made = jax.block_until_ready(run(params, env_params, key, ids))
+    elapsed = time.perf_counter() - t0
+    npow, term = np.asarray(npow).T, np.asarray(term).T
+    made = float(np.asarray(made).mean(dtype=np.float64))  # readings per step
+    summary = summarize(npow, measurements_per_step=made, inference_s_per_step=elapsed / steps)
+    npow_best, summary["score"] = npow, "P/Pmax"
+    if env.config.imperfect:  # P/P_best = P/Pmax x Pmax/P_best
+        npow_best = (npow * (env.p_max / np.float64(env_params.lab.p_best))).astype(npow.dtype)
+        summary["score"] = "P/P_best"
+    best = summarize(npow_best) if npow_best is not npow else summary
+    summary.update(
+        final_mean_best=best["final_mean"],
+        final_std_best=best["final_std"],
+        mean_last10_best=best["mean_last10"],
+    )
+    return EvalResult(npow, term, summary, npow_best)
+
+
+def summarize(npow: np.ndarray, **extra) -> dict:
+    """Summary statistics of P/Pmax curves (episodes, steps)."""
+    final = npow[:, -1]
+    reached = npow >= 0.9
+    first = np.where(reached.any(1), reached.argmax(1) + 1, -1)
+    ok = first[first > 0]
+    return dict(
+        final_mean=float(final.mean()),
+        final_std=float(final.std()),
+        mean_last10=float(npow[:, -10:].mean()),
+        steps_to_0p9_median=float(np.median(ok)) if ok.size else float("nan"),
+        fraction_reached_0p9=float(ok.size / len(first)),
+        episodes=int(npow.shape[0]),
+        steps=int(npow.shape[1]),
+        **extra,
+    )
+
+
+def split_over_devices(size: int, axis: str):
+    """A ``NamedSharding`` splitting a leading axis of length ``size`` over all local devices (a
+    multi-GPU host, or XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU) when there are
+    several and they divide it; else None (one device)."""
+    devices = jax.local_devices()
+    if len(devices) < 2 or size % len(devices):
+        return None
+    mesh = jax.sharding.Mesh(np.array(devices), (axis,))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(axis))
+
+
+def episode_ids(episodes: int):
+    """Episode indices, sharded with ``split_over_devices``: the jitted evaluation then splits its
+    episodes across devices. Results do not depend on the device count."""
+    ids = jnp.arange(episodes)
+    sharding = split_over_devices(episodes, "episodes")
+    return ids if sharding is None else jax.device_put(ids, sharding)
+
+
+_EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()
+_EVALUATORS_MAX = 64
+
+
+def _source_ident(source, policy: Policy):
+    """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
+    configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
+    if isinstance(source, TrainResult):
+        static = built(source.env_config)[0].config
+        return (
+            "result",
+            source.algo,
+            static,
+            json.dumps(source.hyper, sort_keys=True, default=str),
+        )
+    return ("policy", policy)
+
+
+def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: int):
+    """``evaluator`` memoised, so repeated evaluations (seeds, testing environments, other modes
+    with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
+    what its policy is built from (algorithm, training configuration, hyperparameters), a policy
+    by identity; the environment by its static ``EnvConfig`` (its parameters are arguments).
+    Returns ``(run, warmed)``: ``warmed`` holds the argument signatures already run once."""
+    key = (_source_ident(source, policy), env.config, steps, drift_episode)
+    if key not in _EVALUATORS:
+        _EVALUATORS[key] = (
+            evaluator(env, policy, steps, drift_episode),
+            set(),
+        )  # + warmed signatures
+        if len(_EVALUATORS) > _EVALUATORS_MAX:
+            _EVALUATORS.popitem(last=False)
+    _EVALUATORS.move_to_end(key)
+    return _EVALUATORS[key]
+
+
+def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: bool = False):
+    """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning P/Pmax,
+    terminated flags and the readings made per step (the observation's frame and the probes left in; steps,
+    episodes), with ``trajectory`` also the delay offsets (steps + 1, episodes, N) wl after the reset and after each
+    step. The one rollout of a policy: ``evaluate`` and the episode renderer (``agents.episode``) use it."""
+    probes = [0]  # probe calls so far in the step being traced (each probe's own key)
+    axes_params = None
+
+    @jax.jit
+    def run(params, env_params, key, ids):
+        k_reset, k_init, k_run = jax.random.split(key, 3)
+        keys = jax.vmap(jax.random.fold_in, (None, 0))(k_reset, ids)
+        obs, states = jax.vmap(env.reset, in_axes=(0, axes_params, None))(
+            keys, env_params, drift_episode
+        )
+        carry = policy.init(k_init, obs)
+
+        def body(c, t):
+            obs, states, carry = c
+            k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
+            now = [
+                states
+            ]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
+            made = [jnp.ones(ids.shape, jnp.int32)]  # readings this step, per episode
+
+            def probe(offsets, active=None):
+                probes[0] += 1
+                keys = jax.vmap(jax.random.fold_in, (None, 0))(
+                    jax.random.fold_in(k_env, probes[0]), ids
+                )
+                p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(
+                    keys, now[0], offsets, env_params
+                )
+                if active is None:
+                    now[0] = probed
+                    made[0] = made[0] + 1
+                    return p
+                made[0] = made[0] + active.astype(jnp.int32)
+                now[0] = jax.tree.map(
+                    lambda a, b: jnp.where(
+                        active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b
+                    ),
+                    probed,
+                    now[0],
+                )
+                return jnp.where(active, p, jnp.nan)
+
+            probes[0] = 0
+            action, carry = policy.act(params, carry, obs, k_act, probe)
+            keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
+            obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
+                keys, now[0], action, env_params
+            )
+            out = (info["normalized_power"], term, made[0]) + (
+                (states.deltas,) if trajectory else ()
+            )
+            return (obs, states, carry), out
+
+        _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
+        if trajectory:
+            out = (*out[:3], jnp.concatenate([states.deltas[None], out[3]]))
+        return out
+
+    return run
+
+
+# -- checkpoints --------------------------------------------------------------------------------
+
+
+def save(path, result: TrainResult) -> Path:
+    """Write ``result`` to the folder ``path`` (meta.json + params.msgpack), atomically: a
+    temporary folder is renamed into place, so a crash never leaves a half-written checkpoint."""
+    from flax import serialization
+
+    path = Path(path)
+    blob = serialization.msgpack_serialize(
+        serialization.to_state_dict(jax.device_get(result.params))
+    )
+    meta = dict(
+        version=CHECKPOINT_VERSION,
+        algo=result.algo,
+        env_config=result.env_config,
+        hyper=result.hyper,
+        seed=result.seed,
+        wall_time=result.wall_time,
+        curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
+        params_sha256=hashlib.sha256(blob).hexdigest(),
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_dir(path.parent, path.name)
+    (tmp / "params.msgpack").write_bytes(blob)
+    (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
+    if path.exists():
+        shutil.rmtree(path)
+    os.replace(tmp, path)
+    return path
+
+
+def load(path) -> TrainResult:
+    """Read a checkpoint written by ``save``; a missing or corrupt one raises a clear error."""
+    from flax import serialization
+
+    path = Path(path)
+    meta_file, blob_file = path / "meta.json", path / "params.msgpack"
+    if not meta_file.exists() or not blob_file.exists():
+        raise FileNotFoundError(f"no checkpoint at {path} (expected meta.json and params.msgpack)")
+    try:
+        meta = json.loads(meta_file.read_text())
+        blob = blob_file.read_bytes()
+        if hashlib.sha256(blob).hexdigest() != meta["params_sha256"]:
+            raise ValueError("params.msgpack does not match the checksum in meta.json")
+        state = serialization.msgpack_restore(blob)
+        module = algo_module(meta["algo"])
+        template = module.params_template(meta["env_config"], meta["hyper"])
+        params = serialization.from_state_dict(template, state) if template is not None else state
+    except (ValueError, KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"corrupt checkpoint at {path}: {exc}") from exc
+    curve = {k: np.asarray(v) for k, v in meta["curve"].items()}
+    return TrainResult(
+        meta["algo"],
+        meta["env_config"],
+        meta["hyper"],
+        params,
+        curve,
+        meta["wall_time"],
+        meta["seed"],
+    )

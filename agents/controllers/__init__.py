@@ -1,0 +1,1 @@
+"""Controllers that learn nothing: SPGD-PID, the physics-informed fit, the trim, the stall escape."""

@@ -1,0 +1,463 @@
+"""Physics-informed controller (algo "physics"): estimate the delay offsets by fitting the
+differentiable simulator to what the detector shows, then step straight to the nearest optimum.
+
+State estimation (every control step, batched over B instances, jitted, no learning):
+- Measured vector y = [2 P/Pmax - 1, 2 I_m/I_peak - 1 (m = 1..2^N-1)], the observation's power
+  and oscilloscope entries (latest frame). The model f(x) is the same map through
+  ``ops_jax.physics.measure(x, model="phasor")`` for offsets x (wl).
+- Unknowns: the offsets of the interferometric stages, modulo the wl/2 period (all N stages with
+  detector "polariser"; stages 1..N-1 with "total", whose last stage's carrier phase is invisible:
+  P does not depend on it, so the controller leaves it alone).
+- Residual r(z) = [f(z) - y_t, w_hist (f(z - dx_{t-1}) - y_{t-1}), ..., w_hist (f(z - dx_{t-1} - ... - dx_{t-H})
+  - y_{t-H})], where dx_{t-k} is the move the controller itself commanded before y_{t-k+1} (carried) and H is
+  ``history`` (1: the frame before the latest alone). The history blocks resolve the ambiguities of a single
+  snapshot (the intensity pattern is nearly invariant under x -> -x): no probe is needed, so the controller
+  makes 1 measurement per step. Under vibration, which moves the lines between frames, more frames
+  (``history`` 2-3) average that motion out of the comparison: docs/imperfections.md ("Frames compared").
+- Gauss-Newton / Levenberg-Marquardt from ``starts`` random points on the period torus plus the
+  tracked prediction (last estimate + last move), ``iters`` iterations each (Jacobian by jacfwd);
+  the start with the lowest residual wins.
+
+Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0 elsewhere
+(``wrap`` maps to the nearest optimum, [-wl/4, wl/4)).
+
+The hold (``hold``, preset "frames-hold"): where the measured P/Pmax is at or above ``hold``, the move is SPGD's
+proportional step instead (``agents.controllers.spgd``, its preset's gain schedule and fine dither, one probe per step there: 2
+measurements per step; under ``hold`` the probe is left out), and the fit follows the lines through the moves
+really sent. The fit acquires from anywhere (no trap of a hill climber), the dither reads the slope at every step,
+where the fit compares frames that the vibration has moved apart: docs/imperfections.md ("The hold"). The trim's
+``hold`` around the "frames" preset (``agents.controllers.trim``) runs the same episodes.
+
+The length channel: the observation also holds the (noisy, normalised) delay-line lengths
+x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
+adds them as one more start of the fit (and, with ``lengths_only=True``, the controller just reads
+them: legitimate but trivial, and useless when the channel is noisy, miscalibrated or absent). With
+``use_lengths=False`` (the "frames" preset) the controller never looks at them. On an environment
+whose observation holds no length readouts (``observe_lengths=False``), ``use_lengths=True`` or
+``lengths_only=True`` raises ValueError when the policy is built: use ``config="frames"``.
+``drift_gain`` > 0 integrates the prediction innovation into a drift estimate (wl/step) that is
+added to the prediction and pre-compensated in the action (off by default: it slows the approach at
+feedback_k = 1 and helps only at long feedback delays).
+
+Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False``
+turns it off): the model also carries static unknowns
+theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
+rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
+recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on
+(offsets, theta) with theta's accumulated information as its prior; the information then grows by
+what that step tells about theta alone (the Schur complement of the offsets), discounted by
+``forget`` per step. Moves are divided by the identified actuator gains. With ``use_lengths=True``
+as well, each fitted line's length readout is calibrated against the fit (readout = (1 + g) x + o,
+recursive least squares, discounted by ``forget``) and, once the calibrated length is known to
+CAL_TRUST, averaged with the fitted offset (``fuse``): the readout sees the length at once and has no sign
+ambiguity, where the fit, near the optimum, has to tell +x from -x through the moves since earlier frames; the fit is
+sharper where the model holds.
+
+Measured scores and costs: docs/results.md (the physics-informed controller) and
+docs/imperfections.md (with lab imperfections).
+"""
+
+from __future__ import annotations
+
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ops_jax import optics, physics
+from agents.controllers import spgd
+from agents.api import Policy, TrainResult, evaluated_result
+from agents.config import PhysicsConfig
+from agents.envs import built, check_env_config
+
+HOLD_STREAM = (
+    1  # the hold's dither: the step's key folded with this, apart from the fit's random starts
+)
+
+
+def params_template(env_config, hyper):
+    del env_config, hyper
+    return {"action_scale": np.float32(0), "window": np.float32(0)}
+
+
+def policy_params(env_config: dict) -> dict:
+    """The controller's numbers from its environment: ``action_scale`` (wl per action unit) and
+    ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
+    program, so one compiled policy serves every mode (make_policy reads only the static config)."""
+    _, env_params = built(env_config)
+    return params_of(env_params, np)
+
+
+def params_of(env_params, xp=jnp) -> dict:
+    """``policy_params`` of an ``EnvParams`` (``xp``: ``jax.numpy``, which keeps traced fields traced, or ``numpy``)."""
+    return {
+        "action_scale": xp.float32(env_params.action_scale),
+        "window": xp.float32(env_params.window),
+    }
+
+
+def fitted_stages(config) -> int:
+    """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the detector
+    "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
+    return config.stages if config.detector == "polariser" else config.stages - 1
+
+
+def wrap(x):
+    """Offset from the nearest optimum (period wl/2), in [-0.25, 0.25) wl."""
+    return x - 0.5 * jnp.round(x / 0.5)
+
+
+# Online identification (``identify=True``): the static unknowns theta, with their start, prior
+# standard deviation and accepted range: detector gain error and offset (y = 2 ((1 + g) v + o) - 1),
+# each stage's wave plate rotation error (rad) and PBS leakage amplitude sqrt(leak) (started off zero,
+# where P is flat in it), each fitted line's actuator gain error; NOISE_Y: the assumed noise of y.
+THETA = {  # block: (start, prior SD, lowest, highest)
+    "detector_gain": (0.0, 0.05, -0.3, 0.3),
+    "detector_offset": (0.0, 0.05, -0.3, 0.3),
+    "rotation": (0.0, 0.03, -0.15, 0.15),
+    "leak_amplitude": (0.02, 0.03, 1e-3, 0.3),
+    "actuator_gain": (0.0, 0.15, -0.5, 0.5),
+}
+NOISE_Y = 0.01
+# The length readout's calibration (``identify=True`` with ``use_lengths=True``): readout = (1 + g) x + o
+# per fitted line, recursive least squares of the readout on the fitted lengths (their assumed error
+# CAL_NOISE wl, innovations beyond CAL_CLIP times their standard deviation cut) from the prior
+# o ~ N(0, CAL_PRIOR^2) wl, 1 + g ~ N(1, CAL_PRIOR^2); the controller reads the calibrated readout
+# where its standard deviation is below CAL_TRUST wl, the fitted offsets elsewhere.
+CAL_NOISE, CAL_CLIP, CAL_PRIOR, CAL_TRUST = 0.01, 3.0, 0.05, 0.002
+# Where it is trusted, the calibrated readout (per-step noise CAL_READ_SD wl on top of its calibration's
+# standard deviation) and the fit are averaged by inverse variance (``fuse``); the fit's variance starts at
+# FIT_VAR0 wl^2 and is at least FIT_VAR_MIN.
+CAL_READ_SD, FIT_VAR0, FIT_VAR_MIN = 1e-3, 1e-4, 1e-8
+
+
+def fuse(z_fit, z_cal, sd, fit_var, forget: float):
+    """One line's length (wl, modulo the period) from the frames' fit ``z_fit`` and the calibrated readout
+    ``z_cal`` (standard deviation ``sd`` wl): the fit or its mirror image, whichever is nearer the readout
+    (near the optimum the frames cannot tell +x from -x), averaged with the readout by inverse variance. The
+    fit's variance ``fit_var`` (wl^2) is the discounted mean square of its distance to the readout less the
+    readout's own variance. Returns (length, fit_var); the fit alone while ``sd`` >= CAL_TRUST."""
+    var_cal = sd**2 + CAL_READ_SD**2
+    near = jnp.where(jnp.abs(wrap(-z_fit - z_cal)) < jnp.abs(wrap(z_fit - z_cal)), -z_fit, z_fit)
+    d = wrap(near - z_cal)
+    trusted = sd < CAL_TRUST
+    fit_var = jnp.where(trusted, forget * fit_var + (1 - forget) * d**2, fit_var)
+    w_fit = var_cal / (var_cal + jnp.maximum(fit_var - var_cal, FIT_VAR_MIN))
+    return jnp.where(trusted, wrap(z_cal + w_fit * d), z_fit), fit_var
+
+
+def _theta_layout(n: int, fit: int) -> dict:
+    """Slices of theta's blocks: detector gain, offset (1 each), rotations and leak amplitudes (N each),
+    actuator gains (``fit``)."""
+    sizes = {
+        "detector_gain": 1,
+        "detector_offset": 1,
+        "rotation": n,
+        "leak_amplitude": n,
+        "actuator_gain": fit,
+    }
+    out, i = {}, 0
+    for k, size in sizes.items():
+        out[k], i = slice(i, i + size), i + size
+    return out
+
+
+def _per_theta(n: int, fit: int, column: int) -> np.ndarray:
+    """Column ``column`` of ``THETA`` (0 start, 1 prior SD, 2 lowest, 3 highest) as a vector over theta."""
+    layout = _theta_layout(n, fit)
+    out = np.zeros(max(s.stop for s in layout.values()), np.float32)
+    for k, sl in layout.items():
+        out[sl] = THETA[k][column]
+    return out
+
+
+def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict) -> tuple:
+    """The fit: ``(moved, residual, estimate_one)``: the length change of a commanded move, the misfit of
+    the measurement model and the multi-start Levenberg-Marquardt estimate of the offsets of one instance."""
+    p_max = physics.p_max(n, cfg.detector)
+    peak = physics.peak_intensity(n)
+
+    def full(z):
+        return jnp.concatenate([z, jnp.zeros((*z.shape[:-1], n - fit), z.dtype)], axis=-1)
+
+    def model(z, th):  # z (..., fit), theta (n_theta,) -> y (..., ny)
+        if not identify:
+            m = physics.measure(full(z), stages=n, model="phasor", detector=cfg.detector)
+            return jnp.concatenate(
+                [(2 * m.power / p_max - 1)[..., None], 2 * m.samples / peak - 1], axis=-1
+            )
+        m = optics.measure(
+            full(z),
+            np.pi / 4 + th[layout["rotation"]],
+            th[layout["leak_amplitude"]] ** 2,
+            optics.ideal_pulses(n),
+            stages=n,
+            model="phasor",
+            detector=cfg.detector,
+        )
+        v = jnp.concatenate([(m.power / p_max)[..., None], m.samples / peak], axis=-1)
+        return 2 * ((1 + th[layout["detector_gain"]]) * v + th[layout["detector_offset"]]) - 1
+
+    def moved(dz, th):
+        """The length change of a commanded move ``dz`` (wl) with the identified actuator gains."""
+        return dz * (1 + th[layout["actuator_gain"]]) if identify else dz
+
+    def residual(z, th, y, hist):
+        """Misfit of the latest frame ``y`` and, through the moves since, of the H frames before it.
+        ``hist``: (their frames y_prev (H, ny), newest first; the moves commanded after each dz_prev (H, fit);
+        the drift estimate v (fit,); their weights w (H,))."""
+        y_prev, dz_prev, v, w = hist
+        back = jnp.cumsum(
+            jax.vmap(moved, in_axes=(0, None))(dz_prev, th) + v, axis=0
+        )  # length change since each
+        out = model(jnp.concatenate([z[None], z[None] - back]), th)  # one pass of the model for all
+        return jnp.concatenate([out[0] - y, (w[:, None] * (out[1:] - y_prev)).ravel()])
+
+    def lm(z, th, y, hist):
+        def body(z, _):
+            r = residual(z, th, y, hist)
+            J = jax.jacfwd(residual)(z, th, y, hist)
+            A = J.T @ J
+            A = A + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit))
+            step = -jnp.linalg.solve(A, J.T @ r)
+            return z + jnp.clip(step, -0.05, 0.05), None
+
+        z, _ = jax.lax.scan(body, z, None, length=h["iters"])
+        r = residual(z, th, y, hist)
+        return wrap(z), jnp.sum(r**2)
+
+    def estimate_one(key, th, y, hist, z_pred, z_len):
+        cands = [z_pred[None]]
+        if h["starts"]:
+            cands.append(jax.random.uniform(key, (h["starts"], fit), minval=-0.25, maxval=0.25))
+        if h["use_lengths"]:
+            cands.append(z_len[None])
+        cands = jnp.concatenate(cands)
+        zs, cost = jax.vmap(lm, in_axes=(0, None, None, None))(cands, th, y, hist)
+        return zs[jnp.argmin(cost)]
+
+    return moved, residual, estimate_one
+
+
+def _identify_function(fit: int, n_theta: int, h: dict, residual, max_step, theta_lo, theta_hi):
+    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance."""
+
+    def identify_one(z, th, info, y, hist):
+        """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
+        the information update (the Schur complement of z: what this step tells about theta alone)."""
+
+        def res(u):
+            return residual(u[:fit], u[fit:], y, hist)
+
+        u = jnp.concatenate([z, th])
+        J = jax.jacfwd(res)(u)
+        A = J.T @ J
+        prior_full = jnp.zeros((fit + n_theta,) * 2).at[fit:, fit:].set(info)
+        A_reg = (
+            A + prior_full + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
+        )
+        step = -jnp.linalg.solve(A_reg, J.T @ res(u))
+        z_new = wrap(z + jnp.clip(step[:fit], -0.05, 0.05))
+        th_new = jnp.clip(th + jnp.clip(step[fit:], -max_step, max_step), theta_lo, theta_hi)
+        azz, azt, att = A[:fit, :fit], A[:fit, fit:], A[fit:, fit:]
+        schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
+        info_new = h["forget"] * info + schur
+        return z_new, th_new, 0.5 * (info_new + info_new.T)
+
+    return identify_one
+
+
+def _calibrate_function(h: dict):
+    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line."""
+    cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
+    cal_mean = jnp.array([0.0, 1.0])
+
+    def calibrate_one(info, vec, z, r):
+        """One line's readout calibration: the recursive least squares update with the fitted offset
+        ``z`` (wl, modulo the period) and readout ``r`` (wl); returns (info, vec, the calibrated length
+        (wl, modulo the period), its standard deviation (wl))."""
+
+        def solve(info, vec):
+            A = info + cal_prior
+            return jnp.linalg.solve(A, vec + cal_prior @ cal_mean), jnp.linalg.inv(A)
+
+        beta, cov = solve(info, vec)
+        x = z + 0.5 * jnp.round(
+            ((r - beta[0]) / beta[1] - z) / 0.5
+        )  # the fitted length, unwrapped by the readout
+        phi = jnp.array([1.0, x])
+        innov = r - phi @ beta
+        bound = CAL_CLIP * jnp.sqrt(CAL_NOISE**2 + phi @ cov @ phi)
+        r_used = phi @ beta + jnp.clip(innov, -bound, bound)
+        info = h["forget"] * info + jnp.outer(phi, phi) / CAL_NOISE**2
+        vec = h["forget"] * vec + phi * r_used / CAL_NOISE**2
+        beta, cov = solve(info, vec)
+        x_cal = (r - beta[0]) / beta[1]
+        d = jnp.array([-1.0, -x_cal]) / beta[1]  # gradient of x_cal in (o, 1 + g)
+        return info, vec, wrap(x_cal), jnp.sqrt(d @ cov @ d)
+
+    return calibrate_one
+
+
+def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
+    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
+    env_config = check_env_config(env_config)
+    config = hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)
+    h = config.to_hyper()
+    env, _ = built(env_config)
+    cfg, obs_layout = env.config, env.layout
+    n = cfg.stages
+    ny = obs_layout.detector_size  # P and the 2^n - 1 samples
+    if not obs_layout.lengths and (h["use_lengths"] or h["lengths_only"]):
+        raise ValueError(
+            "use_lengths and lengths_only must be False on an environment without length readouts "
+            '(observe_lengths=False): use config="frames"'
+        )
+    fit = fitted_stages(cfg)
+    default = policy_params(env_config)
+    identify = h["identify"] and fit > 0 and not h["lengths_only"]
+    readout = identify and h["use_lengths"]
+    layout = _theta_layout(n, fit)
+    older = config.history - 1  # frames kept beyond the one before the latest
+    column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
+    theta0, theta_lo, theta_hi = column(0), column(2), column(3)
+    n_theta = theta0.size
+    prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
+    max_step = 0.1 * (theta_hi - theta_lo)  # per control step
+
+    hold, amp = h.get("hold"), spgd.HOLD["delta"]  # the hold's dither (wl)
+    moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
+    identify_one = _identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
+    calibrate_one = _calibrate_function(h)
+
+    def init(key, obs):
+        del key
+        b = obs.shape[0]
+        carry = {
+            "y_prev": jnp.zeros((b, ny), jnp.float32),
+            "dz_prev": jnp.zeros((b, fit), jnp.float32),
+            "z": jnp.zeros((b, fit), jnp.float32),
+            "v": jnp.zeros((b, fit), jnp.float32),
+            "valid": jnp.zeros((b,), jnp.float32),
+        }
+        if older:
+            carry.update(
+                y_older=jnp.zeros((b, older, ny), jnp.float32),
+                dz_older=jnp.zeros((b, older, fit), jnp.float32),
+                valid_older=jnp.zeros((b, older), jnp.float32),
+            )
+        if identify:
+            carry.update(
+                theta=jnp.broadcast_to(theta0, (b, n_theta)),
+                info=jnp.broadcast_to(prior, (b, n_theta, n_theta)),
+            )
+        if readout:
+            carry.update(
+                cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32),
+                cal_vec=jnp.zeros((b, fit, 2), jnp.float32),
+                fit_var=jnp.full((b, fit), FIT_VAR0, jnp.float32),
+            )
+        return carry
+
+    def held(action, obs, key, probe):
+        """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step elsewhere."""
+        if probe is None:
+            raise ValueError(
+                "hold needs a probe (one more detector reading per step): run the controller "
+                "through agents.evaluate or agents.bench.runner, or set hold=None"
+            )
+        s = spgd.dither(jax.random.fold_in(key, HOLD_STREAM), action.shape)
+        p0 = obs_layout.power(obs)
+        p1 = probe(amp * s, p0 >= hold)  # none under the hold, where the fit's move is sent
+        return spgd.held(action, p0, spgd.slope(p0, p1, s, amp), hold)
+
+    def act(params, carry, obs, key, probe):
+        p = default if params is None else params
+        scale, window = p["action_scale"], p["window"]
+        b = obs.shape[0]
+        y = obs_layout.detector(obs)
+        x_len = (
+            obs_layout.length_readouts(obs, window)
+            if obs_layout.lengths
+            else jnp.zeros((b, n), jnp.float32)
+        )
+        valid = carry["valid"][:, None]
+        th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
+        move = (
+            jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]
+        )  # length change + estimated drift since y_prev
+        z_pred = wrap(carry["z"] + move)
+        frames, moves, valid_hist = (
+            carry["y_prev"][:, None],
+            carry["dz_prev"][:, None],
+            carry["valid"][:, None],
+        )
+        new = {}
+        if older:  # newest first; ``dz_prev`` is read here, so that an observer may record the move really sent
+            frames = jnp.concatenate([frames, carry["y_older"]], axis=1)
+            moves = jnp.concatenate([moves, carry["dz_older"]], axis=1)
+            valid_hist = jnp.concatenate([valid_hist, carry["valid_older"]], axis=1)
+            new.update(
+                y_older=frames[:, :older],
+                dz_older=moves[:, :older],
+                valid_older=valid_hist[:, :older],
+            )
+        if h["lengths_only"] or fit == 0:
+            z = wrap(x_len[:, :fit])
+        else:
+            hist = (frames, moves, carry["v"], h["w_hist"] * valid_hist)
+            keys = jax.random.split(key, b)
+            z = jax.vmap(estimate_one)(keys, th, y, hist, z_pred, wrap(x_len[:, :fit]))
+            if identify:
+                z, th, info = jax.vmap(identify_one)(z, th, carry["info"], y, hist)
+                new.update(theta=th, info=info)
+            if readout:
+                cal_info, cal_vec, z_cal, sd = jax.vmap(jax.vmap(calibrate_one))(
+                    carry["cal_info"], carry["cal_vec"], z, x_len[:, :fit]
+                )
+                z, fit_var = fuse(z, z_cal, sd, carry["fit_var"], h["forget"])
+                new.update(cal_info=cal_info, cal_vec=cal_vec, fit_var=fit_var)
+        # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
+        v = carry["v"] + h["drift_gain"] * valid * wrap(z - z_pred)
+        per_unit = (
+            scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale
+        )  # wl moved per action unit
+        a_fit = jnp.clip(-(h["gain"] * z + v) / per_unit, -1.0, 1.0)
+        action = jnp.concatenate([a_fit, jnp.zeros((b, n - fit), jnp.float32)], axis=1)
+        if hold is not None:
+            action = held(action, obs, key, probe)
+        dz = action[:, :fit] * scale
+        return action, {
+            "y_prev": y,
+            "dz_prev": dz,
+            "z": z,
+            "v": v,
+            "valid": jnp.ones((b,), jnp.float32),
+            **new,
+        }
+
+    def sent(params, carry, action):
+        scale = (default if params is None else params)["action_scale"]
+        return dict(carry, dz_prev=jnp.clip(action[:, :fit], -1.0, 1.0) * scale)
+
+    return Policy(init, act, sent)
+
+
+def train(
+    env_config: dict,
+    *,
+    seed: int = 0,
+    total_steps: int | None = None,
+    progress_fn=None,
+    curve_episodes: int = 32,
+    config: PhysicsConfig | str | None = None,
+    **hyper,
+) -> TrainResult:
+    """Nothing to learn (the model is the simulator): validates; the curve is
+    ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
+    ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
+    env_config = check_env_config(env_config)
+    h = PhysicsConfig.make(config, **hyper).to_hyper()
+    return evaluated_result(
+        "physics", env_config, h, policy_params(env_config), seed, curve_episodes, progress_fn
+    )

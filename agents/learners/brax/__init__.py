@@ -1,0 +1,1 @@
+"""PPO and SAC: brax.training's trainers on the Brax adapter."""

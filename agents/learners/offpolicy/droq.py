@@ -1,0 +1,219 @@
+"""DroQ (Hiraoka et al., ICLR 2022): SAC whose twin critics carry dropout and LayerNorm, trained at
+a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.learners.offpolicy.driver``'s replay loop.
+
+- Actor: tanh-squashed Gaussian, an MLP ``hidden`` giving the mean and log std (clipped to
+  [-5, 2]); the evaluated policy is deterministic, tanh(mean).
+- Critics: two MLPs ``critic_hidden``, each hidden layer Dense -> Dropout(``dropout``) ->
+  LayerNorm (``layer_norm``) -> ReLU; dropout is on in every critic pass of training (targets too).
+- Targets: y = r + gamma d (min_j Q'_j(s', a') - alpha log pi(a'|s')), a' ~ pi(s'); Polyak ``tau``
+  after every critic step. Actor loss: alpha log pi(a|s) - mean_j Q_j(s, a), every ``policy_delay``
+  critic steps, with the temperature alpha (log-parametrised, from ``init_alpha``, Adam
+  ``alpha_lr``; 0 keeps it fixed) tuned to the entropy ``target_entropy`` per action dimension.
+- Exploration: actions sampled from the policy; uniform random during the warm-up.
+
+Preset "budget" of ``agents.config.DroQConfig``: one env, 10 gradient steps per env step, 2 x 64
+networks, LayerNorm critics without dropout (dropout doubled the cost of a step for no measured
+gain), gamma 0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md). Preset "bench": the same,
+learning a bounded correction to the physics-informed fit's move (``observer="fit-residual"``), for learning on a
+bench from its frames (docs/lab.md).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+
+from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
+from agents.learners.offpolicy import driver as offpolicy, replay
+from agents.config import DroQConfig
+
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+def _networks(h: dict, num_actions: int):
+    import flax.linen as nn
+
+    MLP = replay.mlp_module()
+
+    class Actor(nn.Module):
+        """(mean, log std) of the pre-tanh Gaussian."""
+
+        @nn.compact
+        def __call__(self, obs):
+            out = MLP(tuple(h["hidden"]), 2 * num_actions)(obs)
+            mean, log_std = jnp.split(out, 2, axis=-1)
+            return mean, jnp.clip(log_std, LOG_STD_MIN, LOG_STD_MAX)
+
+    class Critic(nn.Module):
+        @nn.compact
+        def __call__(self, obs, action, train: bool = False):
+            x = jnp.concatenate([obs, action], -1)
+            q = [
+                MLP(tuple(h["critic_hidden"]), 1, h["layer_norm"], h["dropout"])(x, train)[..., 0]
+                for _ in range(2)
+            ]
+            return jnp.stack(q)
+
+    return Actor(), Critic()
+
+
+def _greedy(actor, params, obs):
+    """The deterministic action a = tanh(mean) at standardised ``obs``."""
+    return jnp.tanh(actor.apply(params, obs)[0])
+
+
+DroQState = NamedTuple(
+    "DroQState",
+    [
+        ("actor", Any),
+        ("critic", Any),
+        ("critic_target", Any),
+        ("log_alpha", Any),  # flax TrainState of {"log_alpha": the log temperature}
+        *replay.STATE,
+    ],
+)
+
+
+def _sample(actor, params, obs, key):
+    """(action, log prob) of the tanh-Gaussian policy at normalised ``obs``."""
+    mean, log_std = actor.apply(params, obs)
+    u = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+    logp = jnp.sum(
+        -0.5 * ((u - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), -1
+    )
+    a = jnp.tanh(u)
+    return a, logp - jnp.sum(jnp.log(1 - a**2 + 1e-6), -1)
+
+
+def _build(env, h):
+    import optax
+
+    actor, critic = _networks(h, env.num_actions)
+    d, n = env.observation_size, env.num_actions
+    buffer = replay.replay_buffer(env, h)
+    gamma, tau, target_entropy = h["gamma"], h["tau"], h["target_entropy"] * n
+    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
+    alpha_tx = optax.adam(h["alpha_lr"]) if h["alpha_lr"] > 0 else optax.set_to_zero()
+
+    def explore(ts, key, obs, random):
+        k1, k2 = jax.random.split(key)
+        sampled, _ = _sample(actor, ts.actor.params, replay.normalise(ts.obs_norm, obs), k1)
+        uniform = jax.random.uniform(k2, sampled.shape, minval=-1, maxval=1)
+        return jnp.where(random, uniform, sampled)
+
+    def critic_loss(cp, ts, obs, batch, key):
+        k_pi, k_drop_t, k_drop = jax.random.split(key, 3)
+        nobs = replay.normalise(ts.obs_norm, batch["next_obs"])
+        a2, logp2 = _sample(actor, ts.actor.params, nobs, k_pi)
+        q_t = critic.apply(ts.critic_target, nobs, a2, True, rngs={"dropout": k_drop_t}).min(0)
+        alpha = jnp.exp(ts.log_alpha.params["log_alpha"])
+        y = jax.lax.stop_gradient(
+            batch["reward"] + gamma * batch["discount"] * (q_t - alpha * logp2)
+        )
+        q = critic.apply(cp, obs, batch["action"], True, rngs={"dropout": k_drop})
+        return jnp.mean(jnp.sum((q - y) ** 2, 0))
+
+    def actor_loss(ap, ts, obs, key):
+        k_pi, k_drop = jax.random.split(key)
+        a, logp = _sample(actor, ap, obs, k_pi)
+        q = critic.apply(ts.critic.params, obs, a, True, rngs={"dropout": k_drop}).mean(0)
+        return jnp.mean(jnp.exp(ts.log_alpha.params["log_alpha"]) * logp - q), logp
+
+    def update(ts, _):
+        buf, batch = buffer.sample(ts.buffer)
+        key, k_critic, k_actor = jax.random.split(ts.key, 3)
+        obs = replay.normalise(ts.obs_norm, batch["obs"])
+        closs, grads = jax.value_and_grad(critic_loss)(ts.critic.params, ts, obs, batch, k_critic)
+        new_critic = ts.critic.apply_gradients(grads=grads)
+        ts = ts._replace(
+            critic=new_critic,
+            buffer=buf,
+            key=key,
+            critic_target=optax.incremental_update(new_critic.params, ts.critic_target, tau),
+        )
+
+        def actor_step(ts):
+            (aloss, logp), g = jax.value_and_grad(actor_loss, has_aux=True)(
+                ts.actor.params, ts, obs, k_actor
+            )
+            alpha_grad = jax.lax.stop_gradient(
+                -logp.mean() - target_entropy
+            )  # d/d log_alpha of its loss
+            return ts._replace(
+                actor=ts.actor.apply_gradients(grads=g),
+                log_alpha=ts.log_alpha.apply_gradients(grads={"log_alpha": alpha_grad}),
+            ), aloss
+
+        ts, aloss = replay.delayed(ts, h, actor_step)
+        return ts, (closs, aloss)
+
+    def init(key, env_params):
+        ap, cp, buf, env_state, obs, k_run = replay.start(
+            env, h, buffer, actor, critic, key, env_params
+        )
+        log_alpha = {"log_alpha": jnp.log(jnp.float32(h["init_alpha"]))}
+        return DroQState(
+            replay.train_state(ap, actor_tx),
+            replay.train_state(cp, critic_tx),
+            cp,
+            replay.train_state(log_alpha, alpha_tx),
+            replay.identity_norm(d),
+            buf,
+            env_state,
+            obs,
+            k_run,
+            jnp.int32(0),
+            env_params,
+        )
+
+    return dict(init=init, **replay.replay_loop(env, h, buffer, explore, update))
+
+
+LEARNER = offpolicy.Learner("droq", DroQConfig, _build, _networks, _greedy)
+make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
+
+
+def train(
+    env_config: dict,
+    *,
+    seed: int = 0,
+    total_steps: int | None = None,
+    progress_fn: Callable[[int, dict], None] | None = None,
+    config: DroQConfig | str | None = None,
+    **hyper,
+) -> base.TrainResult:
+    """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
+    steps (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
+    overrides of its fields; ``progress_fn`` and the curve as in ``agents.learners.offpolicy.td3.train``; ``start_from=result``
+    continues from an earlier run in this process (``agents.learners.offpolicy.driver``)."""
+    return train_seeds(
+        env_config,
+        seeds=[offpolicy.check_seed(seed)],
+        total_steps=total_steps,
+        progress_fn=progress_fn,
+        config=config,
+        **hyper,
+    )[0]
+
+
+def train_seeds(
+    env_config: dict,
+    *,
+    seeds: Sequence[int],
+    total_steps: int | None = None,
+    progress_fn: Callable[[int, dict], None] | None = None,
+    config: DroQConfig | str | None = None,
+    **hyper,
+) -> list[base.TrainResult]:
+    """``train`` for several seeds in one vmapped call (as ``agents.learners.offpolicy.td3.train_seeds``)."""
+    return offpolicy.train_seeds(
+        LEARNER,
+        env_config,
+        seeds=seeds,
+        total_steps=total_steps,
+        progress_fn=progress_fn,
+        config=config,
+        **hyper,
+    )

@@ -1,0 +1,571 @@
+"""Learning on a lab's budget: P / P_best against env steps of the target system, from scratch.
+
+The plan is three functions, importable by any runner:
+- ``cells(preset) -> list[dict]``: JSON-able work units, one per (controller, environment, seed);
+- ``compute(cell) -> dict``: train once to the last checkpoint, evaluate the policy at every
+  checkpoint of env steps (``agents.evaluate``, final-step P / P_best, the testing environment);
+- ``report(records, out_dir) -> str``: budget.md (table of the median env steps to reach 0.9 and
+  the mean P / P_best at each checkpoint), budget.png (P / P_best against env steps, log x, one
+  line per controller, min-max band over seeds) and budget.json.
+
+A learner's checkpoints are the states its one run passes through: with ``eval_every`` dividing
+the checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exactly the state of a
+run of 10k (``agents.learners.offpolicy.driver.train_seeds``'s ``snapshot_fn``). Learners trained by brax (PPO,
+SAC) are trained once per checkpoint; a run that overruns its budget is recorded as an error. SPGD
+and the physics-informed controller learn nothing: their one evaluation (one cell, under the first
+seed) is drawn at every checkpoint, as references. That is protocol (a), from scratch on the target.
+
+Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the randomised simulator
+(``randomize=1``: each episode's imperfections 0-2x the lab preset; ``randomize_layout=1``: its signed
+per-stage error patterns permuted over the stages, signs flipped; any budget, the preset's ``pretrain_steps``),
+then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``unseen_bench`` of ``bench_env``: the
+lab preset at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
+continuing from the pretrained networks (``start_from``, agents.learners.offpolicy.driver); P / P_best on that bench before
+adapting and at each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
+controller that needs no training holds there); and the same policies with the preset's extremum-seeking trim
+(``agents.controllers.trim``: one more probe per step, no learning), which removes the static bias an adapted policy keeps.
+
+    python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
+    python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
+    python -m benchmarks.budget --preset quick --out results/budget-quick
+    python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
+    python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
+    python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
+    python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames   # a smaller correction
+    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames  # its fit on 4 frames
+    python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames  # with the hold as its trim
+    python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
+    python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
+    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" --only droq \
+        --bench-probe frame --bench-trim bench --out results/budget-frames   # probes a frame later, the bench trim
+
+Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from agents.config import TrimConfig
+from agents.registry import get
+from ops_jax.env import PROBES
+from ops_jax.cli.progress import keep_ctrl_c
+from benchmarks.budget.report import BENCH, TARGET, report, steps_to_target  # noqa: F401
+
+CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
+HARD = dict(stages=5, mode="hard", model="phasor")
+ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
+REFERENCE_KINDS = (
+    "reference",
+    "bench reference",
+)  # one evaluation: on a protocol (a) env / on a protocol (b) bench
+
+PRESETS = {
+    "quick": dict(
+        envs={"easy 3": dict(stages=3, mode="easy", model="phasor")},
+        seeds=(0,),
+        checkpoints=(600, 1200),
+        episodes=4,
+        eval_seed=4242,
+    ),
+    # the sweep's default run: the best budget learner, the references and protocol (b) (15 min on 2 cores)
+    "default": dict(
+        envs=ENVS,
+        seeds=(11, 12, 13, 14, 15),
+        checkpoints=CHECKPOINTS,
+        episodes=32,
+        eval_seed=4242,
+        adapt=dict(
+            algo="droq",
+            pretrain_env=dict(HARD, imperfections="lab", randomize=1.0, randomize_layout=1.0),
+            pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
+            pretrain_hyper={
+                "config": "budget",
+                "num_envs": 8,
+                "utd_ratio": 1.25,
+                "buffer_size": 100_000,
+                "learning_starts": 2000,
+                "eval_every": 10_000,
+            },
+            # adapting: 250 steps of the pretrained policy, then 2 gentler gradient steps per step
+            hyper={
+                "config": "budget",
+                "learning_starts": 250,
+                "eval_every": 250,
+                "utd_ratio": 2.0,
+                "actor_lr": 1e-4,
+                "critic_lr": 1e-4,
+            },
+            bench_env=HARD,
+            scale=2.0,
+            bench_seed_offset=1000,
+            checkpoints=(1000, 2000, 5000),
+            trim={},
+        ),
+    ),  # agents.controllers.trim's default TrimConfig
+}
+# every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
+PRESETS["full"] = dict(PRESETS["default"])
+# the detector's frames alone (``observe_lengths=False``, no length readouts), on the lab's system and, for protocol
+# (b), pretrained and adapted without them: the default preset's lab columns, frames only
+FRAMES = dict(observe_lengths=False)
+_ADAPT = PRESETS["default"]["adapt"]
+PRESETS["frames"] = dict(
+    PRESETS["default"],
+    envs={"hard + lab, frames only": dict(ENVS["hard + lab"], **FRAMES)},
+    adapt=dict(
+        _ADAPT, pretrain_env=dict(_ADAPT["pretrain_env"], **FRAMES), bench_env=dict(HARD, **FRAMES)
+    ),
+)
+# frames only, from scratch, the learners with the fit observer (``agents.learners.offpolicy.observer``) beside the references
+PRESETS["frames-fit"] = dict(PRESETS["frames"])
+del PRESETS["frames-fit"]["adapt"]
+# the same, DroQ's action a correction added to the fit's own move (``observer="fit-residual"``); protocol (b) too,
+# pretrained 20,000 env steps (the fit's move is sent from the first step), adapted as in "frames"
+_RESIDUAL = dict(observer="fit-residual")
+PRESETS["frames-residual"] = dict(
+    PRESETS["frames"],
+    adapt=dict(
+        PRESETS["frames"]["adapt"],
+        pretrain_steps=20_000,
+        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_RESIDUAL),
+        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_RESIDUAL),
+    ),
+)
+# the same, the correction bounded (DroQ's ``residual_scale`` of this preset, pretrained and adapted with it too)
+_BOUNDED = {
+    k: v
+    for k, v in get("droq").sweep.lab_budget["frames-residual-bounded"].items()
+    if k != "config"
+}
+PRESETS["frames-residual-bounded"] = dict(
+    PRESETS["frames"],
+    adapt=dict(
+        PRESETS["frames-residual"]["adapt"],
+        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_BOUNDED),
+        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_BOUNDED),
+    ),
+)
+# the same, the fit comparing the newest frame with the three before it (``fit_history=3``; the physics-informed
+# reference with ``history=3``, the controller the learner corrects)
+_HISTORY = {
+    k: v
+    for k, v in get("droq").sweep.lab_budget["frames-residual-history"].items()
+    if k != "config"
+}
+PRESETS["frames-residual-history"] = dict(
+    PRESETS["frames"],
+    adapt=dict(
+        PRESETS["frames-residual"]["adapt"],
+        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_HISTORY),
+        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_HISTORY),
+    ),
+)
+# the same, its trim the hold alone (``agents.controllers.trim``: SPGD's step in place of the policy's move at and above a
+# measured P/Pmax of 0.85, no integral); the physics-informed reference the fit with the same hold
+PRESETS["frames-residual-hold"] = dict(
+    PRESETS["frames-residual-history"],
+    adapt=dict(PRESETS["frames-residual-history"]["adapt"], trim={"ki": 0.0, "hold": 0.85}),
+)
+PRESETS["quick"]["adapt"] = dict(
+    algo="droq",
+    pretrain_env=dict(
+        PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0, randomize_layout=1.0
+    ),
+    pretrain_steps=600,
+    pretrain_hyper=get("droq").sweep.lab_budget["quick"],
+    hyper=dict(get("droq").sweep.lab_budget["quick"], learning_starts=100, eval_every=100),
+    bench_env=PRESETS["quick"]["envs"]["easy 3"],
+    scale=2.0,
+    bench_seed_offset=1000,
+    checkpoints=(300, 600),
+    trim={},
+)
+
+
+# The order of the controllers in the plan (its cells' labels in the sweep, budget-<index>) and the tables; any
+# other registered algorithm follows, in the order registered.
+ORDER = ("droq", "td3", "sac", "ppo", "spgd", "physics")
+
+
+def controllers(preset: str) -> tuple[dict, dict]:
+    """({learner: hyper}, {reference: hyper}) of ``preset``: the registered algorithms with a part in it
+    (``SweepPresets.lab_budget``), in ``ORDER``."""
+    from agents.registry import REGISTRY
+
+    rank = {name: i for i, name in enumerate(dict.fromkeys([*ORDER, *REGISTRY]))}
+    chosen = sorted(
+        (a for a in REGISTRY.values() if a.sweep is not None and preset in a.sweep.lab_budget),
+        key=lambda a: rank[a.name],
+    )
+    return tuple(
+        {a.name: a.sweep.lab_budget[preset] for a in chosen if a.learner == learner}
+        for learner in (True, False)
+    )
+
+
+def cost(cell: dict) -> float:
+    """Estimated seconds of ``cell`` (the algorithm's ``agents.registry.CostModel``): its training runs and
+    evaluations."""
+    entry = get(cell["algo"])
+    ks, evals = cell["checkpoints"], entry.cost.eval_s
+    if cell["kind"] in REFERENCE_KINDS:
+        return entry.train_s(cell["hyper"], 0) + evals
+    if (
+        cell["kind"] == "adapt"
+    ):  # pretraining, adapting; scores before, at each checkpoint and trimmed
+        return (
+            entry.train_s(cell["pretrain_hyper"], cell["pretrain_steps"])
+            + entry.train_s(cell["hyper"], max(ks))
+            + (2 + 2 * len(ks)) * evals
+        )
+    if entry.off_policy:  # one run, evaluated at each checkpoint
+        return entry.train_s(cell["hyper"], max(ks)) + len(ks) * evals
+    return sum(entry.train_s(cell["hyper"], k) + evals for k in ks)  # a run per checkpoint
+
+
+def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
+    """``env_config`` with the lab preset's imperfections at ``scale`` times their magnitudes, each
+    per-stage error's pattern permuted over the stages and its signs flipped at random by ``seed``:
+    a bench whose errors are as large as the largest that randomised training drew, in a layout it never saw."""
+    from ops_jax import imperfections
+
+    n = env_config["stages"]
+    rng = np.random.default_rng(seed)
+    lab = imperfections.preset("lab", n, scale)
+    drawn = {
+        k: (rng.permutation(v) * rng.choice([-1.0, 1.0], n)).tolist()
+        for k, v in lab.items()
+        if k in imperfections.LAYOUT
+    }
+    return dict(env_config, imperfections="lab", imperfection_scale=scale, **drawn)
+
+
+def cells(
+    preset: str,
+    only=None,
+    seeds=None,
+    envs=None,
+    bench_scale=None,
+    bench_probe=None,
+    bench_trim=None,
+) -> list[dict]:
+    """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
+    seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
+    protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
+    ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default);
+    ``bench_trim`` (a ``TrimConfig`` preset) the trim around the adapted policies (None: the preset's)."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    if bench_probe is not None and bench_probe not in PROBES:
+        raise ValueError(f"bench_probe must be one of {list(PROBES)}, got {bench_probe!r}")
+    if bench_trim is not None and bench_trim not in TrimConfig.PRESETS:
+        raise ValueError(
+            f"bench_trim must be one of {sorted(TrimConfig.PRESETS)}, got {bench_trim!r}"
+        )
+    if bench_scale is not None and (
+        isinstance(bench_scale, bool)
+        or not isinstance(bench_scale, (int, float))
+        or not 0 < bench_scale <= 10
+    ):
+        raise ValueError(f"bench_scale must be a number in (0, 10], got {bench_scale!r}")
+    p = PRESETS[preset]
+    learners, references = controllers(preset)
+    adapt = p.get("adapt")
+    known_envs = [*p["envs"], *([BENCH] if adapt else [])]
+    for name, chosen, known in (
+        ("only", only, [*learners, *references]),
+        ("envs", envs, known_envs),
+    ):
+        if chosen is not None and not set(chosen) <= set(known):
+            raise ValueError(f"{name} must name some of {sorted(known)}, got {sorted(chosen)}")
+    out = []
+    for env_name, env_config in p["envs"].items():
+        if envs is not None and env_name not in envs:
+            continue
+        for kind, algos in (("learner", learners), ("reference", references)):
+            for algo, hyper in algos.items():
+                if only is not None and algo not in only:
+                    continue
+                chosen = list(p["seeds"] if seeds is None else seeds)
+                for seed in (
+                    chosen[:1] if kind == "reference" else chosen
+                ):  # references: no training seed
+                    out.append(
+                        dict(
+                            kind=kind,
+                            algo=algo,
+                            hyper=dict(hyper),
+                            env=env_name,
+                            env_config=dict(env_config),
+                            seed=int(seed),
+                            checkpoints=list(p["checkpoints"]),
+                            episodes=p["episodes"],
+                            eval_seed=p["eval_seed"],
+                            settings=get(algo).settings(hyper),
+                        )
+                    )
+    if adapt and (envs is None or BENCH in envs):
+        for seed in p["seeds"] if seeds is None else seeds:
+            bench_seed = int(seed) + adapt["bench_seed_offset"]
+            scale = adapt["scale"] if bench_scale is None else bench_scale
+            probe = {} if bench_probe is None else {"probe": bench_probe}
+            on_bench = dict(
+                env=BENCH,
+                env_config=dict(unseen_bench(adapt["bench_env"], bench_seed, scale), **probe),
+                bench_seed=bench_seed,
+                seed=int(seed),
+                checkpoints=list(adapt["checkpoints"]),
+                episodes=p["episodes"],
+                eval_seed=p["eval_seed"],
+            )
+            if only is None or adapt["algo"] in only:
+                out.append(
+                    dict(
+                        kind="adapt",
+                        algo=adapt["algo"],
+                        hyper=dict(adapt["hyper"]),
+                        **on_bench,
+                        pretrain_env=dict(adapt["pretrain_env"]),
+                        pretrain_steps=adapt["pretrain_steps"],
+                        pretrain_hyper=dict(adapt["pretrain_hyper"]),
+                        trim=dict(adapt["trim"]) if bench_trim is None else {"config": bench_trim},
+                        settings=[
+                            get(adapt["algo"]).settings(adapt[k])
+                            for k in ("pretrain_hyper", "hyper")
+                        ],
+                    )
+                )
+            out += [
+                dict(
+                    kind="bench reference",
+                    algo=algo,
+                    hyper=dict(hyper),
+                    **on_bench,
+                    settings=get(algo).settings(hyper),
+                )
+                for algo, hyper in references.items()
+                if only is None or algo in only
+            ]
+    return out
+
+
+def _score(result_or_policy, env_config: dict, cell: dict) -> float:
+    """Final-step P / P_best, mean over the cell's test episodes (seed ``eval_seed``)."""
+    import agents
+    from agents.envs import best_ratio
+
+    ev = agents.evaluate(
+        result_or_policy, env_config, episodes=cell["episodes"], seed=cell["eval_seed"]
+    )
+    return float(ev.summary["final_mean"] * best_ratio(env_config))
+
+
+def _snapshot_run(cell: dict, start_from=None):
+    """One run of ``cell``'s off-policy learner to its last checkpoint: (result, {checkpoint: policy params})."""
+    from agents import api as base
+    from agents.learners.offpolicy import driver as offpolicy
+
+    module = base.algo_module(cell["algo"])
+    marks = set(cell["checkpoints"])
+    h = module.LEARNER.config_type.make(**cell["hyper"]).to_hyper()
+    warm, n_chunks, chunk = offpolicy.schedule({**h, "total_steps": max(marks)})
+    per_iter = h["num_envs"] * h["unroll"]
+    ends = {per_iter * (warm + chunk * i) for i in range(n_chunks + 1)}
+    if not marks <= ends:
+        raise ValueError(
+            f"checkpoints {sorted(marks - ends)} are not chunk ends of this config (eval_every, "
+            "learning_starts)"
+        )
+    snapshots = {}
+    (result,) = offpolicy.train_seeds(
+        module.LEARNER,
+        cell["env_config"],
+        seeds=[cell["seed"]],
+        total_steps=max(marks),
+        snapshot_fn=lambda step, ps: snapshots.update({step: ps[0]}) if step in marks else None,
+        start_from=start_from,
+        **cell["hyper"],
+    )
+    return result, snapshots
+
+
+def _scores(result, snapshots: dict, cell: dict) -> dict:
+    policy = result.policy()
+    return {
+        str(k): _score((policy, snapshots[k]), cell["env_config"], cell) for k in sorted(snapshots)
+    }
+
+
+def _trimmed_scores(pretrained, result, snapshots: dict, cell: dict) -> dict:
+    """P / P_best with the cell's trim (``agents.controllers.trim``) around the pretrained policy ("0") and each snapshot."""
+    from agents.controllers import trim
+
+    policy, params = trim.trimmed(result, cell["trim"], env_config=cell["env_config"])
+    states = {0: pretrained.params, **snapshots}
+    return {
+        str(k): _score((policy, dict(params, policy=states[k])), cell["env_config"], cell)
+        for k in sorted(states)
+    }
+
+
+def _off_policy(cell: dict) -> dict:
+    """One run to the last checkpoint, its snapshots evaluated: {checkpoint: score}, wall s."""
+    t0 = time.perf_counter()
+    result, snapshots = _snapshot_run(cell)
+    wall = time.perf_counter() - t0
+    return {"scores": _scores(result, snapshots, cell), "train_s": wall}
+
+
+def _adapt(cell: dict) -> dict:
+    """Protocol (b): pretrain on the randomised simulator, score on the unseen bench (``before``), train on
+    there from the pretrained state; ``scores`` at each checkpoint of bench env steps, ``trimmed``: the same with
+    the trim ("0": the pretrained policy), ``pretrain_s``, ``train_s``."""
+    import agents
+
+    t0 = time.perf_counter()
+    pretrained = agents.train(
+        cell["algo"],
+        cell["pretrain_env"],
+        seed=cell["seed"],
+        total_steps=cell["pretrain_steps"],
+        **cell["pretrain_hyper"],
+    )
+    pretrain_s = time.perf_counter() - t0
+    before = _score(pretrained, cell["env_config"], cell)
+    t0 = time.perf_counter()
+    result, snapshots = _snapshot_run(cell, start_from=pretrained)
+    wall = time.perf_counter() - t0
+    return {
+        "before": before,
+        "scores": _scores(result, snapshots, cell),
+        "trimmed": _trimmed_scores(pretrained, result, snapshots, cell),
+        "pretrain_s": pretrain_s,
+        "train_s": wall,
+        "pretrain_steps": pretrained.env_steps,
+    }
+
+
+def _per_budget(cell: dict) -> dict:
+    """A run per checkpoint (brax's trainers); a budget the config refuses, or one smaller than a single
+    training step (which the trainer runs anyway), is recorded as an error, without a score; ``steps``:
+    the env steps each scored run took."""
+    import agents
+
+    scores, steps, errors, wall = {}, {}, {}, 0.0
+    for k in cell["checkpoints"]:
+        t0 = time.perf_counter()
+        try:
+            result = agents.train(
+                cell["algo"], cell["env_config"], seed=cell["seed"], total_steps=k, **cell["hyper"]
+            )
+        except ValueError as exc:
+            errors[str(k)] = str(exc)
+            continue
+        wall += time.perf_counter() - t0
+        trained = result.env_steps
+        if trained > k:
+            errors[str(k)] = f"trained {trained} env steps for a budget of {k}"
+            continue
+        scores[str(k)], steps[str(k)] = _score(result, cell["env_config"], cell), trained
+    return {"scores": scores, "steps": steps, "errors": errors, "train_s": wall}
+
+
+def compute(cell: dict) -> dict:
+    """The record of one cell: ``scores`` {checkpoint (str): final P / P_best}, ``train_s``."""
+    import agents
+
+    if cell["kind"] in REFERENCE_KINDS:
+        t0 = time.perf_counter()
+        result = agents.train(cell["algo"], cell["env_config"], seed=cell["seed"], **cell["hyper"])
+        score = _score(result, cell["env_config"], cell)
+        return {
+            "scores": {str(k): score for k in cell["checkpoints"]},
+            "train_s": time.perf_counter() - t0,
+        }
+    if cell["kind"] == "adapt":
+        return _adapt(cell)
+    if get(cell["algo"]).off_policy:
+        return _off_policy(cell)
+    return _per_budget(cell)
+
+
+def main(argv=None) -> str:
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.budget", description=__doc__.split("\n")[0]
+    )
+    ap.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default="default",
+        help="quick: tiny (seconds); default: DroQ, the references, protocol (b); full: every learner",
+    )
+    ap.add_argument("--out", type=Path, required=True, help="output folder")
+    ap.add_argument(
+        "--only", nargs="+", default=None, help="controllers (default: all of the preset)"
+    )
+    ap.add_argument(
+        "--seeds", nargs="+", type=int, default=None, help="training seeds (default: the preset's)"
+    )
+    ap.add_argument(
+        "--envs", nargs="+", default=None, help="environments by name (default: all of the preset)"
+    )
+    ap.add_argument(
+        "--bench-scale",
+        type=float,
+        default=None,
+        metavar="X",
+        help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the preset's)",
+    )
+    ap.add_argument(
+        "--bench-probe",
+        choices=PROBES,
+        default=None,
+        help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a bench "
+        "(ops_jax EnvConfig.probe; default: the simulator's, instant)",
+    )
+    ap.add_argument(
+        "--bench-trim",
+        choices=sorted(TrimConfig.PRESETS),
+        default=None,
+        help="the trim's preset (agents.config.TrimConfig) around protocol (b)'s adapted policies "
+        "(default: the preset's)",
+    )
+    args = ap.parse_args(argv)
+    keep_ctrl_c()
+    from benchmarks.cells import CellStore
+
+    try:
+        plan = cells(
+            args.preset,
+            args.only,
+            args.seeds,
+            args.envs,
+            args.bench_scale,
+            args.bench_probe,
+            args.bench_trim,
+        )
+    except ValueError as exc:
+        ap.error(str(exc).replace("bench_scale", "--bench-scale"))
+    store = CellStore(args.out / "cells")
+    records = []
+    for i, cell in enumerate(plan):
+        label = f"{cell['env']}-{cell['algo']}-s{cell['seed']}"
+        t0 = time.perf_counter()
+        result = store.get(label, cell, lambda: compute(cell))
+        records.append({"cell": cell, "result": result})
+        before = f"before {result['before']:.3f}, " if "before" in result else ""
+        print(
+            f"[{i + 1}/{len(plan)}] {label}: "
+            + before
+            + ", ".join(f"{k} {v:.3f}" for k, v in result["scores"].items())
+            + f" ({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
+    text = report(records, args.out)
+    print(text)
+    return text

@@ -1,0 +1,138 @@
+"""Where a batched env step's time goes: the whole ``env.step_batch``, its physics alone
+(``physics.measure``) and its random draws alone (``noise.draws``, one key per instance), each a jitted
+200-step ``lax.scan`` at the same batch, median of the repeats (compilation apart).
+
+    python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 --out results/breakdown.json
+
+Per row: ns per instance-step of each part, and each part's share of the whole step (the rest is the
+environment's own bookkeeping: action, drift, reward, observation, auto-reset).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import ops_jax
+from agents.io import write_json_atomic
+from benchmarks.speed.throughput import SCAN_STEPS, measure
+from ops_jax import noise
+from ops_jax.cli.parser import ArgumentParser
+from ops_jax.cli.progress import keep_ctrl_c
+
+
+def _median_scan_s(fn, args, repeats: int) -> tuple[float, float]:
+    """(compile s, median s) of a jitted ``fn(*args)``."""
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t0)
+    return compile_s, statistics.median(times)
+
+
+def physics_scan(stages: int, model: str, batch: int):
+    """(fn, args): SCAN_STEPS measurements of ``batch`` offsets that move every step."""
+
+    def run(x):
+        def body(acc, t):
+            m = ops_jax.physics.measure(x + 1e-3 * t, stages=stages, model=model)
+            return acc + m.power.sum() + m.samples.sum(), None
+
+        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS, dtype=jnp.float32))[0]
+
+    return run, (jax.random.uniform(jax.random.key(0), (batch, stages), minval=-0.3, maxval=0.3),)
+
+
+def draws_scan(env, batch: int):
+    """(fn, args): SCAN_STEPS of the draws one step makes, one key per instance (as ``step_batch``)."""
+    c = env.config
+    shapes = dict(
+        normal={"run": (c.feedback_k, c.stages), "obs": (env.frame_size,)},
+        uniform={"knot": (c.stages,)},
+    )
+
+    def run(key):
+        def body(acc, t):
+            keys = jax.random.split(jax.random.fold_in(key, t), batch)
+            d = jax.vmap(lambda k: noise.draws(k, **shapes))(keys)
+            return acc + sum(v.sum() for v in d.values()), None
+
+        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS))[0]
+
+    return run, (jax.random.key(1),)
+
+
+def breakdown(stages: int, model: str, batch: int, repeats: int) -> dict:
+    """One row: ns per instance-step of the step, its physics and its draws, and their shares."""
+    env, _ = ops_jax.make(stages, "hard", model=model)
+    step = measure(stages, model, batch, repeats, paths=("step_batch",))[0]
+    per = 1e9 / (batch * SCAN_STEPS)
+    row = dict(
+        model=model,
+        stages=stages,
+        batch=batch,
+        step_ns=step["median_scan_s"] * per,
+        step_compile_s=step["compile_s"],
+    )
+    for part, (fn, args) in (
+        ("physics", physics_scan(stages, model, batch)),
+        ("draws", draws_scan(env, batch)),
+    ):
+        compile_s, median = _median_scan_s(fn, args, repeats)
+        row[f"{part}_ns"], row[f"{part}_compile_s"] = median * per, compile_s
+        row[f"{part}_share"] = row[f"{part}_ns"] / row["step_ns"]
+    return row
+
+
+def main(argv=None) -> list[dict]:
+    keep_ctrl_c()
+    ap = ArgumentParser(
+        prog="python -m benchmarks.speed.step_breakdown",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--stages", type=int, nargs="+", default=[5])
+    ap.add_argument("--model", choices=("phasor", "field"), default="phasor")
+    ap.add_argument("--batch", type=int, nargs="+", default=[1024, 65536])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=Path("results/breakdown.json"))
+    args = ap.parse_args(argv)
+    for name, values in (
+        ("--stages", args.stages),
+        ("--batch", args.batch),
+        ("--repeats", [args.repeats]),
+    ):
+        if min(values) < 1:
+            ap.error(f"{name} must be >= 1, got {min(values)}")
+    out = dict(
+        jax=jax.__version__, device=jax.devices()[0].device_kind, scan_steps=SCAN_STEPS, rows=[]
+    )
+    print(
+        f"{'model':7} {'N':>2} {'batch':>8} {'step ns':>9} {'physics ns':>10} {'draws ns':>9} {'physics':>8} {'draws':>6}"
+    )
+    for n in args.stages:
+        for b in args.batch:
+            r = breakdown(n, args.model, b, args.repeats)
+            out["rows"].append(r)
+            write_json_atomic(args.out, out)
+            print(
+                f"{r['model']:7} {n:>2} {b:>8} {r['step_ns']:>9.2f} {r['physics_ns']:>10.2f} {r['draws_ns']:>9.2f} "
+                f"{r['physics_share']:>8.0%} {r['draws_share']:>6.0%}",
+                flush=True,
+            )
+    print(f"wrote {args.out}")
+    return out["rows"]
+
+
+if __name__ == "__main__":
+    main()

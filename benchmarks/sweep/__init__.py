@@ -1,0 +1,1 @@
+"""The paper's experiments as one resumable command (``python -m benchmarks.sweep``)."""

@@ -1,0 +1,300 @@
+"""The sweep's plan: its presets and its sections, each declared once (benchmarks/sweep/section.py).
+
+Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
+testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
+``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100),
+``budget`` (benchmarks/budget/plan.py) and, when named, ``reality`` (benchmarks/sweep/reality.py). ``register(section)``
+adds a section.
+"""
+
+from __future__ import annotations
+
+from agents.registry import Registry
+from benchmarks.budget import plan as budget
+from benchmarks.sweep import reality
+from benchmarks.sweep import report
+from benchmarks.sweep.paper import MODES
+from benchmarks.sweep.records import Controller, Evaluation, seed_label
+from benchmarks.sweep.section import TEST_SEED_OFFSET, CellSection, Section
+from ops_jax import EnvSpec
+
+# Seeds, episodes, the learners' hyperparameter preset (``algo_config``: the ``config`` of their
+# ``agents.config`` classes) and section settings per preset; each algorithm's budgets, hyperparameters and cost
+# come from its entry in agents.registry (``preset``).
+PRESETS = {
+    "quick": dict(  # a first look: tiny budgets, a cheaper physics-informed fit, few episodes
+        seeds=2,
+        algo_config="fast",
+        episodes=8,
+        stage_range=(2, 3),
+        stage_modes=("easy",),
+        stage_algos=("spgd",),
+        stage_seeds=1,
+        feedback_ks=(1, 100),
+        aux_seeds=1,
+        reality_seeds=2,
+    ),
+    "default": dict(  # its wall time: docs/results.md
+        seeds=5,
+        algo_config="fast",
+        episodes=32,
+        stage_range=(1, 7),
+        stage_modes=("easy", "hard"),
+        stage_algos=("spgd", "physics"),
+        stage_seeds=1,
+        feedback_ks=(1, 20, 40, 60, 80, 100),
+        aux_seeds=2,
+        reality_seeds=3,
+    ),
+    "paper": dict(
+        seeds=20,
+        algo_config="paper",
+        episodes=100,
+        stage_range=(1, 7),
+        stage_modes=MODES,
+        stage_algos=("spgd", "physics", "td3", "sac"),
+        stage_seeds=5,
+        feedback_ks=(1, 20, 40, 60, 80, 100),
+        reality_seeds=5,
+    ),
+}
+
+
+def preset(name: str) -> dict:
+    """The preset ``name`` with the registered algorithms' parts: ``algos``, ``budgets``, ``hyper`` and
+    (where any) ``reality_budgets``."""
+    from agents.registry import REGISTRY
+
+    algos = [a for a in REGISTRY.values() if a.sweep is not None and name in a.sweep.budgets]
+    out = dict(
+        PRESETS[name],
+        name=name,
+        algos=tuple(a.name for a in algos),
+        budgets={a.name: a.sweep.budgets[name] for a in algos},
+    )
+    hyper = {a.name: a.sweep.hyper[name] for a in algos if name in a.sweep.hyper}
+    budgets = {
+        a.name: a.sweep.reality_budgets[name] for a in algos if name in a.sweep.reality_budgets
+    }
+    return {
+        **out,
+        **({"hyper": hyper} if hyper else {}),
+        **({"reality_budgets": budgets} if budgets else {}),
+    }
+
+
+def table1_controller(mode: str, algo: str) -> Controller:
+    """The table-1 controller of ``algo`` trained in ``mode`` (5 stages)."""
+    return Controller(prefix=f"table1-{mode}-{algo}", algo=algo, env=EnvSpec(stages=5, mode=mode))
+
+
+def table1_units(sweep) -> list:
+    """The table-1 trainings: every algorithm on the 5-stage system in each mode, each seed."""
+    return [
+        u
+        for mode in MODES
+        for algo in sweep.algos
+        for u in sweep.train_units(table1_controller(mode, algo), range(sweep.preset["seeds"]))
+    ]
+
+
+def table1_runs(sweep) -> dict:
+    """{(mode, algo, seed): cell record} of the table-1 trainings (read once per sweep)."""
+    if "table1" not in sweep.memo:
+        runs = {}
+        for mode in MODES:
+            for algo in sweep.algos:
+                records = sweep.trained_seeds(
+                    table1_controller(mode, algo), range(sweep.preset["seeds"])
+                )
+                runs.update({(mode, algo, seed): r for seed, r in records.items()})
+        sweep.memo["table1"] = runs
+    return sweep.memo["table1"]
+
+
+class Table1(Section):
+    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves."""
+
+    name = "table1"
+
+    def units(self, sweep):
+        return table1_units(sweep)
+
+    def results(self, sweep):
+        return table1_runs(sweep)
+
+    def report(self, sweep, runs):
+        report.table1(sweep.out, runs, sweep.preset)
+        report.training_curves(sweep.out, runs, sweep.preset)
+        report.testing_curves(sweep.out, runs, sweep.preset)
+
+
+class Table2(Table1):
+    """The paper's Table 2 (time usage), from the table-1 runs."""
+
+    name = "table2"
+
+    def report(self, sweep, runs):
+        report.table2(sweep.out, runs, sweep.preset)
+
+
+class Stages(Section):
+    """Stage scan N = lo..hi: final testing P/Pmax and training convergence step."""
+
+    name = "stages"
+
+    @staticmethod
+    def _controllers(sweep) -> list:
+        """(N, mode, controller) of each trained controller."""
+        lo, hi = sweep.preset["stage_range"]
+        algos = [a for a in sweep.preset["stage_algos"] if a in sweep.algos]
+        return [
+            (
+                n,
+                mode,
+                Controller(
+                    prefix=f"stages-N{n}-{mode}-{algo}", algo=algo, env=EnvSpec(stages=n, mode=mode)
+                ),
+            )
+            for n in range(lo, hi + 1)
+            for mode in sweep.preset["stage_modes"]
+            for algo in algos
+        ]
+
+    def units(self, sweep):
+        return [
+            u
+            for _, _, controller in self._controllers(sweep)
+            for u in sweep.train_units(controller, range(sweep.preset["stage_seeds"]))
+        ]
+
+    def results(self, sweep):
+        res = {}
+        for n, mode, controller in self._controllers(sweep):
+            records = sweep.trained_seeds(controller, range(sweep.preset["stage_seeds"]))
+            res.update({(n, mode, controller.algo, seed): r for seed, r in records.items()})
+        return res
+
+    def report(self, sweep, res):
+        report.stages(sweep.out, res, sweep.preset)
+
+
+class TableOneEvaluations(Section):
+    """Evaluations of the table-1 controllers (the first ``aux_seeds`` seeds) in other environments:
+    ``evals(sweep, mode) -> [(key, label prefix, env options)]`` for the controllers trained in ``mode``."""
+
+    def evals(self, sweep, mode: str) -> list:
+        raise NotImplementedError
+
+    def _tests(self, sweep) -> list:
+        """(mode, controller, seed, [(result key, Evaluation)]) of each table-1 controller tested here."""
+        out = []
+        for mode in MODES:
+            for algo in sweep.algos:
+                for seed in range(sweep.aux_seeds):
+                    tests = [
+                        (
+                            (*key, algo, seed),
+                            Evaluation(
+                                label=seed_label(f"{label}-{algo}", seed),
+                                env=env,
+                                seed=seed + TEST_SEED_OFFSET,
+                            ),
+                        )
+                        for key, label, env in self.evals(sweep, mode)
+                    ]
+                    if tests:
+                        out.append((mode, table1_controller(mode, algo), seed, tests))
+        return out
+
+    def units(self, sweep):
+        return table1_units(sweep) + [
+            sweep.eval_unit(
+                f"{self.name}-evals-{mode}-{controller.algo}-s{seed}",
+                controller,
+                seed,
+                [evaluation for _, evaluation in tests],
+            )
+            for mode, controller, seed, tests in self._tests(sweep)
+        ]
+
+    def results(self, sweep):
+        runs = table1_runs(sweep)
+        return {
+            key: sweep.evaluated(evaluation, runs[mode, controller.algo, seed])
+            for mode, controller, seed, tests in self._tests(sweep)
+            for key, evaluation in tests
+        }
+
+
+class Transfer(TableOneEvaluations):
+    """Trained on one mode, tested on each."""
+
+    name = "transfer"
+
+    def evals(self, sweep, mode):
+        return [
+            ((mode, test), f"transfer-{mode}-{test}", {"stages": 5, "mode": test}) for test in MODES
+        ]
+
+    def report(self, sweep, res):
+        report.transfer(sweep.out, res, sweep.preset)
+
+
+class Feedback(TableOneEvaluations):
+    """Trained at k = 1 (hard mode), tested at each feedback delay factor k."""
+
+    name = "feedback"
+
+    def evals(self, sweep, mode):
+        return [
+            ((k,), f"feedback-k{k}", {"stages": 5, "mode": "hard", "feedback_k": k})
+            for k in sweep.preset["feedback_ks"]
+            if mode == "hard"
+        ]
+
+    def report(self, sweep, res):
+        report.feedback(sweep.out, res, sweep.preset)
+
+
+PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them
+register, unregister = PLAN.register, PLAN.unregister
+
+
+def default_sections() -> tuple:
+    """The sections of a run without ``--only``."""
+    return tuple(name for name, s in PLAN.items() if s.default)
+
+
+BUDGET_PRESETS = {
+    "quick": "quick",
+    "default": "default",
+    "paper": "full",
+}  # sweep preset -> budget preset
+
+
+def _budget_section() -> CellSection:
+    """Score against env steps on a lab's budget (benchmarks/budget/plan.py), at the budget preset of
+    ``BUDGET_PRESETS``; part of a run without ``--only``."""
+    return CellSection(
+        "budget",
+        lambda p: budget.cells(BUDGET_PRESETS[p["name"]]),
+        budget.compute,
+        lambda records, out: budget.report(
+            [{"cell": c, "result": r} for c, r in records], out / "budget"
+        ),
+        default=True,
+        cost=budget.cost,
+    )
+
+
+for _section in (
+    Table1(),
+    Table2(),
+    Stages(),
+    Transfer(),
+    Feedback(),
+    reality.Reality(),
+    _budget_section(),
+):
+    register(_section)

@@ -1,0 +1,555 @@
+"""Tables, figures and the summary page of ``benchmarks.sweep`` (results/<name>/)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from agents.registry import NAMES
+from benchmarks.sweep.paper import MODES, PAPER_TABLE1, PAPER_TABLE2
+
+ENVS = ("training", "testing")
+
+
+MIN_BOLD_SEEDS = 3  # fewer seeds per cell cannot support a Welch's t-test verdict: nothing is bold
+
+
+def bold_rule(seeds: int) -> str:
+    """The bolding rule as stated under a table of ``seeds`` seeds per cell."""
+    if seeds < MIN_BOLD_SEEDS:
+        return f"No bold: {seeds} seeds per cell are too few to tell values apart (bold needs {MIN_BOLD_SEEDS} or more)."
+    return (
+        "Bold: the best mean of the row and every value not significantly different from it (Welch's t-test, "
+        f"p >= 0.05 over the {seeds} seeds); nothing is bold with fewer than {MIN_BOLD_SEEDS} seeds."
+    )
+
+
+def bold_mask(samples: dict, alpha: float = 0.05) -> dict:
+    """Best mean per row, and every algorithm not significantly different from it (Welch's
+    t-test, p >= alpha), are bold; nothing is with fewer than ``MIN_BOLD_SEEDS`` samples in any
+    cell. Identical constant samples count as not different."""
+    from scipy.stats import ttest_ind
+
+    if min(len(v) for v in samples.values()) < MIN_BOLD_SEEDS:
+        return {a: False for a in samples}
+    means = {a: float(np.mean(v)) for a, v in samples.items()}
+    best = max(means, key=means.get)
+    mask = {}
+    for algo, values in samples.items():
+        if algo == best:
+            mask[algo] = True
+            continue
+        p = ttest_ind(samples[best], values, equal_var=False).pvalue
+        mask[algo] = bool(np.isnan(p) and means[algo] == means[best]) or bool(p >= alpha)
+    return mask
+
+
+def _fmt(mean, std, bold=False):
+    s = f"{mean:.4f} ± {std:.4f}"
+    return f"**{s}**" if bold else s
+
+
+def _per_seed_final(record, env):
+    return float(np.mean(record["train_env" if env == "training" else "test_env"]["final"]))
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def table1(out: Path, runs: dict, p: dict):
+    """table1.md / .csv (mean ± std, Welch bolding, IQM [95 % CI] per cell; per algorithm the IQM over modes;
+    the probability of improvement between algorithms) and performance_profile.png."""
+    from benchmarks import robust
+
+    algos = p["algos"]
+    rows_md, rows_csv = [], []
+    finals = {}  # (env, algo): (seeds, modes) matrix of final P/Pmax
+    for mode in MODES:
+        for env in ENVS:
+            samples = {
+                a: [_per_seed_final(runs[mode, a, s], env) for s in range(p["seeds"])]
+                for a in algos
+            }
+            bold = bold_mask(samples)
+            paper = PAPER_TABLE1[mode, env]
+            cells = [_fmt(np.mean(samples[a]), np.std(samples[a]), bold[a]) for a in algos]
+            paper_cells = [_fmt(*paper[a]) if a in paper else "–" for a in algos]
+            intervals = {a: robust.bootstrap_ci(samples[a]) for a in algos}
+            rows_md.append(f"| {mode} | {env} | " + " | ".join(cells) + " |")
+            rows_md.append(
+                "| | IQM [95 % CI] | "
+                + " | ".join("{:.4f} [{:.4f}, {:.4f}]".format(*intervals[a]) for a in algos)
+                + " |"
+            )
+            rows_md.append("| | paper | " + " | ".join(paper_cells) + " |")
+            for a in algos:
+                finals.setdefault((env, a), []).append(samples[a])
+                rows_csv.append(
+                    [
+                        mode,
+                        env,
+                        a,
+                        np.mean(samples[a]),
+                        np.std(samples[a]),
+                        len(samples[a]),
+                        bold[a],
+                        *intervals[a],
+                        *(paper[a] if a in paper else ("", "")),
+                    ]
+                )
+    finals = {k: np.array(v).T for k, v in finals.items()}
+    header = "| mode | evaluation env | " + " | ".join(NAMES[a] for a in algos) + " |"
+    sep = "|" + "---|" * (len(algos) + 2)
+    text = (
+        f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
+        f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
+        "and the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published values "
+        "(20 seeds, stable-baselines3).\n\n"
+        + "\n".join([header, sep, *rows_md])
+        + "\n\n"
+        + bold_rule(p["seeds"])
+        + " The IQM rows are not bolded.\n\n"
+        + robust.NOTE
+        + "\n\n"
+        + "\n".join(robust_tables(finals, algos))
+        + "\n"
+    )
+    (out / "table1.md").write_text(text)
+    with open(out / "table1.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(
+            [
+                "mode",
+                "env",
+                "algo",
+                "mean",
+                "std",
+                "seeds",
+                "bold",
+                "iqm",
+                "iqm_ci_lo",
+                "iqm_ci_hi",
+                "paper_mean",
+                "paper_std",
+            ]
+        )
+        w.writerows(rows_csv)
+    performance_profile(
+        out / "performance_profile.png",
+        {NAMES[a]: finals["testing", a] for a in algos},
+        "final testing P/Pmax, 5-stage easy + medium + hard",
+    )
+
+
+def robust_tables(finals: dict, algos) -> list:
+    """Markdown lines: per evaluation env, each algorithm's IQM over seeds x modes [95 % CI], and the
+    probability that a seed of the row's algorithm beats one of the column's on the same mode."""
+    lines = [
+        "## Aggregate over the three modes",
+        "",
+        "IQM over every seed and mode (the three modes as tasks of a stratified bootstrap), and the "
+        "probability of improvement P(row > column): the chance that a seed of the row's algorithm ends "
+        "above a seed of the column's on the same mode (ties count half), averaged over the modes. "
+        "No bold in these tables.",
+        "",
+    ]
+    for env in ENVS:
+        lines += [f"**{env}**", "", *aggregate_table({NAMES[a]: finals[env, a] for a in algos}), ""]
+    return lines
+
+
+def aggregate_table(scores: dict) -> list:
+    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the probability of
+    improvement over every other label (P(row > column), averaged over tasks)."""
+    from benchmarks import robust
+
+    labels = list(scores)
+    lines = [
+        "| | IQM [95 % CI] | " + " | ".join(f"P(> {b})" for b in labels) + " |",
+        "|---|---|" + "---|" * len(labels),
+    ]
+    for a in labels:
+        ci = "{:.4f} [{:.4f}, {:.4f}]".format(*robust.bootstrap_ci(scores[a]))
+        poi = [
+            "–" if b == a else f"{robust.probability_of_improvement(scores[a], scores[b]):.2f}"
+            for b in labels
+        ]
+        lines.append(f"| {a} | {ci} | " + " | ".join(poi) + " |")
+    return lines
+
+
+def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> None:
+    """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring above tau, with
+    its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
+    from benchmarks import robust
+
+    taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for i, (label, x) in enumerate(scores.items()):
+        prof, lo, hi = robust.profile_ci(x, taus)
+        ax.plot(taus, prof, color=f"C{i}", label=label)
+        ax.fill_between(taus, lo, hi, color=f"C{i}", alpha=0.15, lw=0)
+    ax.set_xlabel(f"tau ({xlabel})")
+    ax.set_ylabel("fraction of runs with score > tau")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title("performance profile (band: 95 % bootstrap CI)")
+    _save(fig, ax, path)
+
+
+def convergence_step(steps, values, tol=0.02):
+    """First step from which the curve stays within ``tol`` (P/Pmax) of its final value (the mean
+    of its last three points): where it 'reaches its peak and stops changing'. NaN ("not reached")
+    for an empty curve or one that never left that band: it did not change, so it converged to nothing."""
+    steps, values = np.asarray(steps, float), np.asarray(values, float)
+    if len(values) == 0:
+        return float("nan")
+    final = values[-3:].mean()
+    outside = np.nonzero(np.abs(values - final) > tol)[0]
+    if len(outside) == 0:
+        return float("nan")
+    return float(steps[min(outside[-1] + 1, len(values) - 1)])
+
+
+def _steps_cell(values) -> str:
+    """Mean ± std of convergence steps, "not reached" where none is, the count where some are not."""
+    values = np.asarray(values, float)
+    reached = values[~np.isnan(values)]
+    if not reached.size:
+        return "not reached"
+    cell = f"{reached.mean():.0f} ± {reached.std():.0f}"
+    return (
+        cell if reached.size == values.size else f"{cell} ({reached.size} of {values.size} seeds)"
+    )
+
+
+def table2(out: Path, runs: dict, p: dict):
+    lines = [
+        "# Table 2: time usage, 5-stage hard (TPS = seconds per step)",
+        "",
+        "Ours: this machine, batched JAX; per-step times are wall time divided by environment steps "
+        "(simulation = stepping the environment, optimisation = the rest of training). Convergence "
+        'step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value; "not '
+        'reached": the curve never changed by more than that (nothing converged). '
+        "Inference TPS: one batched control step (policy, probes and environment) divided by the number of "
+        "test episodes. Test-time convergence step: the same rule on the mean test curve. Total control time "
+        "= test-time convergence steps x inference TPS (the paper adds its simulation TPS; ours is inside).",
+        "",
+        "| algo | simulation TPS | optimisation TPS | convergence step | total training time (s) | "
+        "inference TPS | test-time convergence step | total control time (s) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for algo in p["algos"]:
+        recs = [runs["hard", algo, s] for s in range(p["seeds"])]
+        inf = np.mean(
+            [
+                r["test_env"]["summary"]["inference_s_per_step"]
+                / r["test_env"]["summary"]["episodes"]
+                for r in recs
+            ]
+        )
+        test_conv = [
+            convergence_step(
+                np.arange(1, len(r["test_env"]["mean_curve"]) + 1), r["test_env"]["mean_curve"]
+            )
+            for r in recs
+        ]
+        ctrl = [c * inf for c in test_conv]
+        steps = p["budgets"][algo]
+        if steps:
+            sim = np.mean([r["wall_time"].get("simulation", 0.0) for r in recs]) / steps
+            opt = np.mean([r["wall_time"].get("optimisation", 0.0) for r in recs]) / steps
+            conv = [
+                convergence_step(r["curve"].get("step", []), r["curve"].get("normalized_power", []))
+                for r in recs
+            ]
+            total = [r["wall_time"].get("total", 0.0) for r in recs]
+            train_cols = f"{sim:.2e} | {opt:.2e} | {_steps_cell(conv)} | {np.mean(total):.1f} ± {np.std(total):.1f}"
+        else:  # no training (SPGD, physics-informed)
+            train_cols = "– | – | – | –"
+        lines.append(
+            f"| {NAMES[algo]} | {train_cols} | {inf:.2e} | {_steps_cell(test_conv)} | "
+            f"{np.nanmean(ctrl):.4f} ± {np.nanstd(ctrl):.4f} |"
+        )
+        if algo in PAPER_TABLE2:
+            lines.append("| paper | " + " | ".join(str(v) for v in PAPER_TABLE2[algo]) + " |")
+    (out / "table2.md").write_text("\n".join(lines) + "\n")
+
+
+def _band(ax, x, runs_y, label):
+    y = np.asarray(runs_y)
+    m, s = y.mean(0), y.std(0)
+    (line,) = ax.plot(x, m, label=label)
+    ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
+
+
+def _save(fig, legend_ax, path: Path) -> None:
+    """Legend on ``legend_ax``, tight layout, ``path`` written at 110 dpi, figure closed."""
+    legend_ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _plt().close(fig)
+
+
+def _per_mode_figure(
+    out: Path, filename: str, title: str, xlabel: str, ylabel: str, draw, ylim=None
+):
+    """One panel per mode (``draw(ax, mode)`` plots into it), shared y axis, written to ``out/filename``."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
+    for ax, mode in zip(axes, MODES):
+        draw(ax, mode)
+        ax.set_title(f"{title}, 5-stage {mode}")
+        ax.set_xlabel(xlabel)
+        if ylim is not None:
+            ax.set_ylim(*ylim)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(ylabel)
+    _save(fig, axes[0], out / filename)
+
+
+def training_curves(out: Path, runs: dict, p: dict):
+    def draw(ax, mode):
+        for algo in p["algos"]:
+            curves = [runs[mode, algo, s]["curve"] for s in range(p["seeds"])]
+            if not all(len(c.get("step", [])) >= 2 for c in curves):
+                continue
+            grid = np.linspace(0, min(c["step"][-1] for c in curves), 50)
+            ys = [np.interp(grid, c["step"], c["normalized_power"]) for c in curves]
+            _band(ax, grid, ys, NAMES[algo])
+
+    _per_mode_figure(
+        out, "training_curves.png", "training", "environment steps", "evaluation P/Pmax", draw
+    )
+
+
+def testing_curves(out: Path, runs: dict, p: dict):
+    def draw(ax, mode):
+        for algo in p["algos"]:
+            ys = [runs[mode, algo, s]["test_env"]["mean_curve"] for s in range(p["seeds"])]
+            _band(ax, np.arange(1, len(ys[0]) + 1), ys, NAMES[algo])
+
+    _per_mode_figure(
+        out,
+        "testing_curves.png",
+        "testing",
+        "control iteration",
+        "P/Pmax (mean over test episodes)",
+        draw,
+        ylim=(0, 1.02),
+    )
+
+
+def stages(out: Path, res: dict, p: dict):
+    plt = _plt()
+    ns = sorted({k[0] for k in res})
+    fig, axes = plt.subplots(
+        1, len(p["stage_modes"]) + 1, figsize=(5 * (len(p["stage_modes"]) + 1), 4)
+    )
+    lines = [
+        "# Stage scan: final testing P/Pmax vs stage count N",
+        "",
+        "| N | mode | " + " | ".join(NAMES[a] for a in p["stage_algos"]) + " |",
+        "|" + "---|" * (len(p["stage_algos"]) + 2),
+    ]
+    for ax, mode in zip(axes, p["stage_modes"]):
+        for algo in p["stage_algos"]:
+            finals = [
+                [
+                    np.mean(res[n, mode, algo, s]["test_env"]["final"])
+                    for s in range(p["stage_seeds"])
+                ]
+                for n in ns
+            ]
+            ax.errorbar(
+                ns,
+                np.mean(finals, 1),
+                yerr=np.std(finals, 1),
+                marker="o",
+                capsize=3,
+                label=NAMES[algo],
+            )
+        ax.set_title(f"{mode}")
+        ax.set_xlabel("stages N")
+        ax.set_ylabel("final testing P/Pmax")
+        ax.set_ylim(0, 1.05)
+        ax.grid(alpha=0.3)
+        for n in ns:
+            vals = [
+                np.mean(
+                    [
+                        np.mean(res[n, mode, a, s]["test_env"]["final"])
+                        for s in range(p["stage_seeds"])
+                    ]
+                )
+                for a in p["stage_algos"]
+            ]
+            lines.append(f"| {n} | {mode} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
+    ax = axes[-1]
+    hardest = p["stage_modes"][-1]
+    for algo in p["stage_algos"]:
+        conv = [
+            np.mean(
+                [
+                    convergence_step(
+                        res[n, hardest, algo, s]["curve"].get("step", []),
+                        res[n, hardest, algo, s]["curve"].get("normalized_power", []),
+                    )
+                    for s in range(p["stage_seeds"])
+                ]
+            )
+            for n in ns
+        ]
+        ax.plot(ns, conv, marker="o", label=NAMES[algo])
+    ax.set_title(f"training convergence step ({hardest})")
+    ax.set_xlabel("stages N")
+    ax.set_ylabel("environment steps")
+    ax.grid(alpha=0.3)
+    _save(fig, axes[0], out / "stages.png")
+    (out / "stages.md").write_text("\n".join(lines) + "\n")
+
+
+def transfer(out: Path, res: dict, p: dict):
+    plt = _plt()
+    algos = p["algos"]
+    fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
+    lines = ["# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax", ""]
+    for ax, algo in zip(np.atleast_1d(axes), algos):
+        seeds = sorted({k[3] for k in res})
+        m = np.array(
+            [
+                [np.mean([np.mean(res[a, b, algo, s]["final"]) for s in seeds]) for b in MODES]
+                for a in MODES
+            ]
+        )
+        im = ax.imshow(m, vmin=0, vmax=1, cmap="viridis")
+        for i in range(3):
+            for j in range(3):
+                ax.text(
+                    j,
+                    i,
+                    f"{m[i, j]:.2f}",
+                    ha="center",
+                    va="center",
+                    color="w" if m[i, j] < 0.6 else "k",
+                )
+        ax.set_xticks(range(3), MODES)
+        ax.set_yticks(range(3), MODES)
+        ax.set_xlabel("tested on")
+        ax.set_ylabel("trained on")
+        ax.set_title(NAMES[algo])
+        lines += [
+            f"## {NAMES[algo]}",
+            "",
+            "| trained \\ tested | " + " | ".join(MODES) + " |",
+            "|---|---|---|---|",
+        ]
+        lines += [
+            f"| {MODES[i]} | " + " | ".join(f"{v:.3f}" for v in m[i]) + " |" for i in range(3)
+        ] + [""]
+    fig.colorbar(im, ax=np.atleast_1d(axes).tolist(), shrink=0.8, label="P/Pmax")
+    fig.savefig(out / "transfer.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    (out / "transfer.md").write_text("\n".join(lines) + "\n")
+
+
+def feedback(out: Path, res: dict, p: dict):
+    plt = _plt()
+    ks = p["feedback_ks"]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    lines = [
+        "# Feedback delay: trained at k = 1 (hard), tested at k",
+        "",
+        "| algo | " + " | ".join(f"k={k} final / mean" for k in ks) + " |",
+        "|" + "---|" * (len(ks) + 1),
+    ]
+    seeds = sorted({key[2] for key in res})
+    for algo in p["algos"]:
+        finals = [np.mean([np.mean(res[k, algo, s]["final"]) for s in seeds]) for k in ks]
+        cum = [np.mean([np.mean(res[k, algo, s]["mean_curve"]) for s in seeds]) for k in ks]
+        axes[0].plot(ks, finals, marker="o", label=NAMES[algo])
+        axes[1].plot(ks, cum, marker="o", label=NAMES[algo])
+        lines.append(
+            f"| {NAMES[algo]} | "
+            + " | ".join(f"{f:.3f} / {c:.3f}" for f, c in zip(finals, cum))
+            + " |"
+        )
+    axes[0].set_ylabel("final P/Pmax")
+    axes[1].set_ylabel("P/Pmax averaged over the episode")
+    for ax in axes:
+        ax.set_xlabel("feedback delay factor k (free-run draws per control step)")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    _save(fig, axes[0], out / "feedback.png")
+    (out / "feedback.md").write_text("\n".join(lines) + "\n")
+
+
+def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall=float("nan")):
+    """summary.md: configuration, machine, cells (``counts``: computed, reused), wall times (this
+    process's ``timing``; each part worker's in ``workers``; ``wall``, the whole command's, if
+    known) and every table and figure."""
+    import jax
+
+    computed, reused = counts
+    if workers:
+        times = [
+            f"- worker {i + 1} ({'+'.join(w['algos'])}): "
+            + ", ".join(f"{k} {v:.1f} s" for k, v in w["timing"].items())
+            for i, w in enumerate(workers)
+        ]
+        times += [
+            "- then, in one process: " + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()),
+            "",
+            f"The {len(workers)} workers ran at once, so the times per step in table2 were measured "
+            "beside the other workers' work.",
+        ]
+    else:
+        times = [f"- {k}: {v:.1f} s" for k, v in timing.items()]
+    if wall == wall:
+        times = [f"- whole command: {wall:.1f} s", *times]
+
+    files = sorted(
+        f.name
+        for f in out.iterdir()
+        if f.suffix in (".md", ".csv", ".png") and f.name != "summary.md"
+    )
+    lines = [
+        f"# ops-jax sweep: preset {p['name']}",
+        "",
+        f"- sections: {', '.join(sections)}",
+        f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: {p['episodes']}",
+        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['algo_config']}",
+        *(
+            [f"- the reality section's own budgets: {p['reality_budgets']}"]
+            if "reality" in sections and p.get("reality_budgets")
+            else []
+        ),
+        f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
+        f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
+        f"- XLA_FLAGS: {os.environ.get('XLA_FLAGS') or '(none)'}",
+        f"- cells computed this run: {computed}, reused from earlier runs: {reused}",
+        "",
+        "## Wall time per section (this run)",
+        "",
+        *times,
+        "",
+        "## Files",
+        "",
+        *[f"- [{f}]({f})" for f in files],
+        "",
+    ]
+    for f in files:
+        if f.endswith(".png"):
+            lines += [f"![{f}]({f})", ""]
+    (out / "summary.md").write_text("\n".join(lines))

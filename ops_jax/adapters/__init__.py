@@ -1,0 +1,1 @@
+"""Adapters of the OPS environment to other APIs: Gymnasium, Brax, gymnax."""

@@ -1,0 +1,1 @@
+"""The Gymnasium adapters (``OPSGymEnv``, ``OPSVectorEnv``) and their jitted programs."""

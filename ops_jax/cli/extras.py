@@ -1,0 +1,70 @@
+"""Which optional extra of ops-jax installs a missing module, and the one-line message that the
+project's command-line programs print instead of a traceback when it is missing."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import re
+import sys
+
+PACKAGES = ("ops_jax", "agents", "benchmarks")  # whose ``python -m`` programs get the short message
+_REQUIREMENT = re.compile(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*).*?extra\s*==\s*['\"]([\w-]+)['\"]")
+
+
+def install_command(extra: str) -> str:
+    """The command that installs ``extra`` into a clone's environment."""
+    return f'pip install -e ".[{extra}]"'
+
+
+def extra_of(module: str) -> str | None:
+    """The first extra (in pyproject order) whose requirements install top-level ``module``; None if none does."""
+    try:
+        requirements = importlib.metadata.requires("ops-jax") or []
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    for requirement in requirements:
+        match = _REQUIREMENT.match(requirement)
+        if match and match.group(1).lower().replace("-", "_").replace(".", "_") == module:
+            return match.group(2)
+    return None
+
+
+def missing_module(exc: BaseException) -> str | None:
+    """The top-level name of the module whose absence raised ``exc`` (or its cause); None otherwise."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, ModuleNotFoundError) and exc.name:
+            return exc.name.split(".")[0]
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def program() -> str | None:
+    """``python -m NAME`` when the running program is one of this project's modules, else None."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    name = getattr(spec, "name", None) or ""
+    return f"python -m {name}" if name.split(".")[0] in PACKAGES else None
+
+
+_previous_hook = sys.excepthook
+
+
+def _excepthook(kind, exc, tb):
+    module = missing_module(exc)
+    extra = extra_of(module) if module else None
+    prog = program()
+    if prog is None or extra is None:
+        return _previous_hook(kind, exc, tb)
+    print(
+        f"{prog} needs {module}, which the {extra} extra installs: {install_command(extra)}",
+        file=sys.stderr,
+    )
+
+
+def install_excepthook() -> None:
+    """Print one line naming the install command, not a traceback, when one of the project's programs
+    stops on a module that an extra installs (other programs keep their traceback)."""
+    global _previous_hook
+    if sys.excepthook is not _excepthook:
+        _previous_hook, sys.excepthook = sys.excepthook, _excepthook
