@@ -21,7 +21,7 @@ import pytest
 from ops_jax.cli import extras
 
 REPO = Path(__file__).resolve().parents[2]
-DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+DOCS = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]  # docs/decisions/ too
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
 INLINE = re.compile(r"(?<!`)`((?:python\s+(?:-m\s|examples/)|pip\s+install\s)[^`]+)`")
 # Placeholders of inline commands in prose, and a value each takes here.
@@ -133,6 +133,45 @@ def _skip_if_extra_missing(module: str) -> None:
         pytest.skip(
             f"needs {module} from the {extra} extra, not installed here: {extras.install_command(extra)}"
         )
+
+
+def _prose(path: Path) -> str:
+    """The page's text without its fenced blocks (a ``#`` there is a comment, a ``](`` code)."""
+    return re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)
+
+
+def _anchors(path: Path) -> set:
+    """The anchors GitHub gives the page's headings: lower case, punctuation dropped, spaces to dashes, repeats -1, -2."""
+    seen, out = {}, set()
+    for m in re.finditer(r"^#{1,6} (.+)$", _prose(path), re.M):
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).replace("`", "").strip().lower()).replace(
+            " ", "-"
+        )
+        out.add(f"{slug}-{seen[slug]}" if slug in seen else slug)
+        seen[slug] = seen.get(slug, 0) + 1
+    return out
+
+
+@pytest.mark.parametrize("path", DOCS, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_relative_link_and_anchor_resolves(path):
+    """A link to a moved or renamed page or section: GitHub shows the page's top, or a 404."""
+    broken = []
+    for m in re.finditer(r"\]\(([^)\s]+)\)", _prose(path)):
+        target, _, anchor = m.group(1).partition("#")
+        if re.match(r"[a-z]+:", target):
+            continue
+        page = (path.parent / target).resolve() if target else path
+        if not page.exists() or (anchor and page.suffix == ".md" and anchor not in _anchors(page)):
+            broken.append(m.group(1))
+    assert not broken, f"{path.relative_to(REPO)}: {broken}"
+
+
+def test_the_readme_index_links_every_docs_page():
+    index = (
+        REPO.joinpath("README.md").read_text().split("## Documentation", 1)[1].split("\n## ", 1)[0]
+    )
+    pages = {p.relative_to(REPO).as_posix() for p in (REPO / "docs").glob("*.md")}
+    assert pages and pages <= set(re.findall(r"\]\((docs/[\w.]+\.md)\)", index)), pages
 
 
 @pytest.mark.parametrize("path", DOCS, ids=lambda p: p.name)
