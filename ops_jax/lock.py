@@ -196,13 +196,13 @@ def _welch(x: np.ndarray, segment: int, fs: float) -> np.ndarray:
     ``fs``); NaN where ``x`` is shorter than ``segment``."""
     if x.size < segment:
         return np.full(segment // 2 + 1, np.nan)
-    step = segment // 2
+    step = segment - segment // 2  # overlap: half a segment, rounded down
     starts = np.arange(0, x.size - segment + 1, step)
     parts = x[starts[:, None] + np.arange(segment)]
     parts = parts - parts.mean(-1, keepdims=True)
     window = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(segment) / segment)  # periodic Hann
     power = np.abs(np.fft.rfft(parts * window, axis=-1)) ** 2 / (fs * np.sum(window**2))
-    power[:, 1 : (segment + 1) // 2] *= 2  # one-sided: the negative frequencies folded in
+    power[:, 1 : segment // 2 + segment % 2] *= 2  # one-sided: negative frequencies folded in
     return power.mean(0)
 
 
