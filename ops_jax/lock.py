@@ -20,7 +20,8 @@ spectrum of what is left.
   the segments' means held). ``segment`` default: the largest power of two <= 256 that every locked trace's
   post-lock readings fill; a trace with fewer post-lock readings than ``segment`` has a NaN spectrum.
 
-The figures do not change when the trace is scaled (P / P_max and P / P_best give the same ones).
+``episode_summary(traces)`` gives the figures over episodes (the medians of those that locked), as
+``agents.evaluate``'s summary reports them. The figures do not change when the trace is scaled (P / P_max and P / P_best give the same ones).
 Numpy only.
 """
 
@@ -93,6 +94,22 @@ class LockFigures:
             rms_after_lock_median=float(np.median(self.rms_after_lock[locked])) if some else None,
             lock_reason=None if some else "no episode locked: every one " + self.reason(),
         )
+
+
+def episode_summary(traces, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOLD) -> dict:
+    """``LockFigures.episode_summary`` of ``traces`` (episodes, steps); traces of fewer than ``MIN_STEPS``
+    readings are too short to score: ``None`` figures, and ``lock_reason`` says so."""
+    traces = np.asarray(traces)
+    if traces.ndim >= 1 and 0 < traces.shape[-1] < MIN_STEPS:
+        short = f"traces of {traces.shape[-1]} steps are too short to score (at least {MIN_STEPS})"
+        return dict(
+            lock_band=float(band),
+            fraction_locked=None,
+            lock_step_median=None,
+            rms_after_lock_median=None,
+            lock_reason=short,
+        )
+    return lock_figures(traces, rate_hz, band=band, hold=hold).episode_summary()
 
 
 def _json(values: np.ndarray, integer: bool = False):
