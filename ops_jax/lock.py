@@ -21,7 +21,8 @@ spectrum of what is left.
   post-lock readings fill; a trace with fewer post-lock readings than ``segment`` has a NaN spectrum.
 
 ``episode_summary(traces)`` gives the figures over episodes (the medians of those that locked), as
-``agents.evaluate``'s summary reports them. The figures do not change when the trace is scaled (P / P_max and P / P_best give the same ones).
+``agents.evaluate``'s summary reports them; ``trace_json(trace, rate_hz)`` one run's, as ``agents.bench``'s
+summary.json holds them. The figures do not change when the trace is scaled (P / P_max and P / P_best give the same ones).
 Numpy only.
 """
 
@@ -96,20 +97,33 @@ class LockFigures:
         )
 
 
+def _too_short(traces: np.ndarray) -> str | None:
+    """Why ``traces`` are too short to score (fewer than ``MIN_STEPS`` readings), or None."""
+    if traces.ndim >= 1 and (steps := traces.shape[-1]) < MIN_STEPS:
+        return f"traces of {steps} steps are too short to score (at least {MIN_STEPS})"
+    return None
+
+
 def episode_summary(traces, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOLD) -> dict:
     """``LockFigures.episode_summary`` of ``traces`` (episodes, steps); traces of fewer than ``MIN_STEPS``
     readings are too short to score: ``None`` figures, and ``lock_reason`` says so."""
     traces = np.asarray(traces)
-    if traces.ndim >= 1 and 0 < traces.shape[-1] < MIN_STEPS:
-        short = f"traces of {traces.shape[-1]} steps are too short to score (at least {MIN_STEPS})"
-        return dict(
-            lock_band=float(band),
-            fraction_locked=None,
-            lock_step_median=None,
-            rms_after_lock_median=None,
-            lock_reason=short,
-        )
-    return lock_figures(traces, rate_hz, band=band, hold=hold).episode_summary()
+    short = _too_short(traces)
+    if short is None:
+        return lock_figures(traces, rate_hz, band=band, hold=hold).episode_summary()
+    none = dict(fraction_locked=None, lock_step_median=None, rms_after_lock_median=None)
+    return dict(lock_band=float(band), **none, lock_reason=short)
+
+
+def trace_json(trace, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOLD) -> dict:
+    """``LockFigures.to_json`` of one ``trace`` (steps,) (a run's); one of fewer than ``MIN_STEPS`` readings is
+    too short to score: ``None`` figures, and ``lock_reason`` says so."""
+    trace = np.asarray(trace)
+    short = _too_short(trace)
+    if short is None:
+        return lock_figures(trace, rate_hz, band=band, hold=hold).to_json()
+    none = dict(held_level=None, lock_step=None, lock_s=None, rms_after_lock=None)
+    return dict(lock_band=float(band), **none, lock_reason=short)
 
 
 def _json(values: np.ndarray, integer: bool = False):

@@ -149,3 +149,19 @@ def test_non_finite_readings_count_as_out_of_the_band():
     trace[70] = np.nan
     fig = lock_figures(trace)
     assert fig.lock_step == 72 and fig.rms_after_lock == pytest.approx(0, abs=1e-12)
+
+
+def test_a_run_too_short_to_score_gets_null_figures_that_say_why():
+    from ops_jax.lock import episode_summary, trace_json
+
+    for trace in (np.ones(3), np.ones(0)):
+        run = json.loads(json.dumps(trace_json(trace, 100.0), allow_nan=False))
+        assert run["lock_step"] is None and run["lock_s"] is None and run["rms_after_lock"] is None
+        assert "too short to score" in run["lock_reason"]
+    over = episode_summary(np.ones((5, 2)))
+    assert over["lock_step_median"] is None and over["fraction_locked"] is None
+    locked = trace_json(np.r_[np.zeros(10), np.ones(90)], 50.0)
+    assert locked["lock_step"] == 11 and locked["lock_s"] == pytest.approx(0.22)
+    assert locked["lock_reason"] is None and locked["held_level"] == 1.0
+    with pytest.raises(ValueError, match="band must lie in"):
+        trace_json(np.ones(10), band=2.0)

@@ -30,6 +30,7 @@ from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
 import ops_jax  # noqa: E402
 from ops_jax import ioc  # noqa: E402
+from ops_jax.lock import lock_figures  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 START_S = 240  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
@@ -1010,6 +1011,19 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
         np.abs(np.diff(sent, axis=0)) <= 2 * 0.03 + 1e-9
     )
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
+    # the lock figures of the run's P / P_best (ops_jax.lock) at its achieved rate; null with a reason if unlocked
+    (pbest,) = [k for k in events[0] if k.endswith("p_pbest")]
+    figures = lock_figures([e[pbest] for e in events], summary["rate_hz"])
+    assert summary["lock_band"] == 0.02 and summary["held_level"] == pytest.approx(
+        figures.held_level
+    )
+    if figures.locked:
+        assert summary["lock_step"] == figures.lock_step and summary["lock_reason"] is None
+        assert summary["lock_s"] == pytest.approx(summary["lock_step"] / summary["rate_hz"])
+        assert 0 <= summary["rms_after_lock"] < 0.02
+    else:
+        assert summary["lock_step"] is summary["lock_s"] is summary["rms_after_lock"] is None
+        assert "never stayed within 2%" in summary["lock_reason"]
 
 
 # Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length readout's).
