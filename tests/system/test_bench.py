@@ -30,7 +30,6 @@ from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
 import ops_jax  # noqa: E402
 from ops_jax import ioc  # noqa: E402
-from ops_jax.lock import lock_figures  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 START_S = 240  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
@@ -830,9 +829,7 @@ def iocs(tmp_path_factory):
 
 def bench_run(ioc_, tmp: Path, *args) -> Process:
     """``python -m agents.bench`` against ``ioc_`` in its own process group."""
-    return Process(
-        "agents.bench.runner", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log"
-    )
+    return Process("agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log")
 
 
 def finish(proc: Process, timeout=START_S):
@@ -1012,18 +1009,16 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     )
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
     # the lock figures of the run's P / P_best (ops_jax.lock) at its achieved rate; null with a reason if unlocked
-    (pbest,) = [k for k in events[0] if k.endswith("p_pbest")]
-    figures = lock_figures([e[pbest] for e in events], summary["rate_hz"])
-    assert summary["lock_band"] == 0.02 and summary["held_level"] == pytest.approx(
-        figures.held_level
-    )
-    if figures.locked:
-        assert summary["lock_step"] == figures.lock_step and summary["lock_reason"] is None
+    assert summary["lock_band"] == 0.02 and 0 < summary["held_level"] <= 1.5
+    if summary["lock_step"] is not None:
+        assert 1 <= summary["lock_step"] <= summary["steps"] and summary["lock_reason"] is None
         assert summary["lock_s"] == pytest.approx(summary["lock_step"] / summary["rate_hz"])
         assert 0 <= summary["rms_after_lock"] < 0.02
     else:
-        assert summary["lock_step"] is summary["lock_s"] is summary["rms_after_lock"] is None
+        assert summary["lock_s"] is None and summary["rms_after_lock"] is None
         assert "never stayed within 2%" in summary["lock_reason"]
+    width = int.from_bytes((tmp_path / "out" / "power.png").read_bytes()[16:20], "big")
+    assert width == 11 * 120  # the trace and, beside it, the PSD after lock
 
 
 # Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length readout's).
