@@ -165,3 +165,16 @@ def test_a_run_too_short_to_score_gets_null_figures_that_say_why():
     assert locked["lock_reason"] is None and locked["held_level"] == 1.0
     with pytest.raises(ValueError, match="band must lie in"):
         trace_json(np.ones(10), band=2.0)
+
+
+def test_the_module_imports_numpy_and_the_standard_library_only():
+    import ast
+
+    import ops_jax.lock
+
+    tree = ast.parse(open(ops_jax.lock.__file__).read())
+    names = {
+        a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
+    }
+    names |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert names == {"__future__", "dataclasses", "math", "warnings", "numpy"}
