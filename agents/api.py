@@ -43,6 +43,7 @@ from agents import registry
 from agents.envs import built, check_env_config
 from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
 from ops_jax import EnvSpec
+from ops_jax import lock
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
@@ -244,7 +245,8 @@ def evaluate(
 
 
 def summarize(npow: np.ndarray, **extra) -> dict:
-    """Summary statistics of P/Pmax curves (episodes, steps)."""
+    """Summary statistics of P/Pmax curves (episodes, steps); the lock figures over episodes
+    (``ops_jax.lock``: median lock step and RMS power noise after lock, ``None`` where none locks)."""
     final = npow[:, -1]
     reached = npow >= 0.9
     first = np.where(reached.any(1), reached.argmax(1) + 1, -1)
@@ -257,6 +259,7 @@ def summarize(npow: np.ndarray, **extra) -> dict:
         fraction_reached_0p9=float(ok.size / len(first)),
         episodes=int(npow.shape[0]),
         steps=int(npow.shape[1]),
+        **lock.episode_summary(npow),
         **extra,
     )
 

@@ -28,10 +28,10 @@ The watchdog stops the run at once and writes nothing more when a PV disconnects
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
 ends the run after the current step, a second one at once (``user_stops``). Written to ``DIR``:
 ``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P / P_max and
-P / P_best against time; learning: the update ratio too), ``summary.json`` (learning: the step counts and update
-ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time, steps or the user, 3 when the
-watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run
-started (nothing recorded).
+P / P_best against time, the PSD after lock beside it; learning: the update ratio too), ``summary.json`` (the lock
+figures of ``ops_jax.lock`` too; learning: the step counts and update ratio) and, learning, ``checkpoint/``.
+Exit status 0 when the run ended by time, steps or the user, 3 when the watchdog stopped it, 2 for bad
+arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing recorded).
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ from agents.bench.loop import (
 )
 from agents.cli import parse_set
 from agents.io import write_json_atomic
+from ops_jax import lock
 from ops_jax.cli import runtime
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 
@@ -97,7 +98,8 @@ def _stopped_by(loop: Loop) -> str:
 
 def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
     """``summary.json``: the score (the last 80 % of the run: of its time, in lockstep of its frames, so that a
-    lockstep score does not depend on the host's pace), achieved rates, latencies, how it ended."""
+    lockstep score does not depend on the host's pace), achieved rates, latencies, how it ended; the lock figures
+    of P / P_best over the whole run at its achieved rate (``ops_jax.lock.trace_json``)."""
     rec = {k: np.asarray(v, float) for k, v in loop.rec.items()}
     steps, t = len(rec["time_s"]), rec["time_s"]
     if loop.advance is not None and steps:
@@ -131,6 +133,7 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
         "clipped_moves": int(loop.lines.clipped.get()),
         "wrapped_moves": int(loop.lines.wraps.get()),
         "actions_cut": loop.actions_cut,
+        **lock.trace_json(rec["p_pbest"], steps / elapsed if elapsed > 0 and steps else None),
     }
 
 
@@ -144,11 +147,13 @@ def _pyplot():
     return plt
 
 
-def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
-    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on a second axis."""
+def plot(path: Path, loop: Loop, title: str, ratio=None, rate_hz=None) -> None:
+    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on a second axis;
+    beside it the PSD of P / P_best after lock at ``rate_hz`` (control steps/s; ``ops_jax.lock``)."""
     plt = _pyplot()
     t = np.asarray(loop.rec["time_s"])
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig, (ax, psd_ax) = plt.subplots(1, 2, figsize=(11, 3.5), width_ratios=(3, 2))
+    _draw_psd(psd_ax, loop.rec["p_pbest"], rate_hz)
     ax.plot(t, loop.rec["p_pbest"], lw=1, label="P / P_best")
     ax.plot(t, loop.rec["p_pmax"], lw=1, alpha=0.7, label="P / P_max")
     ax.set(xlabel="time (s)", ylabel="stacked power", ylim=(0, 1.05), title=title)
@@ -162,6 +167,14 @@ def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _draw_psd(ax, trace, rate_hz) -> None:
+    """The PSD after lock of ``trace`` on ``ax``, or a note that the run is too short to score."""
+    if len(trace) < lock.MIN_STEPS:
+        ax.text(0.5, 0.5, "too short to score a lock", transform=ax.transAxes, ha="center")
+        return
+    lock.draw_psd(ax, lock.lock_figures(trace, rate_hz or None), label="P / P_best")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -440,6 +453,7 @@ def main(argv=None) -> int:
             loop,
             f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
             learning and learning.ratio_series(loop.t0),
+            rate_hz=summary["rate_hz"],
         )
         print(json.dumps(summary, indent=1))
     return EXIT_WATCHDOG if stopped else 0

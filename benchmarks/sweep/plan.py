@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from agents.registry import Registry
 from benchmarks.budget import plan as budget
-from benchmarks.sweep import reality
+from benchmarks.sweep import lock_table, reality
 from benchmarks.sweep import report
 from benchmarks.sweep.paper import MODES
 from benchmarks.sweep.records import Controller, Evaluation, seed_label
@@ -113,7 +113,8 @@ def table1_runs(sweep) -> dict:
 
 
 class Table1(Section):
-    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves."""
+    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves; the lock
+    figures."""
 
     name = "table1"
 
@@ -127,6 +128,7 @@ class Table1(Section):
         report.table1(sweep.out, runs, sweep.preset)
         report.training_curves(sweep.out, runs, sweep.preset)
         report.testing_curves(sweep.out, runs, sweep.preset)
+        lock_table.lock_table(sweep.out, runs, sweep.preset)
 
 
 class Table2(Table1):

@@ -308,3 +308,24 @@ def test_evaluate_reports_p_best_and_builds_the_environment_once(monkeypatch):
     ):  # the documented P/P_best score, P/Pmax here
         assert ideal.summary[key + "_best"] == ideal.summary[key]
     assert len(calls) == 1
+
+
+def test_evaluate_summary_reports_the_lock_figures_over_its_episodes():
+    """The median lock step and RMS power noise after lock of the episodes that lock (``ops_jax.lock``),
+    beside the summary's other figures; a lock comes no earlier than P first reaches 0.9."""
+    from ops_jax.lock import lock_figures
+
+    result = agents.train("physics", ENV, starts=3, iters=2)
+    ev = agents.evaluate(result, ENV, episodes=6, seed=2, steps=60)
+    figures = lock_figures(ev.normalized_power)
+    s = ev.summary
+    assert s["fraction_locked"] == pytest.approx(figures.locked.mean()) and s["fraction_locked"] > 0
+    assert s["lock_step_median"] == np.median(figures.lock_step[figures.locked])
+    assert s["rms_after_lock_median"] == pytest.approx(
+        np.median(figures.rms_after_lock[figures.locked])
+    )
+    assert 0 < s["rms_after_lock_median"] < s["lock_band"] == 0.02 and s["lock_reason"] is None
+    assert s["lock_step_median"] >= s["steps_to_0p9_median"]
+    short = agents.summarize(np.full((2, 3), 0.5, np.float32))  # 3 steps: too short to score a lock
+    assert short["lock_step_median"] is None and "too short" in short["lock_reason"]
+    assert short["final_mean"] == 0.5 and short["steps"] == 3  # the other figures as before

@@ -1010,6 +1010,17 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
         np.abs(np.diff(sent, axis=0)) <= 2 * 0.03 + 1e-9
     )
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
+    # the lock figures of the run's P / P_best (ops_jax.lock) at its achieved rate; null with a reason if unlocked
+    assert summary["lock_band"] == 0.02 and 0 < summary["held_level"] <= 1.5
+    if summary["lock_step"] is not None:
+        assert 1 <= summary["lock_step"] <= summary["steps"] and summary["lock_reason"] is None
+        assert summary["lock_s"] == pytest.approx(summary["lock_step"] / summary["rate_hz"])
+        assert 0 <= summary["rms_after_lock"] < 0.02
+    else:
+        assert summary["lock_s"] is None and summary["rms_after_lock"] is None
+        assert "never stayed within 2%" in summary["lock_reason"]
+    width = int.from_bytes((tmp_path / "out" / "power.png").read_bytes()[16:20], "big")
+    assert width == 11 * 120  # the trace and, beside it, the PSD after lock
 
 
 # Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length readout's).

@@ -475,3 +475,38 @@ def test_local_workers_get_disjoint_cpu_shares_and_pinning_holds_for_later_threa
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60
     )
     assert out.stdout.split() == [f"[{cpus[-1]}]", f"[{cpus[-1]}]"], out.stderr
+
+
+def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cells(tmp_path):
+    """lock.md from stored evaluations (JSON round trip): SPGD's cells hold the lock figures, TD3's were stored
+    before them (a dash), but for one seed in hard mode; episodes that never lock are counted out."""
+    from benchmarks.sweep.lock_table import lock_table
+    from benchmarks.sweep.paper import MODES
+    from ops_jax import lock
+
+    k = np.arange(100)
+    locks = lambda *at: np.stack([np.where(k < s, 0.2, 0.9) for s in at])  # locked at step s + 1
+    never = 0.5 + 0.3 * (k % 2)
+    stored = lambda traces: json.loads(json.dumps({"summary": lock.episode_summary(traces)}))
+    old = {"summary": {"final_mean": 0.5, "steps_to_0p9_median": float("nan")}}
+    runs = {}
+    for mode in MODES:
+        runs[mode, "spgd", 0] = {
+            "train_env": stored(locks(9, 19)),
+            "test_env": stored(locks(9, 29)),
+        }
+        runs[mode, "spgd", 1] = {
+            "train_env": stored(locks(29, 39)),
+            "test_env": stored(locks(49, 49)),
+        }
+        for s in (0, 1):
+            runs[mode, "td3", s] = {"train_env": old, "test_env": old}
+    runs["hard", "td3", 1] = {"train_env": old, "test_env": stored(np.stack([never, never]))}
+    lock_table(tmp_path, runs, dict(algos=["spgd", "td3"], seeds=2, episodes=2, name="synthetic"))
+    md = (tmp_path / "lock.md").read_text()
+    # SPGD testing: seed medians 20 and 50 -> 35 ± 15; RMS 0 (a flat lock)
+    assert "| easy | testing | SPGD | 100% | 35 ± 15 | 0.00 ± 0.00 |" in md
+    assert "| medium | training | SPGD | 100% | 25 ± 10 | 0.00 ± 0.00 |" in md
+    assert "| easy | testing | TD3 | – | – | – |" in md
+    assert "| hard | testing | TD3 | 0% (1 of 2 seeds) | not reached | not locked |" in md
+    assert "the band within 2% of its held level" in md
