@@ -35,7 +35,7 @@ import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from benchmarks.speed.device_table import compare_table  # noqa: E402
+from benchmarks.speed.device_table import best_phasor_n5, compare_table  # noqa: E402
 from agents.io import write_json_atomic  # noqa: E402
 from ops_jax.cli.progress import keep_ctrl_c  # noqa: E402
 from benchmarks.speed.device_sections import (  # noqa: E402, F401
@@ -216,14 +216,6 @@ def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
     return res
 
 
-def _best_phasor_n5(sections: dict):
-    s = sections.get("step_batch") or {}
-    rates = [
-        r["steps_per_s"] for r in s.get("rows", []) if r["model"] == "phasor" and r["stages"] == 5
-    ]
-    return max(rates) if rates else None
-
-
 def parser() -> argparse.ArgumentParser:
     """The command line of ``python -m benchmarks.speed.device``."""
     ap = argparse.ArgumentParser(
@@ -386,7 +378,7 @@ def main(argv=None) -> dict:
             name, names[i:], args, deadline - time.monotonic(), f"[{i + 1}/{len(names)}]"
         )
         doc["sections"][name] = res
-        doc["phasor_n5_steps_per_s"] = _best_phasor_n5(doc["sections"])
+        doc["phasor_n5_steps_per_s"] = best_phasor_n5(doc["sections"])
         doc["wall_s"] = time.monotonic() - t_start
         write_json_atomic(out, doc)
         print(

@@ -89,3 +89,12 @@ def compare_table(docs: list) -> str:
     lines = ["| | " + " | ".join(head) + " |", "|---|" + "---|" * len(docs)]
     lines += [f"| {label} | " + " | ".join(cells) + " |" for label, cells in rows]
     return "\n".join(lines)
+
+
+def best_phasor_n5(sections: dict):
+    """The fastest phasor N = 5 rate of the step_batch section (env-steps/s), None if not measured."""
+    s = sections.get("step_batch") or {}
+    rates = [
+        r["steps_per_s"] for r in s.get("rows", []) if r["model"] == "phasor" and r["stages"] == 5
+    ]
+    return max(rates) if rates else None
