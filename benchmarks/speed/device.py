@@ -35,6 +35,7 @@ import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from benchmarks.speed.device_table import best_phasor_n5, compare_table  # noqa: E402
 from agents.io import write_json_atomic  # noqa: E402
 from ops_jax.cli.progress import keep_ctrl_c  # noqa: E402
 from benchmarks.speed.device_sections import (  # noqa: E402, F401
@@ -142,12 +143,8 @@ def child_main(args) -> int:
 # The parent: runs the sections in child processes, writes the JSON after each.
 
 
-def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
-    """Run section ``name`` in a child process with ``budget_s`` seconds; stopped after ``kill_after_s``.
-    Returns {status, wall_s, budget_s, error, ...results}."""
-    fd, tmp = tempfile.mkstemp(prefix=f"device-{name}-", suffix=".json")
-    os.close(fd)
-    os.unlink(tmp)
+def _child_command(name: str, args, out: str, budget_s: float) -> list:
+    """The command line of section ``name``'s child process, writing its JSON to ``out``."""
     cmd = [
         sys.executable,
         "-m",
@@ -155,7 +152,7 @@ def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
         "--child",
         name,
         "--child-out",
-        tmp,
+        out,
         "--deadline-s",
         f"{budget_s:.1f}",
         "--repeats",
@@ -171,6 +168,16 @@ def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
         cmd += ["--batch-exp", *map(str, args.batch_exp)]
     if args.tiny:
         cmd.append("--tiny")
+    return cmd
+
+
+def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
+    """Run section ``name`` in a child process with ``budget_s`` seconds; stopped after ``kill_after_s``.
+    Returns {status, wall_s, budget_s, error, ...results}."""
+    fd, tmp = tempfile.mkstemp(prefix=f"device-{name}-", suffix=".json")
+    os.close(fd)
+    os.unlink(tmp)
+    cmd = _child_command(name, args, tmp, budget_s)
     env = {**os.environ, "PYTHONPATH": _pythonpath()}
     for k, v in CHILD_ENV.items():
         env.setdefault(k, v)
@@ -209,103 +216,8 @@ def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
     return res
 
 
-def _best_phasor_n5(sections: dict):
-    s = sections.get("step_batch") or {}
-    rates = [
-        r["steps_per_s"] for r in s.get("rows", []) if r["model"] == "phasor" and r["stages"] == 5
-    ]
-    return max(rates) if rates else None
-
-
-def _scan_cell(section: dict, model: str, n: int) -> str:
-    cfg = next(
-        (c for c in section.get("configs", []) if c["model"] == model and c["stages"] == n), None
-    )
-    if cfg is None:
-        return "not run"
-    if cfg["best_steps_per_s"] is None:
-        return f"none ({cfg['stopped']})"
-    if cfg["stopped"] == "oom":
-        end = f", out of memory at {cfg['oom_at_batch']:,}"
-    elif cfg["stopped"] in ("end", "error"):
-        end = "" if cfg["stopped"] == "end" else ", then an error"
-    else:  # budget, deadline: the scan stopped for time
-        end = f", stopped for time after {cfg['batches'][-1]:,}"
-    return f"{cfg['best_steps_per_s']:,.0f} (batch {cfg['best_batch']:,}{end})"
-
-
-def _train_cell(section: dict) -> str:
-    if section.get("env_steps"):
-        return (
-            f"{section['env_steps']:,} steps in {section['wall_s_train']:.1f} s: {section['steps_per_s']:,.0f}/s, "
-            f"{section['steps_per_s_excl_compile']:,.0f}/s without {section['compile_s']:.0f} s compiling"
-        )
-    last = (section.get("progress") or [None])[-1]
-    if last:
-        return f"{section['status']}: {last['step']:,} of {section['total_steps']:,} steps in {last['elapsed_s']:.0f} s"
-    return f"{section.get('status', 'not run')}" + (
-        f" ({section['error'][:60]})" if section.get("error") else ""
-    )
-
-
-def _as_list(value) -> list:
-    """A JSON field that holds one value, or a list of them for a device measured in several calls."""
-    return list(value) if isinstance(value, list) else [value]
-
-
-def _listed(value) -> str:
-    """The first of a field's values, as text."""
-    return str(_as_list(value)[0])
-
-
-def compare_table(docs: list) -> str:
-    """A markdown table of device JSON files side by side (one column each)."""
-    head = [
-        f"{(d.get('device') or {}).get('kind', '?')} ({(d.get('device') or {}).get('platform', '?')})"
-        for d in docs
-    ]
-    rows = [
-        ("host, date", [f"{d.get('host')}, {_listed(d.get('date'))[:10]}" for d in docs]),
-        ("JAX", [str(d.get("jax")) for d in docs]),
-        ("command", [" then ".join(f"`{c}`" for c in _as_list(d.get("command"))) for d in docs]),
-    ]
-    sec = [d.get("sections", {}) for d in docs]
-    for name, label in (("step_batch", "step_batch"), ("rollout", "ops_jax.rollout")):
-        planned = [
-            c
-            for s in sec
-            for c in s.get(name, {}).get("planned") or s.get(name, {}).get("configs", [])
-        ]
-        pairs = sorted(
-            {(c["model"], c["stages"]) for c in planned}, key=lambda mn: (mn[0] != "phasor", mn[1])
-        )
-        for model, n in pairs:
-            rows.append(
-                (
-                    f"{label}, {model} N = {n}: env-steps/s",
-                    [_scan_cell(s.get(name, {}), model, n) for s in sec],
-                )
-            )
-    for algo in ("droq", "td3", "sac"):
-        rows.append((f"{algo} training", [_train_cell(s.get(algo, {})) for s in sec]))
-    rows.append(
-        (
-            "quick sweep, table1: wall s",
-            [
-                f"{s['sweep']['wall_s_sweep']:.0f} ({s['sweep']['status']})"
-                if s.get("sweep", {}).get("wall_s_sweep")
-                else _train_cell(s.get("sweep", {}))
-                for s in sec
-            ],
-        )
-    )
-    rows.append(("whole command: wall s", [f"{d.get('wall_s', 0):.0f}" for d in docs]))
-    lines = ["| | " + " | ".join(head) + " |", "|---|" + "---|" * len(docs)]
-    lines += [f"| {label} | " + " | ".join(cells) + " |" for label, cells in rows]
-    return "\n".join(lines)
-
-
-def parse_args(argv=None):
+def parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.speed.device``."""
     ap = argparse.ArgumentParser(
         prog="python -m benchmarks.speed.device",
         description=__doc__,
@@ -341,6 +253,20 @@ def parse_args(argv=None):
         default=None,
         help="stage counts (default 5 7 10; --tiny: 5)",
     )
+    _size_options(ap)
+    ap.add_argument(
+        "--table",
+        nargs="+",
+        type=Path,
+        metavar="JSON",
+        help="print these runs' JSON side by side as a markdown table, and measure nothing",
+    )
+    _child_options(ap)
+    return ap
+
+
+def _size_options(ap: argparse.ArgumentParser) -> None:
+    """The sizes of the measurements: training steps, batches, repeats."""
     ap.add_argument(
         "--steps",
         nargs="*",
@@ -359,16 +285,18 @@ def parse_args(argv=None):
     ap.add_argument(
         "--repeats", type=int, default=None, help="timed runs per batch (default 3; --tiny: 2)"
     )
-    ap.add_argument(
-        "--table",
-        nargs="+",
-        type=Path,
-        metavar="JSON",
-        help="print these runs' JSON side by side as a markdown table, and measure nothing",
-    )
+
+
+def _child_options(ap: argparse.ArgumentParser) -> None:
+    """The options by which the parent runs one section in a child process (not shown by --help)."""
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--child-out", help=argparse.SUPPRESS)
     ap.add_argument("--deadline-s", type=float, default=60.0, help=argparse.SUPPRESS)
+
+
+def parse_args(argv=None):
+    """The parsed command line ``argv``, its defaults filled in and its values checked."""
+    ap = parser()
     args = ap.parse_args(argv)
     args.stages = args.stages or ([5] if args.tiny else [5, 7, 10])
     args.repeats = args.repeats or (2 if args.tiny else 3)
@@ -393,7 +321,22 @@ def parse_args(argv=None):
     return args
 
 
+def _section(name: str, rest: list, args, left: float, counter: str) -> dict:
+    """Run section ``name`` with its share of the ``left`` seconds (by ``WEIGHTS`` over the sections
+    ``rest``, this one first); a failed or skipped record where it is unknown or no time is left."""
+    if name not in SECTION_FNS:
+        error = f"unknown section {name!r}; known: {', '.join(SECTIONS)}"
+        return dict(status="failed", wall_s=0.0, budget_s=0.0, error=error)
+    if left < MIN_SECTION_S:
+        error = f"{left:.0f} s left of --budget-s {args.budget_s:g}"
+        return dict(status="skipped", wall_s=0.0, budget_s=max(0.0, left), error=error)
+    share = left * WEIGHTS[name] / sum(WEIGHTS.get(n, 0.0) for n in rest)
+    print(f"{counter} {name}: {share:.0f} s", flush=True)
+    return run_child(name, args, share, min(share + GRACE_S, left + GRACE_S))
+
+
 def main(argv=None) -> dict:
+    """Measure the sections in child processes under ``--budget-s``; the JSON document written."""
     keep_ctrl_c()
     args = parse_args(argv)
     if args.child:
@@ -431,28 +374,11 @@ def main(argv=None) -> dict:
     print(f"device: {doc['device']}; jax {doc['jax']}; writing {out}", flush=True)
     write_json_atomic(out, doc)
     for i, name in enumerate(names):
-        left = deadline - time.monotonic()
-        if name not in SECTION_FNS:
-            res = dict(
-                status="failed",
-                wall_s=0.0,
-                budget_s=0.0,
-                error=f"unknown section {name!r}; known: {', '.join(SECTIONS)}",
-            )
-        elif left < MIN_SECTION_S:
-            res = dict(
-                status="skipped",
-                wall_s=0.0,
-                budget_s=max(0.0, left),
-                error=f"{left:.0f} s left of --budget-s {args.budget_s:g}",
-            )
-        else:
-            weights = [WEIGHTS.get(n, 0.0) for n in names[i:]]
-            share = left * WEIGHTS[name] / sum(weights)
-            print(f"[{i + 1}/{len(names)}] {name}: {share:.0f} s", flush=True)
-            res = run_child(name, args, share, min(share + GRACE_S, left + GRACE_S))
+        res = _section(
+            name, names[i:], args, deadline - time.monotonic(), f"[{i + 1}/{len(names)}]"
+        )
         doc["sections"][name] = res
-        doc["phasor_n5_steps_per_s"] = _best_phasor_n5(doc["sections"])
+        doc["phasor_n5_steps_per_s"] = best_phasor_n5(doc["sections"])
         doc["wall_s"] = time.monotonic() - t_start
         write_json_atomic(out, doc)
         print(

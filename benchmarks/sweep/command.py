@@ -59,7 +59,8 @@ def build_preset(args) -> dict:
     return preset
 
 
-def main(argv=None):
+def parser() -> ArgumentParser:
+    """The command line of ``python -m benchmarks.sweep``."""
     ap = ArgumentParser(
         prog="python -m benchmarks.sweep",
         description=__doc__,
@@ -107,6 +108,12 @@ def main(argv=None):
         default=0.0,
         help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)",
     )
+    return ap
+
+
+def main(argv=None):
+    """Run the sweep's sections from the command line ``argv``; the output folder."""
+    ap = parser()
     args = ap.parse_args(argv)
     keep_ctrl_c()
     if args.seeds is not None and args.seeds < 2:
@@ -124,9 +131,8 @@ def main(argv=None):
     if args.quick:
         quick_compilation()
     enable_compilation_cache()
-    from benchmarks.sweep import (
-        executor as sweep_ray,
-    )  # imports jax: after the environment above is set
+    # imports jax: after the environment above is set
+    from benchmarks.sweep import executor as sweep_ray
 
     jobs = args.jobs or (None if args.ray else min(2, os.cpu_count() or 1))
     try:
@@ -139,9 +145,7 @@ def main(argv=None):
             restarts=args.restarts,
             worker_gpus=args.worker_gpus,
         )
-    except (
-        KeyboardInterrupt
-    ):  # Ray's workers are stopped by then (sweep_ray.run shuts Ray down on the way out)
+    except KeyboardInterrupt:  # Ray's workers are stopped by then (sweep_ray.run shuts Ray down)
         stored = len(list((out / "cells").glob("*.json")))
         print(
             f"interrupted: {stored} finished cells are kept in {out}/cells; run the same command again to resume",

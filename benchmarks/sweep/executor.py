@@ -26,6 +26,7 @@ from pathlib import Path
 
 from agents.io import temp_dir, write_bytes_atomic
 from benchmarks.sweep.records import EvalUnit, Unit
+from benchmarks.sweep.schedule import Ledger, SmoothedTotal, pick
 from benchmarks.sweep.units import Sweep, enable_compilation_cache
 from ops_jax.cli import runtime
 from ops_jax.cli.progress import is_terminal, progress
@@ -38,13 +39,11 @@ FORWARDED_ENV = (
     "XLA_PYTHON_CLIENT_MEM_FRACTION",
     "XLA_PYTHON_CLIENT_ALLOCATOR",
 )
-GPU_MEMORY_SHARED = (
-    0.9  # the fraction of a GPU's memory that the workers sharing it divide between them
-)
+# the fraction of a GPU's memory that the workers sharing it divide between them
+GPU_MEMORY_SHARED = 0.9
 PROGRESS_EVERY_S = 5.0  # how often the progress line takes the running units' time into account
-OBJECT_STORE_BYTES = (
-    200 * 2**20
-)  # a local instance's object store: units return kilobytes to megabytes
+# a local instance's object store: units return kilobytes to megabytes
+OBJECT_STORE_BYTES = 200 * 2**20
 
 
 def _stderr(msg: str) -> None:
@@ -163,73 +162,6 @@ def store_files(out: Path, files: dict) -> None:
     for rel, blob in files.items():
         if rel.startswith("cells/"):
             write_bytes_atomic(out / rel, blob)
-
-
-def _kind(unit: Unit) -> str:
-    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
-    or a section's own cells."""
-    return {"train": f"train {unit.algo}", "eval": "eval"}.get(unit.kind, f"cell {unit.algo}")
-
-
-def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
-    """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's measured
-    seconds (``spent``) per estimated second of its finished units (``est_done``), or by all kinds' ratio
-    for a kind not seen finish yet (1 before any)."""
-    return sum(left * cost_ratio(k, est_done, spent) for k, left in est_left.items())
-
-
-def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
-    """Measured seconds per estimated second of ``kind``'s finished units (all kinds' if none, 1 before any)."""
-    if est_done[kind]:
-        return spent[kind] / est_done[kind]
-    return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
-
-
-class SmoothedTotal:
-    """The progress line's total worker-seconds: each new projection moves it by ``weight`` of the way
-    (an exponential moving average, so the remaining time does not jump with each finished unit's
-    correction; exactly the projection when nothing is left), and it is cut where needed so that the
-    fraction done never decreases."""
-
-    def __init__(self, weight: float = 0.3):
-        self.weight = weight
-        self.total = None
-        self.fraction = 0.0
-
-    def __call__(self, done: float, projected: float) -> float:
-        """The total to show for ``done`` worker-seconds out of a ``projected`` total."""
-        if (
-            self.total is None or projected <= done
-        ):  # the first projection, or nothing left: as projected
-            total = projected
-        else:
-            total = self.total + self.weight * (projected - self.total)
-        total = max(total, done)
-        if total > 0 and done / total < self.fraction:
-            total = done / self.fraction
-        self.total, self.fraction = total, (done / total if total > 0 else 0.0)
-        return total
-
-
-def _show(bar, smoothed: SmoothedTotal, spent: Counter, in_flight: float, left: float) -> None:
-    """Progress in worker-seconds: finished units' measured seconds plus the running units' time so
-    far, out of that plus the projected work left beyond what is running (``SmoothedTotal``)."""
-    done = sum(spent.values()) + in_flight
-    bar.total = round(smoothed(done, done + max(left - in_flight, 0.0)), 1)
-    bar.update(round(done - bar.n, 1))
-
-
-def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
-    """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran last
-    (warm programs), else of the algorithm with the most remaining cost that no other worker runs,
-    else of the one with the most remaining cost."""
-    if not ready:
-        return None
-    same = [u for u in ready if u.algo == last_algo]
-    if same:
-        return same[0]
-    free = [u for u in ready if not running_algos[u.algo]] or ready
-    return max(free, key=lambda u: remaining[u.algo])  # max keeps the first of equals: plan order
 
 
 def connect(address: str | None, jobs: int | None):
@@ -370,30 +302,19 @@ def _compute(
     )(SweepWorker)
     shares = cpu_shares(n) if local else [None] * n
     actors = [actor.remote(preset, env, cpus) for cpus in shares]
-    remaining, est_left, est_done, spent = Counter(), Counter(), Counter(), Counter()
-    for u in todo.values():
-        remaining[u.algo] += u.cost
-        est_left[_kind(u)] += u.cost
-    cells_total, cells_done = sum(len(u.cells) for u in todo.values()), 0
+    ledger = Ledger.of(todo.values())
+    cells_total = sum(len(u.cells) for u in todo.values())
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"
-    bar = progress(
-        total=round(projected_seconds(est_left, est_done, spent), 1),
-        desc=on,
-        unit="worker-s",
-        smoothing=0,
-    )
-    cells = lambda k: (
-        f"cells {k}/{cells_total}" + (f", {reused} reused from an earlier run" if reused else "")
-    )
-    smoothed = SmoothedTotal()
-    bar.set_postfix_str(cells(0))
+    bar = progress(total=round(ledger.projected(), 1), desc=on, unit="worker-s", smoothing=0)
+    earlier = f", {reused} reused from an earlier run" if reused else ""
+    bar.set_postfix_str(f"cells 0/{cells_total}{earlier}")
+    smoothed, tally = SmoothedTotal(), _Tally(n)
     idle, last_algo, running, running_algos = list(range(n)), [None] * n, {}, Counter()
-    busy, algos, where, computed = [0.0] * n, [set() for _ in range(n)], Counter(), 0
     try:
         while todo or running:
             for i in list(idle):
                 ready = [u for u in todo.values() if all(d in done for d in u.deps)]
-                unit = pick(ready, last_algo[i], running_algos, remaining)
+                unit = pick(ready, last_algo[i], running_algos, ledger.remaining)
                 if unit is None:
                     break
                 del todo[unit.key]
@@ -403,39 +324,41 @@ def _compute(
                 running_algos[unit.algo] += 1
             bar.set_description(f"{on}: " + ", ".join(u.key for _, u, _ in running.values()))
             finished, _ = ray.wait(list(running), num_returns=1, timeout=PROGRESS_EVERY_S)
-            # Work in flight counts as done for as long as it has run, up to 90% of its projected cost (a
-            # unit running over its estimate holds the line back instead of showing nothing left): the rate
-            # is then the number of busy workers from the start, not only what finished units show.
-            in_flight = sum(
-                min(time.monotonic() - t, 0.9 * u.cost * cost_ratio(_kind(u), est_done, spent))
-                for _, u, t in running.values()
-            )
-            if not finished:
-                _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
-                continue
-            ref = finished[0]
-            i, unit, t = running.pop(ref)
-            in_flight -= min(
-                time.monotonic() - t, 0.9 * unit.cost * cost_ratio(_kind(unit), est_done, spent)
-            )
-            result = _returned(ray, ref, unit, out)
-            store_files(out, result.files)
-            done.add(unit.key)
-            idle.append(i)
-            running_algos[unit.algo] -= 1
-            remaining[unit.algo] -= unit.cost
-            est_left[_kind(unit)] -= unit.cost
-            est_done[_kind(unit)] += unit.cost
-            spent[_kind(unit)] += result.seconds
-            busy[i] += result.seconds
-            algos[i].add(unit.algo)
-            where[f"{result.hostname} (node {result.node_id[:8]})"] += len(unit.cells)
-            computed += result.computed
-            cells_done += len(unit.cells)
-            bar.set_postfix_str(cells(cells_done))
-            _show(bar, smoothed, spent, in_flight, projected_seconds(est_left, est_done, spent))
+            if finished:
+                i, unit, _ = running.pop(finished[0])
+                result = _returned(ray, finished[0], unit, out)
+                store_files(out, result.files)
+                done.add(unit.key)
+                idle.append(i)
+                running_algos[unit.algo] -= 1
+                ledger.finished(unit, result.seconds)
+                tally.add(i, unit, result)
+                bar.set_postfix_str(f"cells {tally.cells}/{cells_total}{earlier}")
+            ledger.show(bar, smoothed, running)
     finally:
         bar.close()
     ray.get([a.close.remote() for a in actors])
-    bar.write("cells computed per node: " + ", ".join(f"{k}: {v}" for k, v in where.items()))
-    return computed, [dict(algos=sorted(algos[i]), timing={"computing": busy[i]}) for i in range(n)]
+    bar.write("cells computed per node: " + ", ".join(f"{k}: {v}" for k, v in tally.where.items()))
+    return tally.computed, tally.workers()
+
+
+class _Tally:
+    """What the workers did: seconds busy and algorithms run per worker, cells per node, cells computed."""
+
+    def __init__(self, n: int):
+        self.busy, self.algos = [0.0] * n, [set() for _ in range(n)]
+        self.where, self.computed, self.cells = Counter(), 0, 0
+
+    def add(self, worker: int, unit: Unit, result: Computed) -> None:
+        """Book ``unit``, which ``worker`` returned as ``result``."""
+        self.busy[worker] += result.seconds
+        self.algos[worker].add(unit.algo)
+        self.where[f"{result.hostname} (node {result.node_id[:8]})"] += len(unit.cells)
+        self.computed += result.computed
+        self.cells += len(unit.cells)
+
+    def workers(self) -> list:
+        """A record per worker: the algorithms it ran and its seconds computing."""
+        return [
+            dict(algos=sorted(a), timing={"computing": b}) for a, b in zip(self.algos, self.busy)
+        ]

@@ -172,7 +172,7 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
 def test_pick_keeps_workers_on_their_algorithm():
     from collections import Counter
 
-    from benchmarks.sweep.executor import pick
+    from benchmarks.sweep.schedule import pick
 
     ready = [
         SectionUnit(key=k, algo=a, section=a, cells=(), cost=1.0)
@@ -291,7 +291,7 @@ def test_worker_crash_is_resumed(tmp_path):
 def test_remaining_work_follows_measured_cost_per_kind():
     from collections import Counter
 
-    from benchmarks.sweep.executor import projected_seconds
+    from benchmarks.sweep.schedule import projected_seconds
 
     left = Counter({"train ppo": 100.0, "eval": 10.0})
     assert (
@@ -385,7 +385,7 @@ def test_docs_section_snippet_runs(tmp_path):
 
 
 def test_progress_fraction_never_decreases_and_its_total_is_smoothed():
-    from benchmarks.sweep.executor import SmoothedTotal
+    from benchmarks.sweep.schedule import SmoothedTotal
 
     smoothed = SmoothedTotal(weight=0.3)
     shown = []
