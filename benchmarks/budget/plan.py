@@ -40,8 +40,8 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
     # protocol (b) with probes a frame later and the bench trim
-    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" --only droq \\
-        --bench-probe frame --bench-trim bench --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" \\
+        --only droq --bench-probe frame --bench-trim bench --out results/budget-frames
 
 Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
 """
