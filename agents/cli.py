@@ -3,8 +3,8 @@
 Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
 
     python -m agents --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
-                           [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
-                           [--logdir DIR]
+                     [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
+                     [--logdir DIR]
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on

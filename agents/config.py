@@ -2,7 +2,7 @@
 overridable per field, validated in one place.
 
     PPOConfig.preset("fast", learning_rate=1e-3)   # a preset with one field changed
-    TD3Config.make("paper")                        # make(config, **overrides): a preset name or a config
+    TD3Config.make("paper")                        # make(config, **overrides): a preset or a config
     SPGDConfig.from_hyper(result.hyper)            # back from the stored dict (``to_hyper``)
 
 A value out of range raises ValueError naming the field and its accepted range (``ops_jax.ranges.Range``,

@@ -2,7 +2,8 @@
 
 Command line (``python -m agents.episode [episode|frame] ...``; default ``episode``)::
 
-    # animated GIF of a controlled episode (policy: zero | random | an algorithm | a checkpoint folder)
+    # animated GIF of a controlled episode
+    # (policy: zero | random | an algorithm | a checkpoint folder)
     python -m agents.episode --stages 5 --mode hard --policy zero --steps 100 --out episode.gif
     # one oscilloscope frame (PNG) after --steps steps of the policy
     python -m agents.episode frame --stages 5 --mode hard --policy random --steps 0 --out scope.png

@@ -7,7 +7,8 @@ The entries are registered by ``agents.algos`` (imported with the package), abov
 this module names none of them, so the algorithms may use ``agents.api``, which looks them up here. A new
 algorithm is its module (meeting ``AlgoModule``) plus one ``register`` line in ``agents.algos``::
 
-    register(Algo("mine", "agents.mine", MineConfig, "Mine", sweep=SweepPresets(...), cost=CostModel(...)))
+    register(Algo("mine", "agents.mine", MineConfig, "Mine",
+                  sweep=SweepPresets(...), cost=CostModel(...)))
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@ evaluation's metrics as scalars against env steps (tensorboardX's event-file wri
 
     log = agents.tensorboard.TensorBoardLogger("runs/td3/tb")
     agents.train("td3", env, progress_fn=log); log.close()
-    python -m agents --algo td3 --out runs/td3 --logdir runs/td3/tb   # the same from the command line
-    tensorboard --logdir runs                                                  # to look at them
+    # the same from the command line, then a look at them
+    python -m agents --algo td3 --out runs/td3 --logdir runs/td3/tb
+    tensorboard --logdir runs
 
 Tags: ``eval/normalized_power`` (evaluation P/Pmax; with imperfections the learners evaluate P/Pmax too),
 ``eval/normalized_power_best`` where reported (P/P_best), ``loss/<name>`` for every metric whose name has

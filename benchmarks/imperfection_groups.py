@@ -1,8 +1,8 @@
 """Where a controller loses under the lab imperfections: P / P_best on each bench, then on the same bench with one
 group of imperfections taken away at a time (the same test seed).
 
-    python -m benchmarks.imperfection_groups --algo physics --set config=frames --scale 2 --unseen \\
-        --benches 1011 1012 1013 1014 1015 --episodes 32 --out results/imperfection_groups
+    python -m benchmarks.imperfection_groups --algo physics --set config=frames --scale 2 \\
+        --unseen --benches 1011 1012 1013 1014 1015 --episodes 32 --out results/imperfection_groups
 
 A bench: 5-stage hard mode (phasor model), the lab preset at ``--scale`` times its magnitudes, frames only (no
 length readouts; ``--lengths`` to observe them); with ``--unseen`` each bench's per-stage errors are re-drawn from its

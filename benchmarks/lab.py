@@ -3,8 +3,10 @@
 Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
 
     python -m benchmarks.lab --seconds 60 --rates 100 50 25 --out results/lab [--policy DIR ...]
-    python -m benchmarks.lab --frames-only --wrap 0.5 --idle-s 10 --seeds 1 2 3 --controllers physics-frames
-    python -m benchmarks.lab --lockstep 600 --controllers --policy DIR --trims none guarded bench --seeds 1 2 3
+    python -m benchmarks.lab --frames-only --wrap 0.5 --idle-s 10 --seeds 1 2 3 \\
+        --controllers physics-frames
+    python -m benchmarks.lab --lockstep 600 --controllers --policy DIR --trims none guarded bench \\
+        --seeds 1 2 3
 
 ``--frames-only``: the bench serves no length readouts (``--observe-lengths False``) and the runner maps none;
 ``--wrap WL``: the runner's ``--wrap``; ``--idle-s``: the bench runs uncontrolled this long before the runner

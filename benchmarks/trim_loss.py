@@ -2,9 +2,12 @@
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
-    python -m benchmarks.trim_loss --trims default guarded --offsets 0.001 -0.001 --envs "hard + lab"
-    python -m benchmarks.trim_loss --algo physics --config frames --envs "hard + 2x lab, frames only" --seeds 0
-    python -m benchmarks.trim_loss --trims default guarded bench --envs "hard + lab" --seeds 4 5 6 7 --probe frame
+    python -m benchmarks.trim_loss --trims default guarded --offsets 0.001 -0.001 \\
+        --envs "hard + lab"
+    python -m benchmarks.trim_loss --algo physics --config frames \\
+        --envs "hard + 2x lab, frames only" --seeds 0
+    python -m benchmarks.trim_loss --trims default guarded bench --envs "hard + lab" \\
+        --seeds 4 5 6 7 --probe frame
 
 ``--algo`` at its ``--config`` preset (DroQ at its budget preset by default: 20,000 env steps, the seeds in one
 vmapped call; a controller with nothing to learn, e.g. ``physics``, once per seed) on each environment, each policy

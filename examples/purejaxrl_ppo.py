@@ -1,7 +1,7 @@
 """A purejaxrl-style PPO (``ppo_continuous_action.py``'s structure) on the gymnax adapter of ops-jax: the whole
 training run, environment steps included, is one jitted function of a PRNG key.
 
-    pip install -e ".[gymnax,agents]"   # gymnax >= 1.0; flax and optax for the network and optimiser
+    pip install -e ".[gymnax,agents]"   # gymnax >= 1.0; flax and optax: network, optimiser
     python examples/purejaxrl_ppo.py [--timesteps 200000] [--num-envs 32] [--seed 0]
 
 Written against gymnax's API only: ``env.reset`` / ``env.step`` (six values) vmapped over ``--num-envs``,

@@ -4,7 +4,8 @@ env_params=env_params, ...)`` and one jitted ``algo.train(key)``.
 rejax 0.1.3 unpacks gymnax 0.0.x's five-value step, so it runs with gymnax 0.0.9 (rejax's own trainers stop
 on gymnax 1.x's six-value step); the adapter steps five values there.
 
-    pip install -e . "gymnax==0.0.9" "rejax==0.1.3"   # a venv of its own: gymnax 0.0.x, not the [gymnax] extra
+    # a venv of its own: gymnax 0.0.x, not the [gymnax] extra
+    pip install -e . "gymnax==0.0.9" "rejax==0.1.3"
     python examples/rejax_train.py [--algo ppo|sac] [--timesteps 20000] [--seed 0]
 
 Each evaluation (every ``--eval-freq`` env steps) runs ``--eval-envs`` test episodes with the deterministic

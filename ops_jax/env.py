@@ -58,16 +58,16 @@ MODE_PARAMS = {
 class EnvConfig:
     """Static configuration: changing it recompiles.
 
-        stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
-        reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation length.
-        feedback_k: free-running draws per control step (feedback delay). frame_stack: observations
-        stacked. observe_lengths: the N length readouts in the observation (False: the detector's frames
-    only). include_noise: append the noise state to the observation. imperfect: apply
-        ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab`` holds.
-        probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed offsets in the
-        same instant as the last frame: nothing moves, no time passes) | "frame" (as on a bench: the lines move
-        to the probed offsets through the actuators, one frame passes, the detector reads P; the next step's
-        move starts from there).
+    stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
+    reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation
+    length. feedback_k: free-running draws per control step (feedback delay). frame_stack:
+    observations stacked. observe_lengths: the N length readouts in the observation (False: the
+    detector's frames only). include_noise: append the noise state to the observation. imperfect:
+    apply ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab``
+    holds. probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed
+    offsets in the same instant as the last frame: nothing moves, no time passes) | "frame" (as on a
+    bench: the lines move to the probed offsets through the actuators, one frame passes, the
+    detector reads P; the next step's move starts from there).
     """
 
     stages: int = 5

@@ -1,8 +1,8 @@
 """``EnvSpec``: a frozen, hashable record of the ``ops_jax.make`` options, validated when it is built.
 
-    spec = ops_jax.EnvSpec(stages=5, mode="hard", model="phasor")   # or EnvSpec.from_options({...})
-    env, params = spec.make()                                        # ops_jax.make(**spec.as_dict())
-    spec.key                                                         # stable: the same options, the same key
+    spec = ops_jax.EnvSpec(stages=5, mode="hard", model="phasor")  # or EnvSpec.from_options({...})
+    env, params = spec.make()  # ops_jax.make(**spec.as_dict())
+    spec.key  # stable: the same options, the same key
 
 Its fields are ``stages``, ``mode`` (``make``'s defaults) and every option of ``ops_jax.env.option_names()``
 (the one declaration: the ``EnvConfig`` and ``EnvParams`` fields and the imperfection options), each None

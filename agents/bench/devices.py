@@ -4,12 +4,14 @@ The mapping (JSON) says which PV holds what and in which units; every key but ``
 ``detector`` has a default. Positions in the PVs' own units (``units_per_wl`` of them per
 wavelength); the safety limits in wavelengths::
 
-    {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV", "length": "OPS:LINE1:LEN"}, ...],
+    {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV",
+                "length": "OPS:LINE1:LEN"}, ...],
      "detector": {"power": "OPS:DET:POWER", "trace": "OPS:SCOPE:TRACE", "tick": "OPS:TICK",
                   "power_full_scale": 1.0, "trace_peak": 1.0, "settle_s": 0.002},
      "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
      "advance": null, "units_per_wl": 1.0,
-     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0, "wrap_wl": null}}
+     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0,
+                "wrap_wl": null}}
 
 ``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
 controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the

@@ -1,7 +1,8 @@
 """Learning on a bench: an off-policy learner of ``agents.learners.offpolicy.driver`` (DroQ, TD3) acting in the control loop of
 ``agents.bench`` and learning from the bench's own transitions.
 
-    python -m agents.bench --prefix OPS: --learn droq [--from DIR] --steps 20000 --out DIR [--resume]
+    python -m agents.bench --prefix OPS: --learn droq [--from DIR] --steps 20000 --out DIR \\
+        [--resume]
 
 The actor (the loop's thread, ``Learning.act``) hands each step's observation (``Loop.observe``: the simulator's
 layout) with the previous observation and action to the learner, and sends the exploration action of the newest

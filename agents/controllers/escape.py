@@ -14,7 +14,7 @@ most common trap (P/Pmax ~0.24, lines 1 and 3 at pi, line 2 near wl/8) is left b
 
     cands = escape.candidates(n)
     state = escape.init(b, n)
-    offsets, testing = escape.probe_offsets(p, state, cands, dither_offsets)   # the step's one probe
+    offsets, testing = escape.probe_offsets(p, state, cands, dither_offsets)  # the step's one probe
     action, state = escape.step(p, state, cands, testing, p0, probe(offsets), action)
 
 ``p``: the controller's parameters with ``jump`` (wl), ``patience`` (steps), ``p_stall``, ``margin``

@@ -25,19 +25,23 @@ adapting and at each checkpoint, beside the references' on the same bench (``ben
 controller that needs no training holds there); and the same policies with the preset's extremum-seeking trim
 (``agents.controllers.trim``: one more probe per step, no learning), which removes the static bias an adapted policy keeps.
 
-    python -m benchmarks.budget --out results/budget            # preset "default": DroQ, references, protocol (b)
-    python -m benchmarks.budget --preset full --out results/budget   # every learner (TD3, SAC, PPO too)
+    # preset "default": DroQ, references, protocol (b); "full": every learner (TD3, SAC, PPO too)
+    python -m benchmarks.budget --out results/budget
+    python -m benchmarks.budget --preset full --out results/budget
     python -m benchmarks.budget --preset quick --out results/budget-quick
-    python -m benchmarks.budget --preset frames --out results/budget-frames   # the detector's frames only
-    python -m benchmarks.budget --preset frames-fit --out results/budget-frames   # the same, DroQ with the fit observer
-    python -m benchmarks.budget --preset frames-residual --out results/budget-frames   # DroQ correcting the fit's move
-    python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames   # a smaller correction
-    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames  # its fit on 4 frames
-    python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames  # with the hold as its trim
+    # the detector's frames only; the same, DroQ with the fit observer; DroQ correcting the fit's
+    # move; a smaller correction; its fit on 4 frames; with the hold as its trim
+    python -m benchmarks.budget --preset frames --out results/budget-frames
+    python -m benchmarks.budget --preset frames-fit --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
-    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" --only droq \
-        --bench-probe frame --bench-trim bench --out results/budget-frames   # probes a frame later, the bench trim
+    # protocol (b) with probes a frame later and the bench trim
+    python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" \\
+        --only droq --bench-probe frame --bench-trim bench --out results/budget-frames
 
 Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
 """

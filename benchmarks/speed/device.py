@@ -3,8 +3,9 @@
 2^20 until the budget or the device's memory ends), the training rates of DroQ (its "budget"
 preset, 20k env steps), TD3 and SAC (brax), and the wall time of the quick sweep's table-1 section.
 
-    python -m benchmarks.speed.device                      # on a GPU: benchmarks/measured/device.json
-    python -m benchmarks.speed.device --budget-s 300       # on a CPU: benchmarks/measured/device-cpu.json
+    # on a GPU: benchmarks/measured/device.json; on a CPU: benchmarks/measured/device-cpu.json
+    python -m benchmarks.speed.device
+    python -m benchmarks.speed.device --budget-s 300
     python -m benchmarks.speed.device --tiny               # test sizes (CPU, tens of seconds)
     python -m benchmarks.speed.device --sections step_batch droq --out results/device.json
 
@@ -139,7 +140,7 @@ def child_main(args) -> int:
     return 0
 
 
-# ----------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # The parent: runs the sections in child processes, writes the JSON after each.
 
 

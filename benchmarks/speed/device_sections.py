@@ -75,7 +75,7 @@ def short_error(err: BaseException, limit: int = 600) -> str:
     return text if len(text) <= limit else text[:limit] + " ..."
 
 
-# ----------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # The sections, each run in a child process: ``fn(args, deadline, record)``, record(dict) saving its
 # results so far.
 

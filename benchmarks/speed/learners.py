@@ -2,7 +2,8 @@
 sweep's default settings (5-stage hard), with the XLA compile time and count inside each call.
 
     python -m benchmarks.speed.learners [--algos ppo sac td3] [--repeats 3] [--steps ppo=262144 ...]
-                                        [--python /other/venv/bin/python ...] [--out results/learners_speed.json]
+                                        [--python /other/venv/bin/python ...]
+                                        [--out results/learners_speed.json]
 
 Each measurement is one fresh process (``agents.train`` from a cold start, compilation included, as a
 sweep cell pays it). ``--python`` adds interpreters (other JAX versions, say) measured side by side: the

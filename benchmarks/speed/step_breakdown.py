@@ -2,7 +2,8 @@
 (``physics.measure``) and its random draws alone (``noise.draws``, one key per instance), each a jitted
 200-step ``lax.scan`` at the same batch, median of the repeats (compilation apart).
 
-    python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 --out results/breakdown.json
+    python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 \\
+        --out results/breakdown.json
 
 Per row: ns per instance-step of each part, and each part's share of the whole step (the rest is the
 environment's own bookkeeping: action, drift, reward, observation, auto-reset).

@@ -6,7 +6,8 @@ single-instance step time.
 
     python -m benchmarks.speed.throughput [--stages 3 5 7] [--batch 1 64 1024 8192] [--repeats 5]
                                     [--out results/throughput.json]
-    python -m benchmarks.speed.throughput --gymnax --stages 5 --batch 4096 --models phasor --repeats 5
+    python -m benchmarks.speed.throughput --gymnax --stages 5 --batch 4096 --models phasor \\
+        --repeats 5
 
 ``--gymnax``: only ``jax.vmap`` of the gymnax adapter's step (``ops_jax.adapters.gymnax``, needs the gymnax
 extra) against ``step_batch``, side by side, by wall time and by this process's CPU time (less moved by other

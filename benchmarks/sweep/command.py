@@ -4,7 +4,7 @@
     python -m benchmarks.sweep --quick              # a first look in a few minutes
     python -m benchmarks.sweep --preset paper --seeds 20
     python -m benchmarks.sweep --only table1 --out results/mine
-    python -m benchmarks.sweep --preset paper --seeds 20 --ray auto   # on a Ray cluster (docs/scale.md)
+    python -m benchmarks.sweep --preset paper --seeds 20 --ray auto  # a Ray cluster: docs/scale.md
 
 Sections (benchmarks/sweep/plan.py): ``table1`` (5-stage x easy/medium/hard x algorithms x seeds:
 final P/Pmax in the training and testing environments, Welch's t-test bolding), ``table2`` (timings of

@@ -4,7 +4,8 @@ gymnax generation installed (needs ``pip install -e ".[gymnax]"``; ``import ops_
     from ops_jax.adapters import gymnax as gymnax_env
     env, env_params = gymnax_env.make(stages=5, mode="hard", model="phasor")
     obs, state = env.reset(key, env_params)
-    obs, state, reward, terminated, truncated, info = env.step(key, state, action, env_params)  # gymnax >= 1.0
+    # gymnax >= 1.0
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, env_params)
 
 - ``env`` is a ``gymnax.environments.environment.Environment`` (``OPSGymnax``); ``env_params`` an
   ``OPSGymnaxParams``, a gymnax ``EnvParams`` holding ``max_steps_in_episode`` (the truncation, from

@@ -1029,8 +1029,8 @@ import sys
 from caproto.sync.client import read, write
 get = lambda pv: read(sys.argv[1] + pv, timeout=20, repeater=False).data[0]
 for i in (1, 2, 3):
-    write(f"{sys.argv[1]}LINE{i}:SP", [get(f"LINE{i}:SP") - get(f"LINE{i}:LEN") + 0.1], notify=True, timeout=20,
-          repeater=False)
+    write(f"{sys.argv[1]}LINE{i}:SP", [get(f"LINE{i}:SP") - get(f"LINE{i}:LEN") + 0.1],
+          notify=True, timeout=20, repeater=False)
 """
 
 
@@ -1293,7 +1293,8 @@ for k in range(runs):
     loop = bench.Loop(device, lines, mapping, agent, scale, window, seconds=60, rate=100)
     loop.watch()
     sent = []
-    def interrupt(loop=loop, delay=rng.uniform(0, 0.3), signum=(signal.SIGINT, signal.SIGTERM)[k % 2]):
+    def interrupt(loop=loop, delay=rng.uniform(0, 0.3),
+                  signum=(signal.SIGINT, signal.SIGTERM)[k % 2]):
         while loop.t0 is None:
             time.sleep(0.001)
         time.sleep(delay)
@@ -1303,8 +1304,8 @@ for k in range(runs):
     (out / str(k)).mkdir(parents=True)
     elapsed = bench._run(loop, {"plan_name": "interrupts"}, out / str(k))
     s = bench.summarize(loop, "spgd", elapsed)
-    print(json.dumps({"stopped_by": s["stopped_by"], "steps": s["steps"], "after_s": time.perf_counter() - sent[0]}),
-          flush=True)
+    print(json.dumps({"stopped_by": s["stopped_by"], "steps": s["steps"],
+                      "after_s": time.perf_counter() - sent[0]}), flush=True)
 disconnect(device)
 sys.stdout.flush()
 os._exit(0)

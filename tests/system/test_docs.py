@@ -95,8 +95,9 @@ for argv in json.loads(sys.argv[1]):
     code = None
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-            sys.argv = [argv[1] if argv[1] != "-m" else argv[2], *argv[3 if argv[1] == "-m" else 2:], "--help"]
-            if argv[1] == "-m":
+            module = argv[1] == "-m"
+            sys.argv = [argv[2] if module else argv[1], *argv[3 if module else 2:], "--help"]
+            if module:
                 runpy.run_module(argv[2], run_name="__main__", alter_sys=True)
             else:
                 runpy.run_path(argv[1], run_name="__main__")

@@ -2,7 +2,9 @@
 per step), registered as ``"ops_jax/OPS-v0"`` by ``import ops_jax``::
 
     env = gymnasium.make("ops_jax/OPS-v0", stages=5, mode="hard", render_mode="rgb_array")
-    envs = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=1024, vectorization_mode="vector_entry_point")
+    envs = gymnasium.make_vec(
+        "ops_jax/OPS-v0", num_envs=1024, vectorization_mode="vector_entry_point"
+    )
 
 Keywords: ``stages``, ``mode`` and every ``ops_jax.make`` option (``model``, ``reward``, ``max_steps``,
 ``obs_noise``, ...), plus ``render_mode`` and ``device`` (the JAX device the state lives on:

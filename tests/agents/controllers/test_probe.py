@@ -59,7 +59,7 @@ def test_a_frame_probe_is_the_frame_a_still_step_shows_through_the_vibration():
     assert abs(float(p) - instant) > 1e-4  # a frame later the vibration has moved the lines
 
 
-def test_evaluate_with_frame_probes_is_deterministic_and_spgds_fine_dither_drowns_in_frame_noise_its_bench_one_not():
+def test_frame_probes_are_deterministic_spgds_fine_dither_drowns_in_frame_noise_its_bench_one_not():
     policy = base.algo_module("spgd").make_policy(_config("frame"), None)
     small = agents.evaluate((policy, None), _config("frame"), episodes=2, seed=7)
     large = agents.evaluate((policy, None), _config("frame"), episodes=6, seed=7)

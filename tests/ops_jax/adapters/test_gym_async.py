@@ -22,8 +22,9 @@ SCRIPT = textwrap.dedent("""
         if jax_first:  # JAX running in the parent before the workers fork
             gymnasium.make("ops_jax/OPS-v0", stages=2, mode="easy", model="phasor").reset(seed=0)
         vector_kwargs = {} if context == "default" else {"context": context}
-        envs = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=2, stages=2, mode="easy", model="phasor",
-                                  vectorization_mode="async", vector_kwargs=vector_kwargs)
+        envs = gymnasium.make_vec("ops_jax/OPS-v0", num_envs=2, stages=2, mode="easy",
+                                  model="phasor", vectorization_mode="async",
+                                  vector_kwargs=vector_kwargs)
         obs, _ = envs.reset(seed=0)
         for _ in range(2):
             obs, reward, *_ = envs.step(np.zeros((2, 2), np.float32))
