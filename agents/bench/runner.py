@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import api as base
-from agents.bench import learning as bench_learn
+from agents.bench import defaults, learning as bench_learn
 from agents.bench.devices import (
     SETTLE_RANGE_S,
     MappingError,
@@ -250,8 +250,9 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="WL",
-        help="take a line that comes within WL of its soft limit WL back (the optics' period: 0.5 for the "
-        "simulated bench); safety.wrap_wl of the mapping",
+        help="take a line that comes within WL of its soft limit WL back (0: never); safety.wrap_wl of the "
+        "mapping (default: the mapping's period_wl, the simulated bench's 0.5, where the controller reads no "
+        "length readouts)",
     )
     ap.add_argument(
         "--stale-s",
@@ -307,9 +308,6 @@ def _setup(args):
         raise ValueError(
             f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}"
         )
-    say(
-        "starting: the controller's compilation, then the connection to the bench"
-    )  # the arguments' own checks passed
     stages = args.stages or (
         bench_learn.default_stages(args, checkpoint)
         if args.learn
@@ -330,7 +328,10 @@ def _setup(args):
         if not low <= args.settle_s <= high:
             raise ValueError(f"--settle-s must be in [{low:g}, {high:g}] s, got {args.settle_s}")
         mapping["detector"] = {**mapping["detector"], "settle_s": args.settle_s}
-    mapping = check_mapping(mapping)
+    args.set, mapping, chosen = defaults.choose(args, check_mapping(mapping), checkpoint)
+    if chosen:  # the run's first line
+        say(chosen)
+    say("starting: the controller's compilation, then the connection to the bench")
     if args.learn:
         return (
             mapping,
