@@ -24,7 +24,7 @@ from agents.bench.mapping import (  # noqa: F401
     sim_mapping,
 )
 
-log = logging.getLogger("agents.bench.runner")
+log = logging.getLogger("agents.bench")
 
 
 def monitored(sig):

@@ -32,6 +32,9 @@ P / P_best against time; learning: the update ratio too), ``summary.json`` (lear
 ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time, steps or the user, 3 when the
 watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run
 started (nothing recorded).
+
+``python -m agents.bench template --out FILE`` writes a mapping to start from, ``python -m agents.bench check
+--mapping FILE`` reads every PV it names once (``agents.bench.template``).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import api as base
-from agents.bench import defaults, learning as bench_learn
+from agents.bench import defaults, learning as bench_learn, report, template
 from agents.bench.devices import (
     SETTLE_RANGE_S,
     MappingError,
@@ -373,6 +376,9 @@ def pin(core: int) -> None:
 
 def main(argv=None) -> int:
     keep_ctrl_c()
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    if argv[:1] and argv[0] in template.COMMANDS:  # a template mapping, or a check of one
+        return template.main(argv)
     args = parser().parse_args(argv)
     logging.basicConfig(
         level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s"
@@ -412,7 +418,7 @@ def main(argv=None) -> int:
         "seed": args.seed,
         "rate_hz": args.rate,
         "mapping": mapping,
-        "plan_name": "agents.bench.runner",
+        "plan_name": "agents.bench",
     }
     with user_stops(loop):  # from here on nothing recorded is lost to a Ctrl-C
         if learning:
@@ -420,11 +426,16 @@ def main(argv=None) -> int:
         quiet = _QuietStop()
         for name in QUIET_LOGGERS:
             logging.getLogger(name).addFilter(quiet)
+        shown = (
+            None if learning else report.RunProgress(label, steps, lines)
+        )  # a learner shows its own
         try:
-            elapsed = _run(loop, md, out)
+            elapsed = _run(loop, md, out, shown)
             if learning:  # the learner's steps while the loop ran end here (then its catch-up, its last checkpoint)
                 learning.end(args.catch_up_s if _stopped_by(loop) in ("steps", "time") else 0.0)
         finally:
+            if shown is not None:
+                shown.close()
             disconnect(bench)
             for name in QUIET_LOGGERS:
                 logging.getLogger(name).removeFilter(quiet)
@@ -442,7 +453,7 @@ def main(argv=None) -> int:
             f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
             learning and learning.ratio_series(loop.t0),
         )
-        print(json.dumps(summary, indent=1))
+        print(report.readable(summary, out), flush=True)
     return EXIT_WATCHDOG if stopped else 0
 
 
@@ -507,13 +518,15 @@ def user_stops(loop: Loop):
             signal.signal(s, h)
 
 
-def _run(loop: Loop, md: dict, out: Path) -> float:
-    """Run the plan, documents streamed to ``out/documents.jsonl``, Ctrl-C and SIGTERM as ``user_stops`` says;
-    returns the seconds it ran."""
+def _run(loop: Loop, md: dict, out: Path, shown=None) -> float:
+    """Run the plan, documents streamed to ``out/documents.jsonl`` (and to ``shown``, a document callback, where
+    given), Ctrl-C and SIGTERM as ``user_stops`` says; returns the seconds it ran."""
     from bluesky import RunEngine
 
     RE = RunEngine({}, context_managers=[])  # its own Ctrl-C handling left out: user_stops
     RE.subscribe(_writer(out))
+    if shown is not None:
+        RE.subscribe(shown)
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:
