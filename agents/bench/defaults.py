@@ -1,4 +1,4 @@
-"""What a run on a bench chooses by itself, and the line that says so (the runner's first).
+"""What a run on a bench chooses by itself, and what the runner's first line says of it.
 
 On a bench whose mapping has no length readout for some line: the physics-informed controller runs its ``frames``
 configuration (``--set config=frames``: the detector's frames alone) and a learner from scratch its ``bench`` preset
@@ -114,4 +114,4 @@ def choose(args, mapping: dict, checkpoint=None) -> tuple[list, dict, str | None
     wrap, wrapping = choose_wrap(mapping, name if reads else None)
     mapping = {**mapping, "safety": {**mapping["safety"], "wrap_wl": wrap}}
     chosen = [note for note in (setting, wrapping) if note]
-    return items, mapping, ("chosen: " + "; ".join(chosen)) if chosen else None
+    return items, mapping, "; ".join(chosen) or None

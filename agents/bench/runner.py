@@ -332,9 +332,9 @@ def _setup(args):
             raise ValueError(f"--settle-s must be in [{low:g}, {high:g}] s, got {args.settle_s}")
         mapping["detector"] = {**mapping["detector"], "settle_s": args.settle_s}
     args.set, mapping, chosen = defaults.choose(args, check_mapping(mapping), checkpoint)
-    if chosen:  # the run's first line
-        say(chosen)
-    say("starting: the controller's compilation, then the connection to the bench")
+    # the run's first line: what was chosen by default and why
+    then = "the controller's compilation, then the connection to the bench"
+    say(f"starting: chosen: {chosen}; now {then}" if chosen else f"starting: {then}")
     if args.learn:
         return (
             mapping,

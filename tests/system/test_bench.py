@@ -1029,7 +1029,8 @@ def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     _, params = ops_jax.make(stages=3, mode="hard", model="phasor")  # the free bench's
     scale = float(params.action_scale)  # wl per unit of action
     max_step = 0.5 * scale
-    mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}
+    safety = {"max_step_wl": max_step, "stale_s": 5.0, "wrap_wl": 0}  # no wrap
+    mapping = {**sim_mapping("FR:", 3), "safety": safety}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     # the run starts by acquiring, wherever the runs before it left the lines
     off = subprocess.run(
@@ -1347,6 +1348,8 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
             "--no-lengths",
             "--controller",
             "physics",
+            "--set",
+            "use_lengths=True",  # explicit: the frames configuration is not chosen for it
             "--set",
             "starts=2",
         )
