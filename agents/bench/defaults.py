@@ -15,20 +15,13 @@ from __future__ import annotations
 from agents import api as base
 from agents.bench.learning import off_policy_learner
 from agents.bench.loop import reads_lengths
+from agents.bench.mapping import missing_lengths
 from agents.cli import parse_set
 from ops_jax import EnvSpec
 from ops_jax.env import configure
 
-PHYSICS_LENGTH_KEYS = (
-    "config",
-    "use_lengths",
-    "lengths_only",
-)  # settings that say what physics reads
-
-
-def missing_lengths(mapping: dict) -> list:
-    """The ``lines[i].length`` entries the mapping lacks."""
-    return [f"lines[{i}].length" for i, line in enumerate(mapping["lines"]) if "length" not in line]
+# the physics-informed controller's settings that say whether it reads the length readouts
+PHYSICS_LENGTH_KEYS = ("config", "use_lengths", "lengths_only")
 
 
 def _why(missing: list, lines: int) -> str:

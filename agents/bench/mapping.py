@@ -179,6 +179,11 @@ def check_mapping(m: dict) -> dict:
     }
 
 
+def missing_lengths(mapping: dict) -> list:
+    """The ``lines[i].length`` entries a checked ``mapping`` lacks."""
+    return [f"lines[{i}].length" for i, line in enumerate(mapping["lines"]) if "length" not in line]
+
+
 def read_mapping(path) -> dict:
     """A mapping file's JSON as written (not validated: ``check_mapping``)."""
     path = Path(path)
