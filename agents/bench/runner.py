@@ -169,7 +169,10 @@ def plot(path: Path, loop: Loop, title: str, ratio=None) -> None:
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m agents.bench", description=__doc__.split("\n\n")[0]
+        prog="python -m agents.bench",
+        description=__doc__.split("\n\n")[0],
+        epilog="python -m agents.bench template --out FILE: a mapping to start from; python -m agents.bench check "
+        "--mapping FILE: read every PV it names once (each with --help)",
     )
     ap.add_argument(
         "--prefix", default="OPS:", help="PV prefix of the simulated bench (without --mapping)"
