@@ -429,9 +429,8 @@ def main(argv=None) -> int:
         quiet = _QuietStop()
         for name in QUIET_LOGGERS:
             logging.getLogger(name).addFilter(quiet)
-        shown = (
-            None if learning else report.RunProgress(label, steps, lines)
-        )  # a learner shows its own
+        # a controller's progress line (a learner shows its own)
+        shown = None if learning else report.RunProgress(label, steps, lines)
         try:
             elapsed = _run(loop, md, out, shown)
             if learning:  # the learner's steps while the loop ran end here (then its catch-up, its last checkpoint)
