@@ -50,6 +50,8 @@ CONTROLLERS = {
     # the detector's frames alone: the ideal model's fit (comparing the latest frame with the one before
     # it, or with the three before it), or the fit that identifies the imperfections
     "physics-frames": ("physics", ["config=frames", "starts=8", "iters=6"]),
+    # the runner's own choice (on a bench without length readouts: the frames configuration, 16 x 8 fit)
+    "physics-defaults": ("physics", []),
     "physics-frames-history": ("physics", ["config=frames", "history=3", "starts=8", "iters=6"]),
     # the fit to acquire, SPGD's dither step to hold near the top (one probe per step)
     "physics-frames-hold": ("physics", ["config=frames-hold", "starts=8", "iters=6"]),

@@ -14,6 +14,7 @@ from agents import api as base
 from agents.controllers import trim
 from agents.bench.devices import Control, MappingError, SafetyStop, monitored, signals
 from agents.bench.flyer import LoopFlyer, fly
+from agents.bench.mapping import missing_lengths
 
 MAX_PROBES = 16  # probes per control step a controller may ask for
 FLUSH_S = (
@@ -198,9 +199,7 @@ def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
             "a line wraps (safety.wrap_wl, --wrap); run it without wrapping, or run a controller that "
             "does not read them (spgd, physics with use_lengths=False, a policy trained without them)"
         )
-    missing = [
-        f"lines[{i}].length" for i, line in enumerate(mapping["lines"]) if "length" not in line
-    ]
+    missing = missing_lengths(mapping)
     if reads and observes_lengths(env) and missing:
         raise MappingError(
             f"the controller {controller} reads the length readouts and the mapping lacks "

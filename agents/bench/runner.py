@@ -32,6 +32,9 @@ P / P_best against time, the PSD after lock beside it; learning: the update rati
 figures of ``ops_jax.lock`` too; learning: the step counts and update ratio) and, learning, ``checkpoint/``.
 Exit status 0 when the run ended by time, steps or the user, 3 when the watchdog stopped it, 2 for bad
 arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing recorded).
+
+``python -m agents.bench template --out FILE`` writes a mapping to start from, ``python -m agents.bench check
+--mapping FILE`` reads every PV it names once (``agents.bench.template``).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import api as base
-from agents.bench import learning as bench_learn
+from agents.bench import defaults, learning as bench_learn, report, template
 from agents.bench.devices import (
     SETTLE_RANGE_S,
     MappingError,
@@ -179,7 +182,10 @@ def _draw_psd(ax, trace, rate_hz) -> None:
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m agents.bench", description=__doc__.split("\n\n")[0]
+        prog="python -m agents.bench",
+        description=__doc__.split("\n\n")[0],
+        epilog="python -m agents.bench template --out FILE: a mapping to start from; python -m agents.bench check "
+        "--mapping FILE: read every PV it names once (each with --help)",
     )
     ap.add_argument(
         "--prefix", default="OPS:", help="PV prefix of the simulated bench (without --mapping)"
@@ -263,8 +269,9 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="WL",
-        help="take a line that comes within WL of its soft limit WL back (the optics' period: 0.5 for the "
-        "simulated bench); safety.wrap_wl of the mapping",
+        help="take a line that comes within WL of its soft limit WL back (0: never); safety.wrap_wl of the "
+        "mapping (default: the mapping's period_wl, the simulated bench's 0.5, where the controller reads no "
+        "length readouts)",
     )
     ap.add_argument(
         "--stale-s",
@@ -320,9 +327,6 @@ def _setup(args):
         raise ValueError(
             f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}"
         )
-    say(
-        "starting: the controller's compilation, then the connection to the bench"
-    )  # the arguments' own checks passed
     stages = args.stages or (
         bench_learn.default_stages(args, checkpoint)
         if args.learn
@@ -343,7 +347,10 @@ def _setup(args):
         if not low <= args.settle_s <= high:
             raise ValueError(f"--settle-s must be in [{low:g}, {high:g}] s, got {args.settle_s}")
         mapping["detector"] = {**mapping["detector"], "settle_s": args.settle_s}
-    mapping = check_mapping(mapping)
+    args.set, mapping, chosen = defaults.choose(args, check_mapping(mapping), checkpoint)
+    # the run's first line: what was chosen by default and why
+    then = "the controller's compilation, then the connection to the bench"
+    say(f"starting: chosen: {chosen}; now {then}" if chosen else f"starting: {then}")
     if args.learn:
         return (
             mapping,
@@ -385,6 +392,9 @@ def pin(core: int) -> None:
 
 def main(argv=None) -> int:
     keep_ctrl_c()
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    if argv[:1] and argv[0] in template.COMMANDS:  # a template mapping, or a check of one
+        return template.main(argv)
     args = parser().parse_args(argv)
     logging.basicConfig(
         level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s"
@@ -432,11 +442,15 @@ def main(argv=None) -> int:
         quiet = _QuietStop()
         for name in QUIET_LOGGERS:
             logging.getLogger(name).addFilter(quiet)
+        # a controller's progress line (a learner shows its own)
+        shown = None if learning else report.RunProgress(label, steps, lines)
         try:
-            elapsed = _run(loop, md, out)
+            elapsed = _run(loop, md, out, shown)
             if learning:  # the learner's steps while the loop ran end here (then its catch-up, its last checkpoint)
                 learning.end(args.catch_up_s if _stopped_by(loop) in ("steps", "time") else 0.0)
         finally:
+            if shown is not None:
+                shown.close()
             disconnect(bench)
             for name in QUIET_LOGGERS:
                 logging.getLogger(name).removeFilter(quiet)
@@ -455,7 +469,7 @@ def main(argv=None) -> int:
             learning and learning.ratio_series(loop.t0),
             rate_hz=summary["rate_hz"],
         )
-        print(json.dumps(summary, indent=1))
+        print(report.readable(summary, out), flush=True)
     return EXIT_WATCHDOG if stopped else 0
 
 
@@ -520,13 +534,15 @@ def user_stops(loop: Loop):
             signal.signal(s, h)
 
 
-def _run(loop: Loop, md: dict, out: Path) -> float:
-    """Run the plan, documents streamed to ``out/documents.jsonl``, Ctrl-C and SIGTERM as ``user_stops`` says;
-    returns the seconds it ran."""
+def _run(loop: Loop, md: dict, out: Path, shown=None) -> float:
+    """Run the plan, documents streamed to ``out/documents.jsonl`` (and to ``shown``, a document callback, where
+    given), Ctrl-C and SIGTERM as ``user_stops`` says; returns the seconds it ran."""
     from bluesky import RunEngine
 
     RE = RunEngine({}, context_managers=[])  # its own Ctrl-C handling left out: user_stops
     RE.subscribe(_writer(out))
+    if shown is not None:
+        RE.subscribe(shown)
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:

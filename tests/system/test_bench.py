@@ -442,20 +442,22 @@ def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
 def test_length_readouts_a_controller_reads_must_be_mapped():
     """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a controller
     reading them fails before it is compiled, naming itself and the missing entries."""
-    assert not runner.reads_lengths("spgd", None) and runner.reads_lengths("sac", {})
-    assert runner.reads_lengths("physics", None) and not runner.reads_lengths(
+    from agents.bench import loop as bench_loop
+
+    assert not bench_loop.reads_lengths("spgd", None) and bench_loop.reads_lengths("sac", {})
+    assert bench_loop.reads_lengths("physics", None) and not bench_loop.reads_lengths(
         "physics", {"use_lengths": False}
     )
     env, _ = ops_jax.make(3, "hard")
-    assert runner.observes_lengths(env)
+    assert bench_loop.observes_lengths(env)
     mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
     assert all("length" not in line for line in mapping["lines"])
-    runner.check_lengths("spgd", False, env, mapping)
+    bench_loop.check_lengths("spgd", False, env, mapping)
     with pytest.raises(
         MappingError,
         match=r"controller physics .*lines\[0\].length, lines\[1\].length, lines\[2\].length",
     ):
-        runner.load_controller("physics", mapping, {}, {}, seed=0)
+        bench_loop.load_controller("physics", mapping, {}, {}, seed=0)
     partial = check_mapping(
         {
             **sim_mapping("T:", 3),
@@ -466,11 +468,11 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
         }
     )
     with pytest.raises(MappingError, match=r"lacks lines\[2\].length;"):
-        runner.check_lengths("DIR", True, env, partial)
+        bench_loop.check_lengths("DIR", True, env, partial)
     wrapping = check_mapping({**sim_mapping("T:", 3), "safety": {"wrap_wl": 0.5}})
     with pytest.raises(MappingError, match="jump by a period when a line wraps"):
-        runner.check_lengths("DIR", True, env, wrapping)
-    runner.check_lengths("spgd", False, env, wrapping)
+        bench_loop.check_lengths("DIR", True, env, wrapping)
+    bench_loop.check_lengths("spgd", False, env, wrapping)
 
 
 def test_bench_reset_is_a_fresh_start():
@@ -1040,7 +1042,8 @@ def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
     _, params = ops_jax.make(stages=3, mode="hard", model="phasor")  # the free bench's
     scale = float(params.action_scale)  # wl per unit of action
     max_step = 0.5 * scale
-    mapping = {**sim_mapping("FR:", 3), "safety": {"max_step_wl": max_step, "stale_s": 5.0}}
+    safety = {"max_step_wl": max_step, "stale_s": 5.0, "wrap_wl": 0}  # no wrap
+    mapping = {**sim_mapping("FR:", 3), "safety": safety}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     # the run starts by acquiring, wherever the runs before it left the lines
     off = subprocess.run(
@@ -1359,6 +1362,8 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
             "--no-lengths",
             "--controller",
             "physics",
+            "--set",
+            "use_lengths=True",  # explicit: the frames configuration is not chosen for it
             "--set",
             "starts=2",
         )
