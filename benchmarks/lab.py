@@ -493,7 +493,7 @@ def table(rows: list) -> str:
 
 
 def main(argv=None) -> dict:
-    from agents.config import TrimConfig
+    from agents import TrimConfig
 
     ap = argparse.ArgumentParser(
         prog="python -m benchmarks.lab", description=__doc__.split("\n")[0]
@@ -589,7 +589,7 @@ def main(argv=None) -> dict:
         choices=["none", *sorted(TrimConfig.PRESETS)],
         metavar="NAME",
         help="each controller alone (none) and wrapped in each of these presets of the "
-        "trim (agents.config.TrimConfig: %(choices)s)",
+        "trim (agents.TrimConfig: %(choices)s)",
     )
     ap.add_argument(
         "--imperfection-scale",

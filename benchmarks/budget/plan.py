@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.config import TrimConfig
+from agents import TrimConfig
 from agents.registry import get
 from ops_jax.env import PROBES
 from ops_jax.cli.progress import keep_ctrl_c
@@ -532,7 +532,7 @@ def main(argv=None) -> str:
         "--bench-trim",
         choices=sorted(TrimConfig.PRESETS),
         default=None,
-        help="the trim's preset (agents.config.TrimConfig) around protocol (b)'s adapted policies "
+        help="the trim's preset (agents.TrimConfig) around protocol (b)'s adapted policies "
         "(default: the preset's)",
     )
     args = ap.parse_args(argv)
