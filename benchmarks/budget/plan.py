@@ -112,7 +112,7 @@ def cells(
     bench_probe=None,
     bench_trim=None,
 ) -> list[dict]:
-    """The work units of ``preset`` (a name of ``benchmarks.budget.presets.PRESETS``): learners and references x environments x
+    """The work units of ``preset`` (``benchmarks.budget.presets``): learners and references x environments x
     seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
     protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
     ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default);
