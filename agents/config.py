@@ -145,4 +145,3 @@ class AlgoConfig:
             for v in [getattr(self, f.name)]
             if f.default is dataclasses.MISSING or v != f.default
         }
-
