@@ -13,7 +13,8 @@ from ops_jax.cli.progress import keep_ctrl_c
 from ops_jax.env import PROBES
 
 
-def main(argv=None) -> str:
+def parser() -> argparse.ArgumentParser:
+    """The command line's options."""
     ap = argparse.ArgumentParser(
         prog="python -m benchmarks.budget", description=plan.__doc__.split("\n")[0]
     )
@@ -55,6 +56,12 @@ def main(argv=None) -> str:
         help="the trim's preset (agents.TrimConfig) around protocol (b)'s adapted policies "
         "(default: the preset's)",
     )
+    return ap
+
+
+def main(argv=None) -> str:
+    """Compute the cells of the chosen plan (reusing those stored in ``<out>/cells``) and write the report."""
+    ap = parser()
     args = ap.parse_args(argv)
     keep_ctrl_c()
     from benchmarks.cells import CellStore
