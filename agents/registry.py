@@ -1,14 +1,15 @@
 """The registry of algorithms: one ``Algo`` entry each (name, module, config type, display name,
-the optional protocol members its module provides, its sweep presets, its cost model). ``agents.ALGOS``, the
-command line's ``--algo`` choices, the sweep's learners, the lab-budget section's controllers, both their cost
-estimates and table names all read this registry.
+the optional protocol members its module provides). ``agents.ALGOS`` and the command line's ``--algo`` choices
+read this registry, and so do the benchmarks (their own presets, budgets and cost models, in ``benchmarks/``, name
+the algorithms by their entries' names).
 
-The entries are registered by ``agents.algos`` (imported with the package), above the algorithms' modules:
-this module names none of them, so the algorithms may use ``agents.api``, which looks them up here. A new
-algorithm is its module (meeting ``AlgoModule``) plus one ``register`` line in ``agents.algos``::
+Each algorithm is one unit: its module declares its config type and its entry, ``ALGO``, beside its code
+(``agents.learners.offpolicy.td3``: ``TD3Config`` and ``ALGO = Algo("td3", __name__, TD3Config, "TD3", ...)``);
+``agents.algos`` (imported with the package) registers each with one line. This module names none of them, so
+the algorithms may use ``agents.api``, which looks them up here. A new algorithm is its module (meeting
+``AlgoModule``, with its ``ALGO``) plus one line in ``agents.algos``::
 
-    register(Algo("mine", "agents.mine", MineConfig, "Mine",
-                  sweep=SweepPresets(...), cost=CostModel(...)))
+    register_module("agents.mine")
 """
 
 from __future__ import annotations
@@ -54,52 +55,16 @@ class OffPolicyModule(SeedsModule, Protocol):
 
 
 @dataclasses.dataclass(frozen=True)
-class CostModel:
-    """Estimated seconds of an algorithm's cells on one worker of a 2-core CPU (the sweep's units, the lab-budget
-    section's cells): a training run of ``steps`` env steps, ``updates`` gradient steps, on N stages costs
-    (``fixed_s`` + ``s_per_step`` x steps + ``s_per_update`` x updates) x ``stage_growth`` ** (N - 5) for N > 5;
-    an evaluation of 32 episodes ``eval_s``."""
-
-    fixed_s: float = 5.0
-    s_per_step: float = 0.0
-    s_per_update: float = 0.0
-    stage_growth: float = 1.0
-    eval_s: float = 1.0
-
-    def train_s(self, steps: int, updates: float = 0.0, stages: int = 5) -> float:
-        """Seconds of one training run of ``steps`` env steps and ``updates`` gradient steps on ``stages`` stages."""
-        return (
-            self.fixed_s + self.s_per_step * steps + self.s_per_update * updates
-        ) * self.stage_growth ** max(0, stages - 5)
-
-
-@dataclasses.dataclass(frozen=True)
-class SweepPresets:
-    """An algorithm's part of the sweep's presets ("quick", "default", "paper"): training budget (env
-    steps) and hyperparameter overrides per preset, the reality section's own budgets; ``lab_budget``: its
-    hyperparameters in the lab-budget section (benchmarks.budget.plan) per preset of that section ("quick",
-    "default", "full"), where it is trained if a learner, else evaluated as a reference."""
-
-    budgets: dict
-    hyper: dict = dataclasses.field(default_factory=dict)
-    reality_budgets: dict = dataclasses.field(default_factory=dict)
-    lab_budget: dict = dataclasses.field(default_factory=dict)
-
-
-@dataclasses.dataclass(frozen=True)
 class Algo:
     """One algorithm: ``name`` (``agents.train``'s ``algo``), ``module`` (an ``AlgoModule``), ``config``
-    (its type of ``agents.config``), ``display`` (tables, figures), ``vmaps_seeds`` (the module is a
-    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``), ``sweep`` (its presets of benchmarks.sweep.command),
-    ``cost`` (its cells' seconds in the sweep and the lab-budget section)."""
+    (its ``agents.config.AlgoConfig`` type), ``display`` (tables, figures), ``vmaps_seeds`` (the module is a
+    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``)."""
 
     name: str
     module: str
     config: type
     display: str
     vmaps_seeds: bool = False
-    sweep: SweepPresets | None = None
-    cost: CostModel = CostModel()
     off_policy: bool = False
 
     @property
@@ -111,12 +76,6 @@ class Algo:
         """Every field of the config that ``hyper`` (a preset name under "config" and overrides) resolves to, in its
         stored form: what a run with ``hyper`` trains with under the presets of this version."""
         return self.config.from_hyper(hyper).to_hyper()
-
-    def train_s(self, hyper: dict, steps: int, stages: int = 5) -> float:
-        """``cost.train_s`` of a run of ``steps`` env steps with ``hyper`` (its gradient steps from the config)."""
-        return self.cost.train_s(
-            steps, steps * self.config.from_hyper(hyper).updates_per_step(), stages
-        )
 
     def members(self) -> tuple:
         """The names its module must provide: ``AlgoModule``'s, and ``SeedsModule``'s / ``OffPolicyModule``'s where
@@ -166,6 +125,16 @@ class Registry(dict):
 
 REGISTRY = Registry("algo")  # name -> Algo
 register, unregister, get = REGISTRY.register, REGISTRY.unregister, REGISTRY.entry
+
+
+def register_module(module: str) -> Algo:
+    """Import ``module`` and register the ``Algo`` it declares as ``ALGO`` (whose ``module`` must be it)."""
+    entry = getattr(importlib.import_module(module), "ALGO", None)
+    if not isinstance(entry, Algo) or entry.module != module:
+        raise TypeError(
+            f"module {module} must declare ALGO, an agents.registry.Algo of module {module!r}"
+        )
+    return register(entry)
 
 
 class _Column(Mapping):

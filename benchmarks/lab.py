@@ -241,9 +241,7 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
     run's first step, and ``wall_s``, the process's seconds from its start (imports and compiling included)."""
     t0 = time.monotonic()
-    runner = Process(
-        "agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log"
-    )
+    runner = Process("agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log")
     rc = runner.wait(timeout)
     wall_s = time.monotonic() - t0
     if rc not in (0, 3):  # 3: the watchdog stopped the run; its summary is reported as such
@@ -497,7 +495,7 @@ def table(rows: list) -> str:
 
 
 def main(argv=None) -> dict:
-    from agents.config import TrimConfig
+    from agents import TrimConfig
 
     ap = argparse.ArgumentParser(
         prog="python -m benchmarks.lab", description=__doc__.split("\n")[0]
@@ -593,7 +591,7 @@ def main(argv=None) -> dict:
         choices=["none", *sorted(TrimConfig.PRESETS)],
         metavar="NAME",
         help="each controller alone (none) and wrapped in each of these presets of the "
-        "trim (agents.config.TrimConfig: %(choices)s)",
+        "trim (agents.TrimConfig: %(choices)s)",
     )
     ap.add_argument(
         "--imperfection-scale",

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.config import TrimConfig
+from agents import TrimConfig
 from ops_jax.env import PROBES
 from ops_jax.cli.progress import keep_ctrl_c
 from benchmarks.sweep.reality import LEVELS, level_env

@@ -132,3 +132,35 @@ def test_every_module_imports_and_hides_no_function_of_its_package():
             assert isinstance(getattr(package, exported), type(package)), (
                 f"{name}.{exported} hides a module"
             )
+
+
+def test_agents_names_no_preset_of_the_benchmarks():
+    """The benchmarks' presets live in benchmarks/ (benchmarks/sweep/presets.py, benchmarks/budget/presets.py):
+    no source under agents/ quotes the name of a sweep or lab-budget preset that is not also an algorithm's own
+    preset name, holds a dict keyed by two or more of the sweep's preset names (an algorithm's part in them), or
+    names their former registry fields."""
+    import re
+
+    from agents.registry import REGISTRY
+    from benchmarks.budget.presets import PRESETS as BUDGET
+    from benchmarks.sweep.presets import PRESETS as SWEEP
+
+    from agents import TrimConfig
+
+    own = {name for t in [*(a.config for a in REGISTRY.values()), TrimConfig] for name in t.PRESETS}
+    theirs = (set(SWEEP) | set(BUDGET)) - own
+    assert {"quick", "full", "frames-residual-history"} <= theirs  # what the scan looks for
+    quoted = re.compile(r"""["'`](%s)["'`]""" % "|".join(map(re.escape, sorted(theirs))))
+    fields = re.compile(r"\b(SweepPresets|lab_budget|reality_budgets)\b")
+    found = []
+    for path in sorted((REPO / "agents").rglob("*.py")):
+        text = path.read_text()
+        found += [f"{path.relative_to(REPO)}: {m.group(0)}" for m in quoted.finditer(text)]
+        found += [f"{path.relative_to(REPO)}: {m.group(0)}" for m in fields.finditer(text)]
+        for node in ast.walk(ast.parse(text)):
+            keys = {k.value for k in getattr(node, "keys", []) if isinstance(k, ast.Constant)}
+            if isinstance(node, ast.Dict) and len(keys & set(SWEEP)) >= 2:
+                found.append(
+                    f"{path.relative_to(REPO)}:{node.lineno}: a dict keyed by {sorted(keys)}"
+                )
+    assert found == []

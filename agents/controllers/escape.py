@@ -23,10 +23,25 @@ most common trap (P/Pmax ~0.24, lines 1 and 3 at pi, line 2 near wl/8) is left b
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import jax.numpy as jnp
 import numpy as np
+
+from agents.config import AlgoConfig, field
+from ops_jax.ranges import Range
+
+
+@dataclasses.dataclass(frozen=True)
+class EscapeConfig(AlgoConfig):
+    """The stall escape's fields (``agents.controllers.escape``), shared by SPGD and the trim: jump (wl), patience
+    (steps), p_stall and margin (P/Pmax)."""
+
+    jump: float = field(Range(0, 0.5, unit="wl"))
+    patience: float = field(Range(1, 1e6))
+    p_stall: float = field(Range(0, 1))
+    margin: float = field(Range(0, 1))
 
 
 def candidates(n: int) -> jnp.ndarray:

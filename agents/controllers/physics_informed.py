@@ -39,19 +39,18 @@ whose observation holds no length readouts (``observe_lengths=False``), ``use_le
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
 
-Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False``
-turns it off): the model also carries static unknowns
-theta (the detector's gain and offset, shared by P and the samples; each stage's wave-plate
-rotation error and PBS leakage; each fitted line's actuator gain error; ``THETA``), estimated
-recursively. After the multi-start fit of the offsets (theta held), one Gauss-Newton step on
-(offsets, theta) with theta's accumulated information as its prior; the information then grows by
-what that step tells about theta alone (the Schur complement of the offsets), discounted by
-``forget`` per step. Moves are divided by the identified actuator gains. With ``use_lengths=True``
-as well, each fitted line's length readout is calibrated against the fit (readout = (1 + g) x + o,
-recursive least squares, discounted by ``forget``) and, once the calibrated length is known to
-CAL_TRUST, averaged with the fitted offset (``fuse``): the readout sees the length at once and has no sign
-ambiguity, where the fit, near the optimum, has to tell +x from -x through the moves since earlier frames; the fit is
-sharper where the model holds.
+Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False`` turns
+it off): the model also carries static unknowns theta (the detector's gain and offset, shared by P and the
+samples; each stage's wave-plate rotation error and PBS leakage; each fitted line's actuator gain error;
+``identification.THETA``), estimated recursively. After the multi-start fit of the offsets (theta held), one
+Gauss-Newton step on (offsets, theta) with theta's accumulated information as its prior; the information then
+grows by what that step tells about theta alone (the Schur complement of the offsets), discounted by ``forget``
+per step. Moves are divided by the identified actuator gains. With ``use_lengths=True`` as well, each fitted
+line's length readout is calibrated against the fit (readout = (1 + g) x + o, recursive least squares,
+discounted by ``forget``) and, once the calibrated length is known to CAL_TRUST, averaged with the fitted offset
+(``identification.fuse``): the readout sees the length at once and has no sign ambiguity, where the fit, near
+the optimum, has to tell +x from -x through the moves since earlier frames; the fit is sharper where the model
+holds.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and
 docs/imperfections.md (with lab imperfections).
@@ -59,20 +58,87 @@ docs/imperfections.md (with lab imperfections).
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ops_jax import optics, physics
+from ops_jax.ranges import Range
 from agents.controllers import spgd
+from agents.controllers.identification import FIT_VAR0, NOISE_Y, calibrate_function, fuse
+from agents.controllers.identification import identify_function, per_theta, theta_layout, wrap
 from agents.api import Policy, TrainResult, evaluated_result
-from agents.config import PhysicsConfig
+from agents.config import HISTORY, AlgoConfig, field, flag, optional
+from agents.registry import Algo
 from agents.envs import built, check_env_config
 
-HOLD_STREAM = (
-    1  # the hold's dither: the step's key folded with this, apart from the fit's random starts
-)
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsConfig(AlgoConfig):
+    """The physics-informed controller (``agents.controllers.physics_informed``): the fit and the control gain."""
+
+    NAME: ClassVar[str] = "physics"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {
+        "default": dict(  # identifies the imperfections and reads the calibrated length readout
+            starts=16,
+            iters=8,
+            damping=1e-3,
+            w_hist=1.0,
+            gain=1.0,
+            drift_gain=0.0,
+            use_lengths=True,
+            lengths_only=False,
+            identify=True,
+            forget=0.98,
+        ),
+        "frames": dict(  # the detector's frames alone, the ideal model: no identification, no length readout
+            starts=16,
+            iters=8,
+            damping=1e-3,
+            w_hist=1.0,
+            gain=1.0,
+            drift_gain=0.0,
+            use_lengths=False,
+            lengths_only=False,
+            identify=False,
+            forget=0.98,
+        ),
+    }
+    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step); it gains over
+    # "frames" only where a probe is read in the frame's instant (ops_jax EnvConfig.probe; docs/imperfections.md)
+    PRESETS["frames-hold"] = dict(PRESETS["frames"], hold=0.85)
+
+    starts: int = field(Range(0, 4096, integer=True))
+    iters: int = field(Range(1, 1000, integer=True))
+    damping: float = field(Range(0, 1e6))
+    w_hist: float = field(Range(0, 1e6))
+    gain: float = field(Range(0, 10))
+    drift_gain: float = field(Range(0, 1))
+    use_lengths: bool = field(flag)
+    lengths_only: bool = field(flag)
+    identify: bool = field(flag)
+    forget: float = field(Range(0, 1, lo_open=True))
+    history: int = field(HISTORY, default=1)
+    # the measured P/Pmax at and above which SPGD's proportional step from one dither probe (its preset's gains)
+    # moves the lines instead of the fit (None: the fit's move throughout, 1 measurement per step)
+    hold: float | None = field(optional(Range(0, 1)), default=None)
+
+    def check(self):
+        if self.starts == 0 and not self.use_lengths:
+            raise ValueError(
+                "starts must be >= 1 unless use_lengths=True (nothing to start the fit from)"
+            )
+
+
+ALGO = Algo("physics", __name__, PhysicsConfig, "Physics")
+
+
+# the hold's dither: the step's key folded with this, apart from the fit's random starts
+HOLD_STREAM = 1
 
 
 def params_template(env_config, hyper):
@@ -100,75 +166,6 @@ def fitted_stages(config) -> int:
     """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the detector
     "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
     return config.stages if config.detector == "polariser" else config.stages - 1
-
-
-def wrap(x):
-    """Offset from the nearest optimum (period wl/2), in [-0.25, 0.25) wl."""
-    return x - 0.5 * jnp.round(x / 0.5)
-
-
-# Online identification (``identify=True``): the static unknowns theta, with their start, prior
-# standard deviation and accepted range: detector gain error and offset (y = 2 ((1 + g) v + o) - 1),
-# each stage's wave plate rotation error (rad) and PBS leakage amplitude sqrt(leak) (started off zero,
-# where P is flat in it), each fitted line's actuator gain error; NOISE_Y: the assumed noise of y.
-THETA = {  # block: (start, prior SD, lowest, highest)
-    "detector_gain": (0.0, 0.05, -0.3, 0.3),
-    "detector_offset": (0.0, 0.05, -0.3, 0.3),
-    "rotation": (0.0, 0.03, -0.15, 0.15),
-    "leak_amplitude": (0.02, 0.03, 1e-3, 0.3),
-    "actuator_gain": (0.0, 0.15, -0.5, 0.5),
-}
-NOISE_Y = 0.01
-# The length readout's calibration (``identify=True`` with ``use_lengths=True``): readout = (1 + g) x + o
-# per fitted line, recursive least squares of the readout on the fitted lengths (their assumed error
-# CAL_NOISE wl, innovations beyond CAL_CLIP times their standard deviation cut) from the prior
-# o ~ N(0, CAL_PRIOR^2) wl, 1 + g ~ N(1, CAL_PRIOR^2); the controller reads the calibrated readout
-# where its standard deviation is below CAL_TRUST wl, the fitted offsets elsewhere.
-CAL_NOISE, CAL_CLIP, CAL_PRIOR, CAL_TRUST = 0.01, 3.0, 0.05, 0.002
-# Where it is trusted, the calibrated readout (per-step noise CAL_READ_SD wl on top of its calibration's
-# standard deviation) and the fit are averaged by inverse variance (``fuse``); the fit's variance starts at
-# FIT_VAR0 wl^2 and is at least FIT_VAR_MIN.
-CAL_READ_SD, FIT_VAR0, FIT_VAR_MIN = 1e-3, 1e-4, 1e-8
-
-
-def fuse(z_fit, z_cal, sd, fit_var, forget: float):
-    """One line's length (wl, modulo the period) from the frames' fit ``z_fit`` and the calibrated readout
-    ``z_cal`` (standard deviation ``sd`` wl): the fit or its mirror image, whichever is nearer the readout
-    (near the optimum the frames cannot tell +x from -x), averaged with the readout by inverse variance. The
-    fit's variance ``fit_var`` (wl^2) is the discounted mean square of its distance to the readout less the
-    readout's own variance. Returns (length, fit_var); the fit alone while ``sd`` >= CAL_TRUST."""
-    var_cal = sd**2 + CAL_READ_SD**2
-    near = jnp.where(jnp.abs(wrap(-z_fit - z_cal)) < jnp.abs(wrap(z_fit - z_cal)), -z_fit, z_fit)
-    d = wrap(near - z_cal)
-    trusted = sd < CAL_TRUST
-    fit_var = jnp.where(trusted, forget * fit_var + (1 - forget) * d**2, fit_var)
-    w_fit = var_cal / (var_cal + jnp.maximum(fit_var - var_cal, FIT_VAR_MIN))
-    return jnp.where(trusted, wrap(z_cal + w_fit * d), z_fit), fit_var
-
-
-def _theta_layout(n: int, fit: int) -> dict:
-    """Slices of theta's blocks: detector gain, offset (1 each), rotations and leak amplitudes (N each),
-    actuator gains (``fit``)."""
-    sizes = {
-        "detector_gain": 1,
-        "detector_offset": 1,
-        "rotation": n,
-        "leak_amplitude": n,
-        "actuator_gain": fit,
-    }
-    out, i = {}, 0
-    for k, size in sizes.items():
-        out[k], i = slice(i, i + size), i + size
-    return out
-
-
-def _per_theta(n: int, fit: int, column: int) -> np.ndarray:
-    """Column ``column`` of ``THETA`` (0 start, 1 prior SD, 2 lowest, 3 highest) as a vector over theta."""
-    layout = _theta_layout(n, fit)
-    out = np.zeros(max(s.stop for s in layout.values()), np.float32)
-    for k, sl in layout.items():
-        out[sl] = THETA[k][column]
-    return out
 
 
 def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict) -> tuple:
@@ -239,66 +236,6 @@ def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict)
     return moved, residual, estimate_one
 
 
-def _identify_function(fit: int, n_theta: int, h: dict, residual, max_step, theta_lo, theta_hi):
-    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance."""
-
-    def identify_one(z, th, info, y, hist):
-        """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
-        the information update (the Schur complement of z: what this step tells about theta alone)."""
-
-        def res(u):
-            return residual(u[:fit], u[fit:], y, hist)
-
-        u = jnp.concatenate([z, th])
-        J = jax.jacfwd(res)(u)
-        A = J.T @ J
-        prior_full = jnp.zeros((fit + n_theta,) * 2).at[fit:, fit:].set(info)
-        A_reg = (
-            A + prior_full + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
-        )
-        step = -jnp.linalg.solve(A_reg, J.T @ res(u))
-        z_new = wrap(z + jnp.clip(step[:fit], -0.05, 0.05))
-        th_new = jnp.clip(th + jnp.clip(step[fit:], -max_step, max_step), theta_lo, theta_hi)
-        azz, azt, att = A[:fit, :fit], A[:fit, fit:], A[fit:, fit:]
-        schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
-        info_new = h["forget"] * info + schur
-        return z_new, th_new, 0.5 * (info_new + info_new.T)
-
-    return identify_one
-
-
-def _calibrate_function(h: dict):
-    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line."""
-    cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
-    cal_mean = jnp.array([0.0, 1.0])
-
-    def calibrate_one(info, vec, z, r):
-        """One line's readout calibration: the recursive least squares update with the fitted offset
-        ``z`` (wl, modulo the period) and readout ``r`` (wl); returns (info, vec, the calibrated length
-        (wl, modulo the period), its standard deviation (wl))."""
-
-        def solve(info, vec):
-            A = info + cal_prior
-            return jnp.linalg.solve(A, vec + cal_prior @ cal_mean), jnp.linalg.inv(A)
-
-        beta, cov = solve(info, vec)
-        x = z + 0.5 * jnp.round(
-            ((r - beta[0]) / beta[1] - z) / 0.5
-        )  # the fitted length, unwrapped by the readout
-        phi = jnp.array([1.0, x])
-        innov = r - phi @ beta
-        bound = CAL_CLIP * jnp.sqrt(CAL_NOISE**2 + phi @ cov @ phi)
-        r_used = phi @ beta + jnp.clip(innov, -bound, bound)
-        info = h["forget"] * info + jnp.outer(phi, phi) / CAL_NOISE**2
-        vec = h["forget"] * vec + phi * r_used / CAL_NOISE**2
-        beta, cov = solve(info, vec)
-        x_cal = (r - beta[0]) / beta[1]
-        d = jnp.array([-1.0, -x_cal]) / beta[1]  # gradient of x_cal in (o, 1 + g)
-        return info, vec, wrap(x_cal), jnp.sqrt(d @ cov @ d)
-
-    return calibrate_one
-
-
 def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
@@ -317,9 +254,9 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
     default = policy_params(env_config)
     identify = h["identify"] and fit > 0 and not h["lengths_only"]
     readout = identify and h["use_lengths"]
-    layout = _theta_layout(n, fit)
+    layout = theta_layout(n, fit)
     older = config.history - 1  # frames kept beyond the one before the latest
-    column = lambda c: jnp.asarray(_per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
+    column = lambda c: jnp.asarray(per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
     theta0, theta_lo, theta_hi = column(0), column(2), column(3)
     n_theta = theta0.size
     prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
@@ -327,8 +264,8 @@ def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> 
 
     hold, amp = h.get("hold"), spgd.HOLD["delta"]  # the hold's dither (wl)
     moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
-    identify_one = _identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
-    calibrate_one = _calibrate_function(h)
+    identify_one = identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
+    calibrate_one = calibrate_function(h)
 
     def init(key, obs):
         del key

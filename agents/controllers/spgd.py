@@ -31,7 +31,9 @@ results: docs/results.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -39,8 +41,51 @@ import numpy as np
 
 from agents.controllers import escape
 from agents.api import Policy, TrainResult, evaluated_result
-from agents.config import SPGDConfig
+from agents.config import DITHER, field
+from agents.registry import Algo
+from ops_jax.ranges import Range
 from agents.envs import built, check_env_config
+
+
+@dataclasses.dataclass(frozen=True)
+class SPGDConfig(escape.EscapeConfig):
+    """SPGD-PID (``agents.controllers.spgd``): dither (wl), gain schedule, PID and the stall escape."""
+
+    NAME: ClassVar[str] = "SPGD"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {
+        "default": dict(
+            delta=0.002,
+            delta0=0.04,
+            anneal=20.0,
+            kp=16.0,
+            kp_min=0.1,
+            kp_pow=2.0,
+            ki=0.0,
+            kd=0.0,
+            leak=0.9,
+            jump=0.25,
+            patience=10.0,
+            p_stall=0.9,
+            margin=0.005,
+        )
+    }
+    # for probes read a frame later, as on a bench (ops_jax EnvConfig.probe="frame"): a dither above the
+    # frame-to-frame change of P, a lower gain (docs/imperfections.md)
+    PRESETS["bench"] = dict(PRESETS["default"], delta=0.01, kp=8.0, kp_min=0.05)
+
+    delta: float = field(DITHER)
+    delta0: float = field(DITHER)
+    anneal: float = field(Range(0, 1e6))
+    kp: float = field(Range(0, 1e6))
+    kp_min: float = field(Range(0, 1e6))
+    kp_pow: float = field(Range(0, 10))
+    ki: float = field(Range(0, 1e6))
+    kd: float = field(Range(0, 1e6))
+    leak: float = field(Range(0, 1))
+
+
+ALGO = Algo("spgd", __name__, SPGDConfig, "SPGD")
 
 
 def dither(key, shape) -> jax.Array:

@@ -36,13 +36,53 @@ serves every ``TrimConfig``. The default preset's tuning: docs/learners.md.
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
+
 import jax
 import jax.numpy as jnp
 
 from agents.controllers import escape, spgd
 from agents.api import Policy, TrainResult
-from agents.config import TrimConfig
+from agents.config import DITHER, field, optional
+from ops_jax.ranges import Range
 from agents.envs import built, check_env_config
+
+
+@dataclasses.dataclass(frozen=True)
+class TrimConfig(escape.EscapeConfig):
+    """The extremum-seeking trim (``agents.controllers.trim``): integral gain, dither (wl), the gate on P/Pmax and the
+    stall escape."""
+
+    NAME: ClassVar[str] = "trim"
+    DEFAULT_PRESET: ClassVar[str] = "default"
+    PRESETS: ClassVar[dict] = {
+        "default": dict(
+            ki=0.003,
+            amp=0.002,
+            p_gate=0.0,
+            release=1.0,
+            jump=0.0,
+            patience=10.0,
+            p_stall=0.6,
+            margin=0.005,
+        )
+    }
+    # integrates only above half of P_max and lets the offset decay below: a trim that led a line off the top is
+    # undone (docs/learners.md, "Does the trim ever lose?")
+    PRESETS["guarded"] = dict(PRESETS["default"], p_gate=0.5, release=0.9)
+    # the guarded trim with a dither above the frame-to-frame change of P, for probes read a frame later (a bench;
+    # ops_jax ``EnvConfig.probe="frame"``, docs/learners.md)
+    PRESETS["bench"] = dict(PRESETS["guarded"], amp=0.005)
+
+    ki: float = field(Range(0, 1))
+    amp: float = field(DITHER)
+    p_gate: float = field(Range(0, 1))
+    release: float = field(Range(0, 1))
+    # the measured P/Pmax at and above which SPGD's proportional step up the probed slope replaces the move
+    # (``agents.controllers.spgd.held``; None: never)
+    hold: float | None = field(optional(Range(0, 1)), default=None)
+
 
 DITHER_STREAM = (
     1  # the dither's key: the step's key folded with this, apart from the wrapped policy's

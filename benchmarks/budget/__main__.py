@@ -1,5 +1,5 @@
 """``python -m benchmarks.budget``: learning on a lab's budget (``benchmarks.budget.plan``)."""
 
-from benchmarks.budget.plan import main
+from benchmarks.budget.command import main
 
 main()

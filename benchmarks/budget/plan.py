@@ -29,207 +29,63 @@ controller that needs no training holds there); and the same policies with the p
     python -m benchmarks.budget --out results/budget
     python -m benchmarks.budget --preset full --out results/budget
     python -m benchmarks.budget --preset quick --out results/budget-quick
-    # the detector's frames only; the same, DroQ with the fit observer; DroQ correcting the fit's
-    # move; a smaller correction; its fit on 4 frames; with the hold as its trim
-    python -m benchmarks.budget --preset frames --out results/budget-frames
-    python -m benchmarks.budget --preset frames-fit --out results/budget-frames
-    python -m benchmarks.budget --preset frames-residual --out results/budget-frames
-    python -m benchmarks.budget --preset frames-residual-bounded --out results/budget-frames
-    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames
-    python -m benchmarks.budget --preset frames-residual-hold --out results/budget-frames
+    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames   # the frames only
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
     # protocol (b) with probes a frame later and the bench trim
     python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" \\
         --only droq --bench-probe frame --bench-trim bench --out results/budget-frames
 
-Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
+The presets are benchmarks/budget/presets.py. Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from agents.config import TrimConfig
+from agents import TrimConfig
 from agents.registry import get
 from ops_jax.env import PROBES
-from ops_jax.cli.progress import keep_ctrl_c
+from benchmarks.budget.presets import PRESETS
 from benchmarks.budget.report import BENCH, TARGET, report, steps_to_target  # noqa: F401
+from benchmarks.costs import cost_model, train_s
 
-CHECKPOINTS = (1000, 2000, 5000, 10_000, 20_000)
-HARD = dict(stages=5, mode="hard", model="phasor")
-ENVS = {"hard": HARD, "hard + lab": dict(HARD, imperfections="lab")}
 REFERENCE_KINDS = (
     "reference",
     "bench reference",
 )  # one evaluation: on a protocol (a) env / on a protocol (b) bench
 
-PRESETS = {
-    "quick": dict(
-        envs={"easy 3": dict(stages=3, mode="easy", model="phasor")},
-        seeds=(0,),
-        checkpoints=(600, 1200),
-        episodes=4,
-        eval_seed=4242,
-    ),
-    # the sweep's default run: the best budget learner, the references and protocol (b) (15 min on 2 cores)
-    "default": dict(
-        envs=ENVS,
-        seeds=(11, 12, 13, 14, 15),
-        checkpoints=CHECKPOINTS,
-        episodes=32,
-        eval_seed=4242,
-        adapt=dict(
-            algo="droq",
-            pretrain_env=dict(HARD, imperfections="lab", randomize=1.0, randomize_layout=1.0),
-            pretrain_steps=100_000,  # 8 envs, 10 gradient steps per 8 env steps
-            pretrain_hyper={
-                "config": "budget",
-                "num_envs": 8,
-                "utd_ratio": 1.25,
-                "buffer_size": 100_000,
-                "learning_starts": 2000,
-                "eval_every": 10_000,
-            },
-            # adapting: 250 steps of the pretrained policy, then 2 gentler gradient steps per step
-            hyper={
-                "config": "budget",
-                "learning_starts": 250,
-                "eval_every": 250,
-                "utd_ratio": 2.0,
-                "actor_lr": 1e-4,
-                "critic_lr": 1e-4,
-            },
-            bench_env=HARD,
-            scale=2.0,
-            bench_seed_offset=1000,
-            checkpoints=(1000, 2000, 5000),
-            trim={},
-        ),
-    ),  # agents.controllers.trim's default TrimConfig
-}
-# every learner at its budget preset (the sweep's "paper" preset; 52 min on 2 cores)
-PRESETS["full"] = dict(PRESETS["default"])
-# the detector's frames alone (``observe_lengths=False``, no length readouts), on the lab's system and, for protocol
-# (b), pretrained and adapted without them: the default preset's lab columns, frames only
-FRAMES = dict(observe_lengths=False)
-_ADAPT = PRESETS["default"]["adapt"]
-PRESETS["frames"] = dict(
-    PRESETS["default"],
-    envs={"hard + lab, frames only": dict(ENVS["hard + lab"], **FRAMES)},
-    adapt=dict(
-        _ADAPT, pretrain_env=dict(_ADAPT["pretrain_env"], **FRAMES), bench_env=dict(HARD, **FRAMES)
-    ),
-)
-# frames only, from scratch, the learners with the fit observer (``agents.learners.offpolicy.observer``) beside the references
-PRESETS["frames-fit"] = dict(PRESETS["frames"])
-del PRESETS["frames-fit"]["adapt"]
-# the same, DroQ's action a correction added to the fit's own move (``observer="fit-residual"``); protocol (b) too,
-# pretrained 20,000 env steps (the fit's move is sent from the first step), adapted as in "frames"
-_RESIDUAL = dict(observer="fit-residual")
-PRESETS["frames-residual"] = dict(
-    PRESETS["frames"],
-    adapt=dict(
-        PRESETS["frames"]["adapt"],
-        pretrain_steps=20_000,
-        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_RESIDUAL),
-        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_RESIDUAL),
-    ),
-)
-# the same, the correction bounded (DroQ's ``residual_scale`` of this preset, pretrained and adapted with it too)
-_BOUNDED = {
-    k: v
-    for k, v in get("droq").sweep.lab_budget["frames-residual-bounded"].items()
-    if k != "config"
-}
-PRESETS["frames-residual-bounded"] = dict(
-    PRESETS["frames"],
-    adapt=dict(
-        PRESETS["frames-residual"]["adapt"],
-        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_BOUNDED),
-        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_BOUNDED),
-    ),
-)
-# the same, the fit comparing the newest frame with the three before it (``fit_history=3``; the physics-informed
-# reference with ``history=3``, the controller the learner corrects)
-_HISTORY = {
-    k: v
-    for k, v in get("droq").sweep.lab_budget["frames-residual-history"].items()
-    if k != "config"
-}
-PRESETS["frames-residual-history"] = dict(
-    PRESETS["frames"],
-    adapt=dict(
-        PRESETS["frames-residual"]["adapt"],
-        pretrain_hyper=dict(PRESETS["frames"]["adapt"]["pretrain_hyper"], **_HISTORY),
-        hyper=dict(PRESETS["frames"]["adapt"]["hyper"], **_HISTORY),
-    ),
-)
-# the same, its trim the hold alone (``agents.controllers.trim``: SPGD's step in place of the policy's move at and above a
-# measured P/Pmax of 0.85, no integral); the physics-informed reference the fit with the same hold
-PRESETS["frames-residual-hold"] = dict(
-    PRESETS["frames-residual-history"],
-    adapt=dict(PRESETS["frames-residual-history"]["adapt"], trim={"ki": 0.0, "hold": 0.85}),
-)
-PRESETS["quick"]["adapt"] = dict(
-    algo="droq",
-    pretrain_env=dict(
-        PRESETS["quick"]["envs"]["easy 3"], imperfections="lab", randomize=1.0, randomize_layout=1.0
-    ),
-    pretrain_steps=600,
-    pretrain_hyper=get("droq").sweep.lab_budget["quick"],
-    hyper=dict(get("droq").sweep.lab_budget["quick"], learning_starts=100, eval_every=100),
-    bench_env=PRESETS["quick"]["envs"]["easy 3"],
-    scale=2.0,
-    bench_seed_offset=1000,
-    checkpoints=(300, 600),
-    trim={},
-)
-
-
-# The order of the controllers in the plan (its cells' labels in the sweep, budget-<index>) and the tables; any
-# other registered algorithm follows, in the order registered.
-ORDER = ("droq", "td3", "sac", "ppo", "spgd", "physics")
-
 
 def controllers(preset: str) -> tuple[dict, dict]:
-    """({learner: hyper}, {reference: hyper}) of ``preset``: the registered algorithms with a part in it
-    (``SweepPresets.lab_budget``), in ``ORDER``."""
-    from agents.registry import REGISTRY
-
-    rank = {name: i for i, name in enumerate(dict.fromkeys([*ORDER, *REGISTRY]))}
-    chosen = sorted(
-        (a for a in REGISTRY.values() if a.sweep is not None and preset in a.sweep.lab_budget),
-        key=lambda a: rank[a.name],
-    )
+    """({learner: hyper}, {reference: hyper}) of ``preset``: its ``controllers``, in their order (ValueError
+    naming one that is not registered)."""
+    chosen = PRESETS[preset]["controllers"]
     return tuple(
-        {a.name: a.sweep.lab_budget[preset] for a in chosen if a.learner == learner}
+        {algo: hyper for algo, hyper in chosen.items() if get(algo).learner == learner}
         for learner in (True, False)
     )
 
 
 def cost(cell: dict) -> float:
-    """Estimated seconds of ``cell`` (the algorithm's ``agents.registry.CostModel``): its training runs and
+    """Estimated seconds of ``cell`` (the algorithm's ``benchmarks.costs.CostModel``): its training runs and
     evaluations."""
-    entry = get(cell["algo"])
-    ks, evals = cell["checkpoints"], entry.cost.eval_s
+    algo, ks = cell["algo"], cell["checkpoints"]
+    evals = cost_model(algo).eval_s
     if cell["kind"] in REFERENCE_KINDS:
-        return entry.train_s(cell["hyper"], 0) + evals
+        return train_s(algo, cell["hyper"], 0) + evals
     if (
         cell["kind"] == "adapt"
     ):  # pretraining, adapting; scores before, at each checkpoint and trimmed
         return (
-            entry.train_s(cell["pretrain_hyper"], cell["pretrain_steps"])
-            + entry.train_s(cell["hyper"], max(ks))
+            train_s(algo, cell["pretrain_hyper"], cell["pretrain_steps"])
+            + train_s(algo, cell["hyper"], max(ks))
             + (2 + 2 * len(ks)) * evals
         )
-    if entry.off_policy:  # one run, evaluated at each checkpoint
-        return entry.train_s(cell["hyper"], max(ks)) + len(ks) * evals
-    return sum(entry.train_s(cell["hyper"], k) + evals for k in ks)  # a run per checkpoint
+    if get(algo).off_policy:  # one run, evaluated at each checkpoint
+        return train_s(algo, cell["hyper"], max(ks)) + len(ks) * evals
+    return sum(train_s(algo, cell["hyper"], k) + evals for k in ks)  # a run per checkpoint
 
 
 def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
@@ -258,7 +114,7 @@ def cells(
     bench_probe=None,
     bench_trim=None,
 ) -> list[dict]:
-    """The work units of ``preset`` ("quick" | "default" | "full"): learners and references x environments x
+    """The work units of ``preset`` (``benchmarks.budget.presets``): learners and references x environments x
     seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
     protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
     ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default);
@@ -496,80 +352,3 @@ def compute(cell: dict) -> dict:
     if get(cell["algo"]).off_policy:
         return _off_policy(cell)
     return _per_budget(cell)
-
-
-def main(argv=None) -> str:
-    ap = argparse.ArgumentParser(
-        prog="python -m benchmarks.budget", description=__doc__.split("\n")[0]
-    )
-    ap.add_argument(
-        "--preset",
-        choices=sorted(PRESETS),
-        default="default",
-        help="quick: tiny (seconds); default: DroQ, the references, protocol (b); full: every learner",
-    )
-    ap.add_argument("--out", type=Path, required=True, help="output folder")
-    ap.add_argument(
-        "--only", nargs="+", default=None, help="controllers (default: all of the preset)"
-    )
-    ap.add_argument(
-        "--seeds", nargs="+", type=int, default=None, help="training seeds (default: the preset's)"
-    )
-    ap.add_argument(
-        "--envs", nargs="+", default=None, help="environments by name (default: all of the preset)"
-    )
-    ap.add_argument(
-        "--bench-scale",
-        type=float,
-        default=None,
-        metavar="X",
-        help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the preset's)",
-    )
-    ap.add_argument(
-        "--bench-probe",
-        choices=PROBES,
-        default=None,
-        help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a bench "
-        "(ops_jax EnvConfig.probe; default: the simulator's, instant)",
-    )
-    ap.add_argument(
-        "--bench-trim",
-        choices=sorted(TrimConfig.PRESETS),
-        default=None,
-        help="the trim's preset (agents.config.TrimConfig) around protocol (b)'s adapted policies "
-        "(default: the preset's)",
-    )
-    args = ap.parse_args(argv)
-    keep_ctrl_c()
-    from benchmarks.cells import CellStore
-
-    try:
-        plan = cells(
-            args.preset,
-            args.only,
-            args.seeds,
-            args.envs,
-            args.bench_scale,
-            args.bench_probe,
-            args.bench_trim,
-        )
-    except ValueError as exc:
-        ap.error(str(exc).replace("bench_scale", "--bench-scale"))
-    store = CellStore(args.out / "cells")
-    records = []
-    for i, cell in enumerate(plan):
-        label = f"{cell['env']}-{cell['algo']}-s{cell['seed']}"
-        t0 = time.perf_counter()
-        result = store.get(label, cell, lambda: compute(cell))
-        records.append({"cell": cell, "result": result})
-        before = f"before {result['before']:.3f}, " if "before" in result else ""
-        print(
-            f"[{i + 1}/{len(plan)}] {label}: "
-            + before
-            + ", ".join(f"{k} {v:.3f}" for k, v in result["scores"].items())
-            + f" ({time.perf_counter() - t0:.0f} s)",
-            flush=True,
-        )
-    text = report(records, args.out)
-    print(text)
-    return text

@@ -38,7 +38,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from benchmarks.sweep import plan as sweep_plan  # noqa: E402
+from benchmarks.sweep import plan as sweep_plan, presets  # noqa: E402
 from benchmarks.sweep.units import enable_compilation_cache, quick_compilation  # noqa: E402
 from ops_jax.cli.parser import ArgumentParser  # noqa: E402
 from ops_jax.cli.progress import keep_ctrl_c  # noqa: E402
@@ -48,7 +48,7 @@ SECTIONS = sweep_plan.default_sections()  # a run without --only
 
 def build_preset(args) -> dict:
     name = "quick" if args.quick else args.preset
-    preset = json.loads(json.dumps(sweep_plan.preset(name)))  # deep copy
+    preset = json.loads(json.dumps(presets.preset(name)))  # deep copy
     if args.seeds is not None:
         preset["seeds"] = args.seeds
     if args.algos:
@@ -70,11 +70,11 @@ def parser() -> ArgumentParser:
         "--preset",
         choices=("default", "paper"),
         default="default",
-        help="seeds, budgets and episodes of every section (benchmarks/sweep/plan.py; default: default)",
+        help="seeds, budgets and episodes of every section (benchmarks/sweep/presets.py; default: default)",
     )
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
-    ap.add_argument("--algos", nargs="+", choices=sweep_plan.preset("default")["algos"])
+    ap.add_argument("--algos", nargs="+", choices=presets.preset("default")["algos"])
     ap.add_argument(
         "--only",
         nargs="+",

@@ -1,4 +1,5 @@
-"""The sweep's plan: its presets and its sections, each declared once (benchmarks/sweep/section.py).
+"""The sweep's plan: its sections, each declared once (benchmarks/sweep/section.py); its presets are
+benchmarks/sweep/presets.py.
 
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
 testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
@@ -11,76 +12,12 @@ from __future__ import annotations
 
 from agents.registry import Registry
 from benchmarks.budget import plan as budget
-from benchmarks.sweep import lock_table, reality
+from benchmarks.sweep import lock_table, presets, reality
 from benchmarks.sweep import report
 from benchmarks.sweep.paper import MODES
 from benchmarks.sweep.records import Controller, Evaluation, seed_label
 from benchmarks.sweep.section import TEST_SEED_OFFSET, CellSection, Section
 from ops_jax import EnvSpec
-
-# Seeds, episodes, the learners' hyperparameter preset (``algo_config``: the ``config`` of their
-# ``agents.config`` classes) and section settings per preset; each algorithm's budgets, hyperparameters and cost
-# come from its entry in agents.registry (``preset``).
-PRESETS = {
-    "quick": dict(  # a first look: tiny budgets, a cheaper physics-informed fit, few episodes
-        seeds=2,
-        algo_config="fast",
-        episodes=8,
-        stage_range=(2, 3),
-        stage_modes=("easy",),
-        stage_algos=("spgd",),
-        stage_seeds=1,
-        feedback_ks=(1, 100),
-        aux_seeds=1,
-        reality_seeds=2,
-    ),
-    "default": dict(  # its wall time: docs/results.md
-        seeds=5,
-        algo_config="fast",
-        episodes=32,
-        stage_range=(1, 7),
-        stage_modes=("easy", "hard"),
-        stage_algos=("spgd", "physics"),
-        stage_seeds=1,
-        feedback_ks=(1, 20, 40, 60, 80, 100),
-        aux_seeds=2,
-        reality_seeds=3,
-    ),
-    "paper": dict(
-        seeds=20,
-        algo_config="paper",
-        episodes=100,
-        stage_range=(1, 7),
-        stage_modes=MODES,
-        stage_algos=("spgd", "physics", "td3", "sac"),
-        stage_seeds=5,
-        feedback_ks=(1, 20, 40, 60, 80, 100),
-        reality_seeds=5,
-    ),
-}
-
-
-def preset(name: str) -> dict:
-    """The preset ``name`` with the registered algorithms' parts: ``algos``, ``budgets``, ``hyper`` and
-    (where any) ``reality_budgets``."""
-    from agents.registry import REGISTRY
-
-    algos = [a for a in REGISTRY.values() if a.sweep is not None and name in a.sweep.budgets]
-    out = dict(
-        PRESETS[name],
-        name=name,
-        algos=tuple(a.name for a in algos),
-        budgets={a.name: a.sweep.budgets[name] for a in algos},
-    )
-    hyper = {a.name: a.sweep.hyper[name] for a in algos if name in a.sweep.hyper}
-    budgets = {
-        a.name: a.sweep.reality_budgets[name] for a in algos if name in a.sweep.reality_budgets
-    }
-    return {
-        **out,
-        **({"hyper": hyper} if hyper else {}),
-        **({"reality_budgets": budgets} if budgets else {}),
-    }
 
 
 def table1_controller(mode: str, algo: str) -> Controller:
@@ -268,19 +205,12 @@ def default_sections() -> tuple:
     return tuple(name for name, s in PLAN.items() if s.default)
 
 
-BUDGET_PRESETS = {
-    "quick": "quick",
-    "default": "default",
-    "paper": "full",
-}  # sweep preset -> budget preset
-
-
 def _budget_section() -> CellSection:
     """Score against env steps on a lab's budget (benchmarks/budget/plan.py), at the budget preset of
-    ``BUDGET_PRESETS``; part of a run without ``--only``."""
+    ``presets.BUDGET_PRESETS``; part of a run without ``--only``."""
     return CellSection(
         "budget",
-        lambda p: budget.cells(BUDGET_PRESETS[p["name"]]),
+        lambda p: budget.cells(presets.BUDGET_PRESETS[p["name"]]),
         budget.compute,
         lambda records, out: budget.report(
             [{"cell": c, "result": r} for c, r in records], out / "budget"

@@ -14,7 +14,7 @@ from typing import Callable
 from benchmarks.sweep.records import Cell, SectionUnit
 
 TEST_SEED_OFFSET = 10_000  # the testing environment's seed: the training seed + this
-EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: agents.registry.CostModel)
+EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: benchmarks.costs.CostModel)
 IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import costs
 from benchmarks.sweep import plan as sweep_plan
 from benchmarks.cells import CellStore
 from benchmarks.sweep.records import Cell, Controller, EvalUnit, Evaluation, TrainUnit, Unit
@@ -213,7 +214,9 @@ class Sweep:
             config = cells[0].config
             cost = (
                 len(group)
-                * entry.train_s(config["hyper"], config["steps"], controller.env.stages)
+                * costs.train_s(
+                    controller.algo, config["hyper"], config["steps"], controller.env.stages
+                )
                 * factor
             )
             units.append(
@@ -239,7 +242,7 @@ class Sweep:
             train=train,
             evals=evals,
             cells=cells,
-            cost=len(cells) * algo_entry(controller.algo).cost.eval_s * factor,
+            cost=len(cells) * costs.cost_model(controller.algo).eval_s * factor,
         )
 
     def units(self, sections) -> list:

@@ -1,7 +1,7 @@
 """A new learner is its module plus one registry entry: this test module is one (a proportional
 controller on the length readout whose "training" picks its gain), registered from inside the test
-and run through agents.train / evaluate, the command line's choices, a one-cell sweep plan and the lab-budget
-section."""
+and run through agents.train / evaluate and the command line's choices; joined to the benchmarks by their own
+presets and cost models (benchmarks/), a one-cell sweep plan and the lab-budget section."""
 
 import dataclasses
 import json
@@ -71,21 +71,23 @@ def train(env_config, *, seed=0, total_steps=None, progress_fn=None, config=None
 
 
 @pytest.fixture
-def tiny():
-    entry = registry.register(
-        registry.Algo(
-            "tiny",
-            __name__,
-            TinyConfig,
-            "Tiny",
-            sweep=registry.SweepPresets(
-                budgets={"quick": 120},
-                hyper={"quick": {"max_gain": 0.8}},
-                lab_budget={"quick": {"max_gain": 0.6}},
-            ),
-            cost=registry.CostModel(fixed_s=1.0, s_per_step=1e-3),
-        )
+def tiny(monkeypatch):
+    """The tiny learner registered, and joined to the benchmarks: a budget and overrides in the sweep's quick
+    preset, its hyperparameters in the lab-budget section's quick preset and its cost model."""
+    from benchmarks import costs
+    from benchmarks.budget import presets as budget_presets
+    from benchmarks.sweep import presets as sweep_presets
+
+    entry = registry.register(registry.Algo("tiny", __name__, TinyConfig, "Tiny"))
+    monkeypatch.setitem(sweep_presets.BUDGETS, "tiny", {"quick": 120})
+    monkeypatch.setitem(sweep_presets.HYPER, "tiny", {"quick": {"max_gain": 0.8}})
+    quick = budget_presets.PRESETS["quick"]
+    monkeypatch.setitem(
+        budget_presets.PRESETS,
+        "quick",
+        dict(quick, controllers=dict(quick["controllers"], tiny={"max_gain": 0.6})),
     )
+    monkeypatch.setitem(costs.COSTS, "tiny", costs.CostModel(fixed_s=1.0, s_per_step=1e-3))
     yield entry
     registry.unregister("tiny")
 
@@ -133,9 +135,10 @@ def test_registered_learner_on_the_command_line(tiny, tmp_path, capsys):
 
 
 def test_registered_learner_in_a_sweep_plan(tiny, tmp_path):
-    from benchmarks.sweep import plan as sweep_plan, units as sweep_units
+    from benchmarks.sweep import presets, units as sweep_units
 
-    preset = dict(sweep_plan.preset("quick"), algos=["tiny"], seeds=1)
+    assert presets.preset("quick")["algos"][-1] == "tiny"
+    preset = dict(presets.preset("quick"), algos=["tiny"], seeds=1)
     assert preset["budgets"]["tiny"] == 120 and preset["hyper"]["tiny"] == {"max_gain": 0.8}
     plan = sweep_units.Sweep(preset, tmp_path, print)
     units = [u for u in plan.units(["table1"]) if u.key == "table1-easy-tiny"]
@@ -174,3 +177,16 @@ def test_an_entry_declares_what_its_module_provides(tiny):
     for declared in ({"vmaps_seeds": True}, {"off_policy": True}):
         with pytest.raises(TypeError, match="lacks .*train_seeds"):
             dataclasses.replace(tiny, **declared).load()
+
+
+def test_each_algorithm_is_registered_from_the_module_that_declares_it():
+    """``agents.algos`` registers each module's ``ALGO``, whose config type is declared beside it and exported by
+    ``agents``; a module that declares none is refused."""
+    import importlib
+
+    for entry in registry.REGISTRY.values():
+        module = importlib.import_module(entry.module)
+        assert module.ALGO is entry and entry.config.__module__ == entry.module
+        assert getattr(agents, entry.config.__name__) is entry.config
+    with pytest.raises(TypeError, match="module agents.envs must declare ALGO"):
+        registry.register_module("agents.envs")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.sweep import plan as sweep_plan, units as sweep_units
+from benchmarks.sweep import plan as sweep_plan, presets, units as sweep_units
 from benchmarks.cells import config_hash
 
 STORED = {  # preset -> {cell label: config_hash}
@@ -34,7 +34,7 @@ STORED = {  # preset -> {cell label: config_hash}
 
 @pytest.mark.parametrize("name", sorted(STORED))
 def test_stored_cells_keep_their_keys(name, tmp_path: Path):
-    preset = json.loads(json.dumps(sweep_plan.preset(name)))
+    preset = json.loads(json.dumps(presets.preset(name)))
     sweep = sweep_units.Sweep(preset, tmp_path, lambda *a: None)
     cells = {
         c.label: c for unit in sweep.units(list(sweep_plan.default_sections())) for c in unit.cells
@@ -51,7 +51,7 @@ def test_units_are_frozen_picklable_records_of_the_stored_form(tmp_path: Path):
 
     from benchmarks.sweep.records import Controller, EvalUnit, Evaluation, TrainUnit
 
-    preset = json.loads(json.dumps(sweep_plan.preset("quick")))
+    preset = json.loads(json.dumps(presets.preset("quick")))
     units = sweep_units.Sweep(preset, tmp_path, lambda *a: None).units(list(sweep_plan.PLAN))
     assert {type(u).__name__ for u in units} == {"TrainUnit", "EvalUnit", "SectionUnit"}
     for unit in units:

@@ -831,9 +831,7 @@ def iocs(tmp_path_factory):
 
 def bench_run(ioc_, tmp: Path, *args) -> Process:
     """``python -m agents.bench`` against ``ioc_`` in its own process group."""
-    return Process(
-        "agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log"
-    )
+    return Process("agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log")
 
 
 def finish(proc: Process, timeout=START_S):

@@ -34,6 +34,20 @@ def test_import_ops_jax_loads_no_learner_or_plotting_library():
     assert out.stdout.strip() == "[]"
 
 
+def test_import_agents_loads_no_learner_or_plotting_library():
+    """``import agents`` imports every algorithm's module (each declares its config and registry entry beside its
+    code): their brax, flax and optax imports stay inside the functions that build and train the networks."""
+    code = (
+        "import sys, agents; "
+        "heavy = ('brax', 'flax', 'optax', 'matplotlib', 'gymnax', 'tensorboardX'); "
+        "print(sorted(m for m in heavy if m in sys.modules), "
+        "all(a.module in sys.modules for a in agents.registry.REGISTRY.values()))"
+    )
+    out = _python(code)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[] True"
+
+
 def test_brax_adapter_without_brax_names_the_extra():
     # A finder that makes brax unimportable, as in an install without the agents extra.
     code = """

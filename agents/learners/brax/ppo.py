@@ -1,7 +1,7 @@
 """PPO: ``brax.training.agents.ppo.train`` on the Brax adapter (``ops_jax.adapters.brax.OPSBraxEnv``),
 unchanged; this module only chooses hyperparameters, records the curve and wraps the result.
 
-Presets of ``agents.config.PPOConfig`` (``config="paper" | "fast"``; any field may be overridden):
+Presets of ``PPOConfig`` (below) (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 PPO (Table 5): 2 x 256 tanh networks, lr 3e-4, gamma 0.99, GAE lambda
   0.95, clip 0.2, entropy 0.001, vf coefficient 0.5, max grad norm 0.5, 10 epochs over a 512-step
   rollout in minibatches of 64. In brax terms: 8 envs x unroll 64 (= 512 steps per update),
@@ -29,13 +29,110 @@ gradient steps, compilation, host overhead).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import ClassVar
 
 import jax
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import training as brax_training
-from agents.config import PPOConfig
+from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
+from agents.config import choice, field, flag, widths
+from agents.registry import Algo
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig(AlgoConfig):
+    """PPO (``agents.learners.brax.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and "fast"."""
+
+    NAME: ClassVar[str] = "PPO"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=8,
+            unroll_length=64,
+            batch_size=1,
+            num_minibatches=8,
+            num_updates_per_batch=10,
+            learning_rate=3e-4,
+            entropy_cost=1e-3,
+            discounting=0.99,
+            gae_lambda=0.95,
+            clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5,
+            max_grad_norm=0.5,
+            reward_scaling=1.0,
+            normalize_observations=False,
+            hidden=(256, 256),
+            activation="tanh",
+            init_noise_std=1.0,
+            bootstrap_on_timeout=True,
+            total_steps=300_000,
+            num_evals=10,
+            num_eval_envs=64,
+        ),
+        "fast": dict(
+            num_envs=256,
+            unroll_length=16,
+            batch_size=32,
+            num_minibatches=32,
+            num_updates_per_batch=8,
+            learning_rate=3e-4,
+            entropy_cost=0.0,
+            discounting=0.99,
+            gae_lambda=0.95,
+            clipping_epsilon=0.2,
+            vf_loss_coefficient=0.5,
+            max_grad_norm=0.5,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(128, 128),
+            activation="tanh",
+            init_noise_std=0.3,
+            bootstrap_on_timeout=True,
+            total_steps=8_000_000,
+            num_evals=10,
+            num_eval_envs=64,
+        ),
+    }
+
+    config: str = field(choice("paper", "fast"))
+    num_envs: int = field(COUNT)
+    unroll_length: int = field(COUNT)
+    batch_size: int = field(COUNT)
+    num_minibatches: int = field(COUNT)
+    num_updates_per_batch: int = field(COUNT)
+    learning_rate: float = field(POSITIVE)
+    entropy_cost: float = field(NONNEG)
+    discounting: float = field(UNIT)
+    gae_lambda: float = field(UNIT)
+    clipping_epsilon: float = field(NONNEG)
+    vf_loss_coefficient: float = field(NONNEG)
+    max_grad_norm: float = field(NONNEG)
+    reward_scaling: float = field(NONNEG)
+    normalize_observations: bool = field(flag)
+    hidden: tuple = field(widths)
+    activation: str = field(ACTIVATION)
+    init_noise_std: float = field(POSITIVE)
+    bootstrap_on_timeout: bool = field(flag)
+    total_steps: int = field(COUNT0)
+    num_evals: int = field(COUNT)
+    num_eval_envs: int = field(COUNT)
+
+    def updates_per_step(self) -> float:
+        """Per training step brax collects ``batch_size * num_minibatches * unroll_length`` env steps and
+        takes ``num_updates_per_batch * num_minibatches`` gradient steps."""
+        return self.num_updates_per_batch / (self.batch_size * self.unroll_length)
+
+    def check(self):
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(
+                f"batch_size * num_minibatches must be divisible by num_envs, got "
+                f"{self.batch_size} * {self.num_minibatches} and {self.num_envs}"
+            )
+
+
+ALGO = Algo("ppo", __name__, PPOConfig, "PPO")
 
 
 def _network_factory(c: PPOConfig):

@@ -2,7 +2,7 @@
 unchanged; this module only chooses hyperparameters, records the curve and wraps the result
 (curve, wall-time split and evaluation as in ``agents.learners.brax.ppo``; shared helpers: ``agents.learners.brax.training``).
 
-Presets of ``agents.config.SACConfig`` (``config="paper" | "fast"``; any field may be overridden):
+Presets of ``SACConfig`` (below) (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 SAC (Table 6): 2 x 256 ReLU networks, lr 3e-4, gamma 0.99, tau 0.002,
   replay 1e4, learning starts 1000 (brax ``min_replay_size``), one env, one gradient step per env
   step, batch 256 (SB3's default), automatic entropy tuning. SB3's gSDE exploration has no brax
@@ -20,13 +20,110 @@ treated as terminations.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import ClassVar
 
 import jax
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import training as brax_training
-from agents.config import SACConfig
+from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
+from agents.config import choice, field, flag, widths
+from agents.registry import Algo
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig(AlgoConfig):
+    """SAC (``agents.learners.brax.sac``, brax's trainer): presets "paper" (the paper's Table 6), "fast" and "budget"
+    (<= 20k env steps). Its update-to-data ratio is ``grad_updates_per_step / num_envs`` (brax's)."""
+
+    NAME: ClassVar[str] = "SAC"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=1,
+            batch_size=256,
+            grad_updates_per_step=1,
+            learning_rate=3e-4,
+            discounting=0.99,
+            tau=0.002,
+            max_replay_size=10_000,
+            min_replay_size=1000,
+            reward_scaling=1.0,
+            normalize_observations=False,
+            hidden=(256, 256),
+            activation="relu",
+            total_steps=300_000,
+            num_evals=10,
+            num_eval_envs=64,
+        ),
+        "fast": dict(
+            num_envs=64,
+            batch_size=256,
+            grad_updates_per_step=16,
+            learning_rate=1e-3,
+            discounting=0.95,
+            tau=0.005,
+            max_replay_size=200_000,
+            min_replay_size=8192,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(128, 128),
+            activation="relu",
+            total_steps=400_000,
+            num_evals=10,
+            num_eval_envs=64,
+        ),
+        "budget": dict(
+            num_envs=1,
+            batch_size=128,
+            grad_updates_per_step=10,
+            learning_rate=1e-3,
+            discounting=0.9,
+            tau=0.005,
+            max_replay_size=20_000,
+            min_replay_size=500,
+            reward_scaling=1.0,
+            normalize_observations=True,
+            hidden=(64, 64),
+            activation="relu",
+            total_steps=20_000,
+            num_evals=10,
+            num_eval_envs=16,
+        ),
+    }
+
+    config: str = field(choice("paper", "fast", "budget"))
+    num_envs: int = field(COUNT)
+    batch_size: int = field(COUNT)
+    grad_updates_per_step: int = field(
+        COUNT
+    )  # per batched env step: the update-to-data ratio x num_envs
+    learning_rate: float = field(POSITIVE)
+    discounting: float = field(UNIT)
+    tau: float = field(UNIT)
+    max_replay_size: int = field(COUNT)
+    min_replay_size: int = field(COUNT0)
+    reward_scaling: float = field(NONNEG)
+    normalize_observations: bool = field(flag)
+    hidden: tuple = field(widths)
+    activation: str = field(ACTIVATION)
+    total_steps: int = field(COUNT0)
+    num_evals: int = field(COUNT)
+    num_eval_envs: int = field(COUNT)
+
+    def updates_per_step(self) -> float:
+        return self.grad_updates_per_step / self.num_envs
+
+    def check(self):
+        if self.min_replay_size > self.max_replay_size:
+            raise ValueError(
+                f"min_replay_size must be <= max_replay_size, got {self.min_replay_size} > "
+                f"{self.max_replay_size}"
+            )
+
+
+ALGO = Algo("sac", __name__, SACConfig, "SAC")
 
 
 def _network_factory(c: SACConfig):

@@ -11,7 +11,7 @@ a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.learners.offp
   ``alpha_lr``; 0 keeps it fixed) tuned to the entropy ``target_entropy`` per action dimension.
 - Exploration: actions sampled from the policy; uniform random during the warm-up.
 
-Preset "budget" of ``agents.config.DroQConfig``: one env, 10 gradient steps per env step, 2 x 64
+Preset "budget" of ``DroQConfig`` (below): one env, 10 gradient steps per env step, 2 x 64
 networks, LayerNorm critics without dropout (dropout doubled the cost of a step for no measured
 gain), gamma 0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md). Preset "bench": the same,
 learning a bounded correction to the physics-informed fit's move (``observer="fit-residual"``), for learning on a
@@ -20,14 +20,101 @@ bench from its frames (docs/lab.md).
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple, Sequence
+import dataclasses
+from typing import Any, Callable, ClassVar, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.offpolicy import driver as offpolicy, replay
-from agents.config import DroQConfig
+from agents.config import (
+    COUNT,
+    COUNT0,
+    NONNEG,
+    POSITIVE,
+    UNIT,
+    choice,
+    field,
+    flag,
+    optional,
+    widths,
+)
+from agents.learners.offpolicy.replay import TRAIN_REWARD, ReplayConfig
+from agents.registry import Algo
+from ops_jax.ranges import Range
+
+
+@dataclasses.dataclass(frozen=True)
+class DroQConfig(ReplayConfig):
+    """DroQ (``agents.learners.offpolicy.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
+    ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
+
+    NAME: ClassVar[str] = "DroQ"
+    DEFAULT_PRESET: ClassVar[str] = "budget"
+    PRESETS: ClassVar[dict] = {
+        "budget": dict(
+            num_envs=1,
+            unroll=1,
+            updates_per_iter=None,
+            utd_ratio=10.0,
+            batch_size=128,
+            hidden=(64, 64),
+            critic_hidden=(64, 64),
+            dropout=0.0,
+            layer_norm=True,
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            alpha_lr=1e-3,
+            init_alpha=0.1,
+            target_entropy=-1.0,
+            gamma=0.97,
+            tau=0.005,
+            buffer_size=20_000,
+            learning_starts=1000,
+            policy_delay=1,
+            normalize_obs=True,
+            total_steps=20_000,
+            eval_every=1_000,
+            eval_episodes=16,
+            train_reward="linear",
+        )
+    }
+    # learning on a bench from its frames (``agents.bench --learn droq``): a correction, a quarter of the action
+    # range at most, added to the physics-informed fit's move, the fit at 4 starts x 6 iterations (a bench's pace)
+    PRESETS["bench"] = dict(
+        PRESETS["budget"], observer="fit-residual", residual_scale=0.25, fit_starts=4, fit_iters=6
+    )
+
+    config: str = field(choice("budget", "bench"))
+    num_envs: int = field(COUNT)
+    unroll: int = field(COUNT)
+    updates_per_iter: int | None = field(optional(COUNT))
+    utd_ratio: float | None = field(optional(Range(0, 1e4, lo_open=True)))
+    batch_size: int = field(COUNT)
+    hidden: tuple = field(widths)
+    critic_hidden: tuple = field(widths)
+    dropout: float = field(Range(0, 0.9))
+    layer_norm: bool = field(flag)
+    actor_lr: float = field(POSITIVE)
+    critic_lr: float = field(POSITIVE)
+    alpha_lr: float = field(NONNEG)
+    init_alpha: float = field(POSITIVE)
+    target_entropy: float = field(Range(-100, 100))
+    gamma: float = field(UNIT)
+    tau: float = field(UNIT)
+    buffer_size: int = field(COUNT)
+    learning_starts: int = field(COUNT0)
+    policy_delay: int = field(COUNT)
+    normalize_obs: bool = field(flag)
+    total_steps: int = field(COUNT0)
+    eval_every: int = field(COUNT)
+    eval_episodes: int = field(COUNT)
+    train_reward: str | None = field(TRAIN_REWARD)
+
+
+ALGO = Algo("droq", __name__, DroQConfig, "DroQ", vmaps_seeds=True, off_policy=True)
+
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 

@@ -20,7 +20,6 @@ import jax.numpy as jnp
 
 from agents.controllers import physics_informed
 from agents.api import Policy
-from agents.config import PhysicsConfig
 from agents.envs import built
 
 
@@ -54,7 +53,9 @@ def fit_observer(
         for k, v in (("starts", starts), ("iters", iters), ("history", history))
         if v is not None
     }
-    estimator = physics_informed.make_policy(env_config, PhysicsConfig.make("frames", **sizes))
+    estimator = physics_informed.make_policy(
+        env_config, physics_informed.PhysicsConfig.make("frames", **sizes)
+    )
     default = physics_informed.policy_params(env_config)
     env = built(env_config)[0]
     fit = physics_informed.fitted_stages(env.config)

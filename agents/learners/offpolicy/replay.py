@@ -4,10 +4,69 @@ jitted exploration / update loop, the MLP and the fields every training state ho
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+
+from agents.config import COUNT, HISTORY, UNIT, AlgoConfig, choice, field, optional
+from ops_jax.env import REWARDS
+
+# the reward an off-policy learner trains on (``ops_jax.REWARDS``; None: the env_config's own)
+TRAIN_REWARD = optional(choice(*REWARDS))
+# what an off-policy learner adds to its observation, and whether its action corrects the fit's move
+# (``agents.learners.offpolicy.observer``)
+OBSERVER = choice("none", "fit", "fit-residual")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayConfig(AlgoConfig):
+    """Base of the off-policy learners' configs (``agents.learners.offpolicy.driver``): gradient steps per iteration are
+    ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two); the observer's fields
+    (``agents.learners.offpolicy.observer``), keyword-only, are common to them."""
+
+    observer: str = field(OBSERVER, default="none", kw_only=True)
+    # with observer="fit-residual": the fit's move plus this times the learner's action is sent
+    residual_scale: float = field(UNIT, default=1.0, kw_only=True)
+    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
+    fit_starts: int | None = field(optional(COUNT), default=None, kw_only=True)
+    fit_iters: int | None = field(optional(COUNT), default=None, kw_only=True)
+    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
+    fit_history: int | None = field(optional(HISTORY), default=None, kw_only=True)
+
+    def updates_per_step(self) -> float:
+        return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
+
+    def check(self):
+        """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration, the buffer
+        and batch sizes."""
+        c = self
+        if (c.updates_per_iter is None) == (c.utd_ratio is None):
+            raise ValueError(
+                f"set exactly one of updates_per_iter (gradient steps per iteration) and utd_ratio "
+                f"(per env step), the other None; got {c.updates_per_iter!r} and {c.utd_ratio!r}"
+            )
+        if c.utd_ratio is not None:
+            per_iter = c.utd_ratio * c.num_envs * c.unroll
+            if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
+                raise ValueError(
+                    f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
+                    f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}"
+                )
+        if c.buffer_size < c.num_envs * c.unroll:
+            raise ValueError(
+                f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}"
+            )
+        if c.learning_starts < c.batch_size:
+            raise ValueError(
+                f"learning_starts must be >= batch_size = {c.batch_size}, got {c.learning_starts}"
+            )
+        if c.batch_size > c.buffer_size:
+            raise ValueError(
+                f"batch_size must be <= buffer_size = {c.buffer_size}, got {c.batch_size}"
+            )
+
 
 # The fields of every training state after its learned ones (name, type): ``NamedTuple(name, [*learned, *STATE])``.
 STATE = [

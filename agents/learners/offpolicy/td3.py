@@ -12,21 +12,141 @@ and targets every ``policy_delay`` steps); ``utd_ratio`` sets the same as gradie
 step. With ``unroll`` > 1 (the paper's SB3 setting: 100 env steps, then 100 gradient steps) an
 iteration collects ``unroll`` batched steps first. ``learning_starts`` >= ``batch_size`` is required.
 
-Presets of ``agents.config.TD3Config``: "paper" (the paper's Table 4), "fast" (32 envs, wall
+Presets of ``TD3Config`` (below): "paper" (the paper's Table 4), "fast" (32 envs, wall
 clock on a 2-core CPU) and "budget" (few env steps: one env, many small updates per env step;
 docs/learners.md).
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple, Sequence
+import dataclasses
+from typing import Any, Callable, ClassVar, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.offpolicy import driver as offpolicy, replay
-from agents.config import TD3Config
+from agents.config import (
+    COUNT,
+    COUNT0,
+    NONNEG,
+    POSITIVE,
+    UNIT,
+    choice,
+    field,
+    flag,
+    optional,
+    widths,
+)
+from agents.learners.offpolicy.replay import TRAIN_REWARD, ReplayConfig
+from agents.registry import Algo
+from ops_jax.ranges import Range
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config(ReplayConfig):
+    """TD3 (``agents.learners.offpolicy.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
+    steps). Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio`` per env step (one of the two)."""
+
+    NAME: ClassVar[str] = "TD3"
+    PRESETS: ClassVar[dict] = {
+        "paper": dict(
+            num_envs=1,
+            unroll=100,
+            updates_per_iter=100,
+            batch_size=100,
+            hidden=(256, 256),
+            actor_lr=3e-4,
+            critic_lr=3e-4,
+            gamma=0.98,
+            tau=0.005,
+            buffer_size=10_000,
+            learning_starts=1000,
+            expl_std=0.7,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=False,
+            total_steps=300_000,
+            eval_every=10_000,
+            eval_episodes=16,
+            utd_ratio=None,
+            train_reward=None,
+        ),
+        "fast": dict(
+            num_envs=32,
+            unroll=1,
+            updates_per_iter=4,
+            batch_size=256,
+            hidden=(256, 256),
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            gamma=0.98,
+            tau=0.005,
+            buffer_size=100_000,
+            learning_starts=4096,
+            expl_std=0.4,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=True,
+            total_steps=300_000,
+            eval_every=20_000,
+            eval_episodes=16,
+            utd_ratio=None,
+            train_reward=None,
+        ),
+        "budget": dict(
+            num_envs=1,
+            unroll=1,
+            updates_per_iter=None,
+            utd_ratio=10.0,
+            batch_size=128,
+            hidden=(64, 64),
+            actor_lr=1e-3,
+            critic_lr=1e-3,
+            gamma=0.9,
+            tau=0.005,
+            buffer_size=20_000,
+            learning_starts=1000,
+            expl_std=0.2,
+            target_noise=0.2,
+            noise_clip=0.5,
+            policy_delay=2,
+            normalize_obs=True,
+            total_steps=20_000,
+            eval_every=1_000,
+            eval_episodes=16,
+            train_reward=None,
+        ),
+    }
+
+    config: str = field(choice("paper", "fast", "budget"))
+    num_envs: int = field(COUNT)
+    unroll: int = field(COUNT)
+    updates_per_iter: int | None = field(optional(COUNT))
+    batch_size: int = field(COUNT)
+    hidden: tuple = field(widths)
+    actor_lr: float = field(POSITIVE)
+    critic_lr: float = field(POSITIVE)
+    gamma: float = field(UNIT)
+    tau: float = field(UNIT)
+    buffer_size: int = field(COUNT)
+    learning_starts: int = field(COUNT0)
+    expl_std: float = field(NONNEG)
+    target_noise: float = field(NONNEG)
+    noise_clip: float = field(NONNEG)
+    policy_delay: int = field(COUNT)
+    normalize_obs: bool = field(flag)
+    total_steps: int = field(COUNT0)
+    eval_every: int = field(COUNT)
+    eval_episodes: int = field(COUNT)
+    utd_ratio: float | None = field(optional(Range(0, 1e4, lo_open=True)))
+    train_reward: str | None = field(TRAIN_REWARD)
+
+
+ALGO = Algo("td3", __name__, TD3Config, "TD3", vmaps_seeds=True, off_policy=True)
 
 
 # -- networks -----------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ import pytest
 
 import agents
 import ops_jax
-from agents.controllers import physics_informed as pi
+from agents.controllers import identification, physics_informed as pi
 
 ENV = {"stages": 3, "mode": "hard", "model": "phasor"}
 
@@ -108,7 +108,7 @@ def test_identification_finds_detector_and_actuator_errors_and_closes_the_gap():
     plain, _ = _identified(env_config, fit)
     found, carry = _identified(env_config, {**fit, "identify": True})
     theta = np.asarray(carry["theta"])
-    layout = pi._theta_layout(3, 2)
+    layout = identification.theta_layout(3, 2)
     np.testing.assert_allclose(theta[:, layout["detector_offset"]], 0.03, atol=0.01)
     np.testing.assert_allclose(theta[:, layout["detector_gain"]], 0.04, atol=0.02)
     # Seen only through the moves, which shrink once locked: most instances, not all, pin it down.
@@ -133,9 +133,9 @@ def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
     moves commanded since and of the drift estimate's steps: zero at the true offsets, and each earlier frame's
     block weighted by its own weight."""
     n, fit, history = 3, 2, 3
-    h = agents.config.PhysicsConfig.make("frames", history=history).to_hyper()
+    h = agents.PhysicsConfig.make("frames", history=history).to_hyper()
     cfg = ops_jax.make(**ENV)[0].config
-    _, residual, _ = pi._fit_functions(n, fit, cfg, False, pi._theta_layout(n, fit), h)
+    _, residual, _ = pi._fit_functions(n, fit, cfg, False, identification.theta_layout(n, fit), h)
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.uniform(-0.2, 0.2, fit), jnp.float32)
     moves = jnp.asarray(rng.uniform(-0.05, 0.05, (history, fit)), jnp.float32)  # newest first

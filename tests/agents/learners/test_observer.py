@@ -9,7 +9,7 @@ import pytest
 
 import agents
 from agents.learners.offpolicy import droq, observer
-from agents.config import DroQConfig, TD3Config
+from agents import DroQConfig, TD3Config
 from agents.envs import built
 from agents.controllers.physics_informed import wrap
 

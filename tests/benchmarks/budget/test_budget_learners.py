@@ -10,7 +10,7 @@ import agents
 from agents import DroQConfig, TD3Config
 from agents.learners.offpolicy import droq, driver as offpolicy, replay
 from idle import learned_and_idle
-from benchmarks.budget import plan as budget
+from benchmarks.budget import command, plan as budget
 
 ENV = {"stages": 3, "mode": "easy", "model": "phasor"}
 HYPER = dict(
@@ -297,7 +297,7 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     ):
         budget.cells("default", bench_trim="coarse")
     with pytest.raises(SystemExit):
-        budget.main(["--bench-scale", "0", "--out", str(tmp_path)])
+        command.main(["--bench-scale", "0", "--out", str(tmp_path)])
     assert (
         "--bench-scale must be a number in (0, 10]" in capsys.readouterr().err
         and not (tmp_path / "cells").exists()

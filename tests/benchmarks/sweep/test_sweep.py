@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import ttest_ind
 
-from agents.config import PhysicsConfig, TD3Config
+from agents import PhysicsConfig, TD3Config
 from benchmarks.sweep import command as sweep
 from benchmarks.sweep.units import Sweep
 from benchmarks.cells import CellStore
