@@ -41,7 +41,7 @@ import numpy as np
 
 from agents import registry
 from agents.envs import built, check_env_config
-from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
+from agents.io import dumps_json, read_json, temp_dir
 from ops_jax import EnvSpec
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
@@ -407,7 +407,9 @@ def save(path, result: TrainResult) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_dir(path.parent, path.name)
     (tmp / "params.msgpack").write_bytes(blob)
-    (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
+    (tmp / "meta.json").write_text(
+        dumps_json(meta)
+    )  # strict JSON: a curve's NaN (no loss yet) as null
     if path.exists():
         shutil.rmtree(path)
     os.replace(tmp, path)
@@ -423,7 +425,7 @@ def load(path) -> TrainResult:
     if not meta_file.exists() or not blob_file.exists():
         raise FileNotFoundError(f"no checkpoint at {path} (expected meta.json and params.msgpack)")
     try:
-        meta = json.loads(meta_file.read_text())
+        meta = read_json(meta_file)
         blob = blob_file.read_bytes()
         if hashlib.sha256(blob).hexdigest() != meta["params_sha256"]:
             raise ValueError("params.msgpack does not match the checksum in meta.json")

@@ -18,7 +18,6 @@ it) and writes ``imperfection_groups.json``.
 
 from __future__ import annotations
 
-import json
 import platform
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.io import write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
@@ -211,7 +211,7 @@ def main(argv=None) -> dict:
         "rows": rows,
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "imperfection_groups.json").write_text(json.dumps(result, indent=1))
+    write_json_atomic(args.out / "imperfection_groups.json", result)
     print(table(rows, columns(args)))
     return result
 

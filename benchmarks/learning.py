@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.io import write_json_atomic
+from agents.io import read_json, write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
@@ -172,7 +172,7 @@ def main(argv=None) -> dict:
     if path.exists() and not args.fresh:
         done = {
             run_key(r["algo"], r["mode"], r["seed"]): r
-            for r in json.loads(path.read_text())["runs"]
+            for r in read_json(path)["runs"]
             if r["status"] == "ok" and r["stages"] == args.stages
         }
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"

@@ -21,13 +21,13 @@ writes ``trim_loss.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from agents.config import TrimConfig
+from agents.io import write_json_atomic
 from ops_jax.env import PROBES
 from ops_jax.cli.progress import keep_ctrl_c
 from benchmarks.sweep.reality import LEVELS, level_env
@@ -202,7 +202,7 @@ def main(argv=None) -> dict:
         "rows": rows,
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "trim_loss.json").write_text(json.dumps(result, indent=1))
+    write_json_atomic(args.out / "trim_loss.json", result)
     print(table(rows, args.margin))
     return result
 

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import os
 import signal
@@ -70,7 +69,7 @@ from agents.bench.loop import (
     load_controller,  # noqa: F401
 )
 from agents.cli import parse_set
-from agents.io import write_json_atomic
+from agents.io import dumps_json, write_json_atomic
 from ops_jax.cli import runtime
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 
@@ -441,7 +440,7 @@ def main(argv=None) -> int:
             f"{label} on the bench, {summary['rate_hz']:.0f} steps/s",
             learning and learning.ratio_series(loop.t0),
         )
-        print(json.dumps(summary, indent=1))
+        print(dumps_json(summary))
     return EXIT_WATCHDOG if stopped else 0
 
 
@@ -477,7 +476,8 @@ def _writer(out: Path):
             out / "documents.jsonl", "a"
         ) as f:  # a page (plain types already) at once, one open per page
             f.writelines(
-                json.dumps({"name": "event", "doc": e}) + "\n" for e in unpack_event_page(doc)
+                dumps_json({"name": "event", "doc": e}, indent=None) + "\n"
+                for e in unpack_event_page(doc)
             )
 
     return write
