@@ -29,9 +29,10 @@ arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. C
 ends the run after the current step, a second one at once (``user_stops``). Written to ``DIR``:
 ``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P / P_max and
 P / P_best against time; learning: the update ratio too), ``summary.json`` (learning: the step counts and update
-ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time, steps or the user, 3 when the
-watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run
-started (nothing recorded).
+ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time or steps, 130 when the user
+ended it with Ctrl-C (143 with SIGTERM; everything recorded is written first), 3 when the watchdog stopped it,
+2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing
+recorded).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
 # waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
 SWITCH_S = 0.0005
-EXIT_WATCHDOG = 3
+EXIT_WATCHDOG = 3  # the watchdog's (safety) stop; the user's: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)
 
 
 def say(line: str) -> None:
@@ -441,7 +442,9 @@ def main(argv=None) -> int:
             learning and learning.ratio_series(loop.t0),
         )
         print(dumps_json(summary))
-    return EXIT_WATCHDOG if stopped else 0
+    if stopped:
+        return EXIT_WATCHDOG
+    return 128 + (int(loop.user_stop) or signal.SIGINT) if summary["stopped_by"] == USER_STOP else 0
 
 
 QUIET_LOGGERS = (
@@ -495,7 +498,7 @@ def user_stops(loop: Loop):
         elif loop.user_stop:
             loop.trip(USER_STOP)
         else:
-            loop.user_stop = True
+            loop.user_stop = signum  # (truthy) the signal that ended the run: its exit status
             os.write(2, b"agents.bench.runner: stopping after the current step (again: at once)\n")
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}

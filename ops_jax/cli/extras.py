@@ -1,5 +1,6 @@
 """Which optional extra of ops-jax installs a missing module, and the one-line message that the
-project's command-line programs print instead of a traceback when it is missing."""
+project's command-line programs print instead of a traceback when it is missing (or when a Ctrl-C reaches
+the top of one: ``interrupted: ...``, exit status 130)."""
 
 from __future__ import annotations
 
@@ -51,9 +52,13 @@ _previous_hook = sys.excepthook
 
 
 def _excepthook(kind, exc, tb):
+    prog = program()
+    if prog is not None and issubclass(kind, KeyboardInterrupt):
+        from ops_jax.cli.progress import exit_interrupted
+
+        exit_interrupted(f"{prog} stopped before it finished")
     module = missing_module(exc)
     extra = extra_of(module) if module else None
-    prog = program()
     if prog is None or extra is None:
         return _previous_hook(kind, exc, tb)
     print(
@@ -64,7 +69,8 @@ def _excepthook(kind, exc, tb):
 
 def install_excepthook() -> None:
     """Print one line naming the install command, not a traceback, when one of the project's programs
-    stops on a module that an extra installs (other programs keep their traceback)."""
+    stops on a module that an extra installs, and one line with exit status 130 when a Ctrl-C stops it
+    where the program does not say what it kept (other programs keep their traceback)."""
     global _previous_hook
     if sys.excepthook is not _excepthook:
         _previous_hook, sys.excepthook = sys.excepthook, _excepthook
