@@ -74,7 +74,12 @@ def score(args, env_config: dict) -> float:
         )
         return float(ev.normalized_power_best[:, -1].mean())
     result = agents.train(
-        args.algo, env_config, seed=args.eval_seed, curve_episodes=args.episodes, **args.sets
+        args.algo,
+        env_config,
+        seed=args.eval_seed,
+        curve_episodes=args.episodes,
+        progress=False,
+        **args.sets,
     )
     return float(result.curve["normalized_power"][-1] * best_ratio(env_config))
 

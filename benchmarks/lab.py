@@ -240,7 +240,7 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     run's first step, and ``wall_s``, the process's seconds from its start (imports and compiling included)."""
     t0 = time.monotonic()
     runner = Process(
-        "agents.bench.runner", [*args, "--out", out], env, out.parent / f"{out.name}.log"
+        "agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log"
     )
     rc = runner.wait(timeout)
     wall_s = time.monotonic() - t0
@@ -388,7 +388,7 @@ def run_learning(
         learn = run + (["--from", start_from] if start_from else []) + _sets(sets)
         if kill_after is not None:
             killed = Process(
-                "agents.bench.runner",
+                "agents.bench",
                 [*learn, "--out", out / "learn"],
                 ioc.env,
                 out / "learn-killed.log",
@@ -437,7 +437,7 @@ def kill_check(
     out.mkdir(parents=True, exist_ok=True)
     ioc = start_ioc(out, "--prefix", "OPS:", "--rate", 100, *IOC_ARGS)
     runner = Process(
-        "agents.bench.runner",
+        "agents.bench",
         [
             "--prefix",
             "OPS:",

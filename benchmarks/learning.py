@@ -64,7 +64,7 @@ def run_one(
     env_config = {"stages": stages, "mode": mode}
     hyper = {} if config is None else {"config": config}
     t0 = time.perf_counter()
-    result = base.train(algo, env_config, seed=seed, total_steps=steps, **hyper)
+    result = base.train(algo, env_config, seed=seed, total_steps=steps, progress=False, **hyper)
     train_s = time.perf_counter() - t0
     ev = agents.evaluate(result, env_config, episodes=episodes, seed=1000 + seed)
     if ckpt_dir is not None:

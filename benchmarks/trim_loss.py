@@ -91,7 +91,9 @@ def measure(
 
     env = ENVS[env_name]
     t0 = time.perf_counter()
-    results = agents.train_seeds(algo, env, seeds=seeds, total_steps=steps, config=config)
+    results = agents.train_seeds(
+        algo, env, seeds=seeds, total_steps=steps, config=config, progress=False
+    )
     train_s = time.perf_counter() - t0
     rows = []
     for seed, result in zip(seeds, results):

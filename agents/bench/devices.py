@@ -40,7 +40,7 @@ from ophyd import Device, EpicsSignal, EpicsSignalRO, Signal
 from ophyd import FormattedComponent as FCpt
 from ophyd.status import Status
 
-log = logging.getLogger("agents.bench.runner")
+log = logging.getLogger("agents.bench")
 
 SETTLE_S = 0.002  # default detector.settle_s (s): a write's transit to a local IOC, with margin
 SETTLE_RANGE_S = (0.0, 10.0)  # detector.settle_s's accepted range (s, both ends included)

@@ -54,7 +54,7 @@ LIVE = (
     "obs",
     "env_params",
 )  # training-state fields of a simulated run: not saved, fresh on resume
-log = logging.getLogger("agents.bench.runner")
+log = logging.getLogger("agents.bench")
 
 
 @dataclasses.dataclass

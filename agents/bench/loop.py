@@ -20,7 +20,7 @@ FLUSH_S = (
     0.2  # a page of the loop's events is due this often (s), collected after the step that ends it
 )
 USER_STOP = "user"  # the stop reason of a run the user ended at once (a second Ctrl-C or SIGTERM)
-log = logging.getLogger("agents.bench.runner")
+log = logging.getLogger("agents.bench")
 
 
 class Agent:

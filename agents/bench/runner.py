@@ -411,7 +411,7 @@ def main(argv=None) -> int:
         "seed": args.seed,
         "rate_hz": args.rate,
         "mapping": mapping,
-        "plan_name": "agents.bench.runner",
+        "plan_name": "agents.bench",
     }
     with user_stops(loop):  # from here on nothing recorded is lost to a Ctrl-C
         if learning:

@@ -114,6 +114,7 @@ class Sweep:
                     env,
                     seed=seed,
                     total_steps=config["steps"],
+                    progress=False,
                     **config["hyper"],
                     **curve,
                 )
@@ -158,6 +159,7 @@ class Sweep:
                             controller.env,
                             seeds=todo,
                             total_steps=config["steps"],
+                            progress=False,
                             **config["hyper"],
                         ),
                     )

@@ -3,6 +3,7 @@ checkpoints (round trip, missing, corrupt), bad input."""
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -234,13 +235,18 @@ def test_training_cli_refuses_bad_arguments_in_one_line(argv, words, tmp_path):
         (["--algo", "spgd", "--steps", "400"], "--steps: spgd trains nothing"),
         (
             ["--algo", "droq", "--config", "budget", "--steps", "500"],
-            "--steps must be >= the warm-up of learning_starts = 1000",
+            "--steps 500 takes no gradient step: its first 1,000 env steps are the random warm-up",
+        ),
+        (
+            ["--algo", "td3", "--steps", "4096"],
+            "--steps 4096 takes no gradient step: its first 4,096 env steps are the random warm-up",
         ),
     ],
 )
-def test_training_cli_refuses_a_budget_its_trainer_refuses_in_one_line(argv, words, tmp_path):
-    """--steps for a controller with nothing to train, or under a learner's warm-up (the trainer's own check, after
-    the progress line): one error line, exit status 2, nothing written."""
+def test_training_cli_refuses_a_budget_that_cannot_learn_in_one_line(argv, words, tmp_path):
+    """--steps for a controller with nothing to train, or one that ends within a learner's warm-up (no gradient
+    step): one error line before any other output, naming the budget to type instead; exit status 2, nothing
+    written."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
     res = subprocess.run(
         [sys.executable, "-m", "agents", *argv, "--stages", "2", "--out", str(tmp_path / "run")],
@@ -249,8 +255,11 @@ def test_training_cli_refuses_a_budget_its_trainer_refuses_in_one_line(argv, wor
         text=True,
         timeout=300,
     )
-    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
-    assert res.stderr.splitlines()[-1].startswith(f"python -m agents: error: {words}"), res.stderr
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    assert res.stderr.splitlines() == [res.stderr.strip()], res.stderr  # one line, no progress before it
+    assert res.stderr.startswith(f"python -m agents: error: {words}"), res.stderr
+    if "takes no gradient step" in words:
+        assert re.search(r"; try --steps \d+ \(--steps \d+ takes one\)$", res.stderr.strip()), res.stderr
     assert not (tmp_path / "run").exists()
 
 

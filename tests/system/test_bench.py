@@ -830,7 +830,7 @@ def iocs(tmp_path_factory):
 def bench_run(ioc_, tmp: Path, *args) -> Process:
     """``python -m agents.bench`` against ``ioc_`` in its own process group."""
     return Process(
-        "agents.bench.runner", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log"
+        "agents.bench", ["--out", tmp / "out", *args], ioc_.env, tmp / "runner.log"
     )
 
 
@@ -1249,7 +1249,7 @@ def test_ctrl_c_while_the_runner_starts_prints_one_line_and_records_nothing(tmp_
     mapping = {**sim_mapping("NOBODY:", 3, lengths=False), "safety": {"connect_s": 120.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     proc = Process(
-        "agents.bench.runner",
+        "agents.bench",
         ["--mapping", tmp_path / "map.json", "--controller", "spgd", "--out", tmp_path / "out"],
         ca_env(),
         tmp_path / "runner.log",

@@ -140,7 +140,7 @@ def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
     rc, log = finish(
         Process(
-            "agents.bench.runner",
+            "agents.bench",
             [
                 "--out",
                 tmp_path / "run",
