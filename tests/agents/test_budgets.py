@@ -77,13 +77,15 @@ def test_agents_train_warns_before_it_trains(monkeypatch):
 
 
 def test_step_progress_says_compiling_then_a_rate_from_after_it(monkeypatch):
-    clock = iter([0.0, 40.0, 50.0, 60.0])
-    monkeypatch.setattr(progress_module.time, "monotonic", lambda: next(clock))
+    now = [0.0]
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: now[0])
     out = io.StringIO()
     bar = StepProgress(3000, "td3", file=out)  # plain lines: not a terminal
     assert bar.bar.postfix == "compiling" and bar.bar.remaining is False
+    now[0] = 40.0
     bar(1000, {"normalized_power": 0.25})  # 40 s after the start: compiling and warm-up
     assert bar.bar.postfix == "P/Pmax 0.250, 0:40 compiling and warming up"
+    now[0] = 50.0
     bar(2000, {"normalized_power": 0.5})  # 1000 steps in 10 s since the first report
     assert bar.bar.postfix == "P/Pmax 0.500, 100 step/s, ~0:10 remaining" and bar.n == 2000
 
