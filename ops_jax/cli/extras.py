@@ -5,6 +5,7 @@ the top of one: ``interrupted: ...``, exit status 130)."""
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import re
 import sys
 
@@ -17,17 +18,30 @@ def install_command(extra: str) -> str:
     return f'pip install -e ".[{extra}]"'
 
 
-def extra_of(module: str) -> str | None:
-    """The first extra (in pyproject order) whose requirements install top-level ``module``; None if none does."""
+def _extras() -> list:
+    """(top-level module name, extra) of every requirement of an extra of ops-jax, in pyproject order."""
     try:
         requirements = importlib.metadata.requires("ops-jax") or []
     except importlib.metadata.PackageNotFoundError:
-        return None
+        return []
+    found = []
     for requirement in requirements:
         match = _REQUIREMENT.match(requirement)
-        if match and match.group(1).lower().replace("-", "_").replace(".", "_") == module:
-            return match.group(2)
-    return None
+        if match:
+            found.append(
+                (match.group(1).lower().replace("-", "_").replace(".", "_"), match.group(2))
+            )
+    return found
+
+
+def extra_of(module: str) -> str | None:
+    """The first extra (in pyproject order) whose requirements install top-level ``module``; None if none does."""
+    return next((extra for name, extra in _extras() if name == module), None)
+
+
+def modules_of(extra: str) -> list:
+    """The top-level names of what ``extra`` installs itself (not through the extras it names)."""
+    return [name for name, e in _extras() if e == extra and name != "ops_jax"]
 
 
 def missing_module(exc: BaseException) -> str | None:
@@ -42,10 +56,23 @@ def missing_module(exc: BaseException) -> str | None:
 
 
 def program() -> str | None:
-    """``python -m NAME`` when the running program is one of this project's modules, else None."""
+    """``python -m NAME`` when the running program is one of this project's modules, its name when it is one
+    of its commands (``ops-train``, ...: ``[project.scripts]``), else None."""
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     name = getattr(spec, "name", None) or ""
-    return f"python -m {name}" if name.split(".")[0] in PACKAGES else None
+    if name.split(".")[0] in PACKAGES:
+        return f"python -m {name.removesuffix('.__main__')}"
+    script = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    return script if spec is None and script in scripts() else None
+
+
+def scripts() -> set:
+    """The names of ops-jax's commands (its console scripts)."""
+    try:
+        points = importlib.metadata.distribution("ops-jax").entry_points
+    except importlib.metadata.PackageNotFoundError:
+        return set()
+    return {p.name for p in points if p.group == "console_scripts"}
 
 
 _previous_hook = sys.excepthook
@@ -61,8 +88,10 @@ def _excepthook(kind, exc, tb):
     extra = extra_of(module) if module else None
     if prog is None or extra is None:
         return _previous_hook(kind, exc, tb)
+    others = [m for m in modules_of(extra) if m != module]
+    also = f" (with {', '.join(others)})" if others else ""
     print(
-        f"{prog} needs {module}, which the {extra} extra installs: {install_command(extra)}",
+        f"{prog} needs {module}, which the {extra} extra installs{also}: {install_command(extra)}",
         file=sys.stderr,
     )
 
