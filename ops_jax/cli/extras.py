@@ -60,6 +60,10 @@ def program() -> str | None:
     of its commands (``ops-train``, ...: ``[project.scripts]``), else None."""
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     name = getattr(spec, "name", None) or ""
+    if (
+        not name and started_as_program()
+    ):  # the package still imports: the module named on the command line
+        name = sys.orig_argv[sys.orig_argv.index("-m") + 1]
     if name.split(".")[0] in PACKAGES:
         return f"python -m {name.removesuffix('.__main__')}"
     script = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
@@ -103,3 +107,16 @@ def install_excepthook() -> None:
     global _previous_hook
     if sys.excepthook is not _excepthook:
         _previous_hook, sys.excepthook = sys.excepthook, _excepthook
+    if (
+        started_as_program()
+    ):  # a Ctrl-C landing in JAX's gc callback while the program imports stops it too
+        from ops_jax.cli.progress import keep_ctrl_c
+
+        keep_ctrl_c()
+
+
+def started_as_program() -> bool:
+    """Whether this interpreter was started as ``python -m`` one of this project's modules (known while the
+    package still imports, before ``program`` can tell)."""
+    argv = list(getattr(sys, "orig_argv", ()))
+    return "-m" in argv[:-1] and argv[argv.index("-m") + 1].split(".")[0] in PACKAGES
