@@ -70,17 +70,22 @@ def strict(data, reasons: dict | None = None):
             out[key], out[f"{key}_reason"] = None, reasons.get(key, _what(value))
             continue
         out[key] = strict(value, reasons)
-        if isinstance(value, list) and _holds_unfinite(value):
-            out[f"{key}_reason"] = reasons.get(key, "its nulls are numbers that were not finite")
+        kinds = _unfinite(value) if isinstance(value, list) else set()
+        if kinds:
+            said = kinds.pop() if len(kinds) == 1 else "numbers that were not finite"
+            out[f"{key}_reason"] = reasons.get(key, f"its nulls: {said}")
     return out
 
 
-def _holds_unfinite(values: list) -> bool:
-    """Whether the (nested) list ``values`` holds a float that is not finite."""
-    return any(
-        _holds_unfinite(v) if isinstance(v, list) else isinstance(v, float) and not math.isfinite(v)
-        for v in map(_plain, values)
-    )
+def _unfinite(values: list) -> set:
+    """What the numbers that are not finite in the (nested) list ``values`` were (``_what``)."""
+    kinds = set()
+    for v in map(_plain, values):
+        if isinstance(v, list):
+            kinds |= _unfinite(v)
+        elif isinstance(v, float) and not math.isfinite(v):
+            kinds.add(_what(v))
+    return kinds
 
 
 def _restored(data):
@@ -96,7 +101,8 @@ def _restored(data):
         if key.endswith("_reason") and key[: -len("_reason")] in data:
             continue
         if reason is not None:
-            number = {"+infinite": math.inf, "-infinite": -math.inf}.get(reason, math.nan)
+            ends = {"+infinite": math.inf, "-infinite": -math.inf}
+            number = next((x for end, x in ends.items() if str(reason).endswith(end)), math.nan)
             value = _nulls_as(value, number)
         out[key] = _restored(value)
     return out
