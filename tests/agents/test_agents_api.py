@@ -200,7 +200,8 @@ def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["algo"] == "spgd" and summary["evaluation"]["episodes"] == 4
     assert 0 < summary["evaluation"]["final_mean"] <= 1
-    assert "P_Pmax=" in res.stderr  # the progress line's evaluation metric
+    assert re.search(r"P/Pmax \d\.\d{3}, \d+:\d\d compiling and warming up", res.stderr), res.stderr
+    assert "(simulation " in res.stdout and "both include compiling" in res.stdout, res.stdout
     assert (out / "summary.json").stat().st_mode == (
         out / "curve.csv"
     ).stat().st_mode  # its neighbours' permissions
