@@ -282,7 +282,10 @@ class _BenchGroupBase:
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
         if self.tick_log is not None:
             self.tick_log.write(
-                json.dumps({"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints})
+                json.dumps(
+                    {"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints},
+                    allow_nan=False,  # strict JSON: setpoints are finite (the PVs refuse others)
+                )
                 + "\n"
             )
         values = self.bench.tick(setpoints)
