@@ -454,9 +454,8 @@ def save(path, result: TrainResult) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_dir(path.parent, path.name)
     (tmp / "params.msgpack").write_bytes(blob)
-    (tmp / "meta.json").write_text(
-        dumps_json(meta)
-    )  # strict JSON: a curve's NaN (no loss yet) as null
+    # strict JSON: a curve's NaN (no loss yet) as null, read back as NaN by ``load``
+    (tmp / "meta.json").write_text(dumps_json(meta))
     if path.exists():
         shutil.rmtree(path)
     os.replace(tmp, path)

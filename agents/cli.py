@@ -11,9 +11,12 @@ Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every c
 the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
 (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
 tensorboard extra). It prints the testing score, P/P_best with imperfections, else
-P/Pmax. A progress bar (``ops_jax.cli.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
-steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
-(nothing during training, the checkpoint after it) and exit status 130.
+P/Pmax, and the wall time in parts (compiling apart where the trainer times it). A progress bar
+(``ops_jax.cli.progress.StepProgress``: tqdm on a terminal, plain lines elsewhere) shows env steps, the latest
+evaluation P/Pmax, "compiling" until the first report and the remaining time from the rate after it. A budget that
+takes no gradient step is refused before any output, naming the ``--steps`` to type instead; one whose warm-up
+takes most of it is warned about before the work starts (``agents.budgets``). Ctrl-C stops it with one line
+saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
