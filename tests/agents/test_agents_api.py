@@ -257,10 +257,11 @@ def test_training_cli_refuses_a_budget_that_cannot_learn_in_one_line(argv, words
         timeout=300,
     )
     assert res.returncode == 2 and res.stdout == "", res.stderr
-    assert res.stderr.splitlines() == [res.stderr.strip()], res.stderr  # one line, no progress before it
-    assert res.stderr.startswith(f"python -m agents: error: {words}"), res.stderr
+    said = res.stderr.strip()
+    assert res.stderr.splitlines() == [said], said  # one line, no progress before it
+    assert said.startswith(f"python -m agents: error: {words}"), said
     if "takes no gradient step" in words:
-        assert re.search(r"; try --steps \d+ \(--steps \d+ takes one\)$", res.stderr.strip()), res.stderr
+        assert re.search(r"; try --steps \d+ \(--steps \d+ takes one\)$", said), said
     assert not (tmp_path / "run").exists()
 
 
