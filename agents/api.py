@@ -39,11 +39,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import registry
+from agents import budgets, registry
 from agents.envs import built, check_env_config
-from agents.io import temp_dir  # noqa: F401  (check_env_config: the algorithms' validation)
+from agents.io import dumps_json, read_json, temp_dir
 from ops_jax import EnvSpec
 from ops_jax import lock
+from ops_jax.cli.progress import reporting
 
 ALGOS = registry.REGISTRY  # name -> registry.Algo
 CHECKPOINT_VERSION = 1
@@ -88,6 +89,16 @@ class TrainResult:
     def policy(self) -> Policy:
         return algo_module(self.algo).make_policy(self.env_config, self.hyper)
 
+    def __repr__(self) -> str:
+        """The run in one line: algorithm, seed, env steps, the curve's last P/Pmax, wall time (no arrays)."""
+        npow = np.asarray(self.curve.get("normalized_power", ()))
+        last = f", last normalized_power={float(npow[-1]):.4g}" if npow.size else ""
+        wall = {k: round(float(v), 2) for k, v in self.wall_time.items()}
+        return (
+            f"TrainResult(algo={self.algo!r}, seed={self.seed}, env_steps={self.env_steps}, "
+            f"curve={npow.size} points{last}, wall_time={wall}, config={self.hyper.get('config')!r})"
+        )
+
 
 class EvalResult(NamedTuple):
     """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``normalized_power_best``:
@@ -103,6 +114,14 @@ class EvalResult(NamedTuple):
     summary: dict
     normalized_power_best: np.ndarray
 
+    def __repr__(self) -> str:
+        """The summary's numbers (4 significant digits) and the arrays' shapes, not their values."""
+        said = {
+            k: float(f"{v:.4g}") if isinstance(v, float) else v for k, v in self.summary.items()
+        }
+        episodes, steps = np.shape(self.normalized_power)
+        return f"EvalResult(summary={said}, normalized_power: {episodes} episodes x {steps} steps)"
+
 
 def algo_module(algo: str) -> registry.AlgoModule:
     return registry.get(algo).load()
@@ -115,34 +134,62 @@ def train(
     seed: int = 0,
     total_steps: int | None = None,
     progress_fn: Callable[[int, dict], None] | None = None,
+    progress: bool | None = None,
     **hyper,
 ) -> TrainResult:
     """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
     dict of ``ops_jax.make`` options, converted once: ``TrainResult.env_config`` is its dict form).
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
-    fields; ``progress_fn(step, metrics)`` is called after each evaluation."""
+    fields; ``progress_fn(step, metrics)`` is called after each evaluation. ``progress``: a progress bar on
+    stderr (``ops_jax.cli.progress.StepProgress``; None: when stderr is a terminal, False: none); a budget
+    the warm-up takes most of is warned about first (``agents.budgets.BudgetWarning``)."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     if total_steps is not None and (
         not isinstance(total_steps, (int, np.integer)) or total_steps < 0
     ):
         raise ValueError(f"total_steps must be an integer >= 0, got {total_steps!r}")
-    return module.train(
-        env_config, seed=seed, total_steps=total_steps, progress_fn=progress_fn, **hyper
-    )
+    total = budgets.warn(algo, hyper, total_steps)
+    with reporting(progress, progress_fn, total, f"{algo} seed {seed}") as report:
+        return module.train(
+            env_config, seed=seed, total_steps=total_steps, progress_fn=report, **hyper
+        )
 
 
 def train_seeds(
-    algo: str, env_config: EnvSpec | dict, *, seeds, total_steps: int | None = None, **hyper
+    algo: str,
+    env_config: EnvSpec | dict,
+    *,
+    seeds,
+    total_steps: int | None = None,
+    progress_fn: Callable[[int, dict], None] | None = None,
+    progress: bool | None = None,
+    **hyper,
 ) -> list[TrainResult]:
     """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
-    (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``), else one call per seed."""
+    (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``; one progress bar), else one
+    call per seed."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     seeds = list(seeds)
-    if registry.get(algo).vmaps_seeds:
-        return module.train_seeds(env_config, seeds=seeds, total_steps=total_steps, **hyper)
-    return [train(algo, env_config, seed=s, total_steps=total_steps, **hyper) for s in seeds]
+    if not registry.get(algo).vmaps_seeds:
+        return [
+            train(
+                algo,
+                env_config,
+                seed=s,
+                total_steps=total_steps,
+                progress_fn=progress_fn,
+                progress=progress,
+                **hyper,
+            )
+            for s in seeds
+        ]
+    total = budgets.warn(algo, hyper, total_steps)
+    with reporting(progress, progress_fn, total, f"{algo} {len(seeds)} seeds") as report:
+        return module.train_seeds(
+            env_config, seeds=seeds, total_steps=total_steps, progress_fn=report, **hyper
+        )
 
 
 def evaluated_result(
@@ -410,7 +457,8 @@ def save(path, result: TrainResult) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_dir(path.parent, path.name)
     (tmp / "params.msgpack").write_bytes(blob)
-    (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=float))
+    # strict JSON: a curve's NaN (no loss yet) as null, read back as NaN by ``load``
+    (tmp / "meta.json").write_text(dumps_json(meta))
     if path.exists():
         shutil.rmtree(path)
     os.replace(tmp, path)
@@ -426,7 +474,7 @@ def load(path) -> TrainResult:
     if not meta_file.exists() or not blob_file.exists():
         raise FileNotFoundError(f"no checkpoint at {path} (expected meta.json and params.msgpack)")
     try:
-        meta = json.loads(meta_file.read_text())
+        meta = read_json(meta_file)
         blob = blob_file.read_bytes()
         if hashlib.sha256(blob).hexdigest() != meta["params_sha256"]:
             raise ValueError("params.msgpack does not match the checksum in meta.json")

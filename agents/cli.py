@@ -11,26 +11,35 @@ Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every c
 the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
 (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
 tensorboard extra). It prints the testing score, P/P_best with imperfections, else
-P/Pmax. A progress bar (``ops_jax.cli.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
-steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
-(nothing during training, the checkpoint after it) and exit status 130.
+P/Pmax, and the wall time in parts (compiling apart where the trainer times it). A progress bar
+(``ops_jax.cli.progress.StepProgress``: tqdm on a terminal, plain lines elsewhere) shows env steps, the latest
+evaluation P/Pmax, "compiling" until the first report and the remaining time from the rate after it. A budget that
+takes no gradient step is refused before any output, naming the ``--steps`` to type instead; one whose warm-up
+takes most of it is warned about before the work starts (``agents.budgets``). Ctrl-C stops it with one line
+saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
 """
 
 from __future__ import annotations
 
-import sys
 import ast
 import csv
+import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 import agents
 from agents import api as base
+from agents import budgets
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
-from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c, progress
+from ops_jax.cli.progress import StepProgress, exit_interrupted, keep_ctrl_c
 from ops_jax.cli.parser import ArgumentParser
+
+
+# why a summary's number may be null (not finite)
+NULL_REASONS = {"steps_to_0p9_median": "no episode reached P/Pmax 0.9"}
 
 
 def parse_set(items) -> dict:
@@ -77,7 +86,8 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
 def main(argv=None) -> dict:
     ap = ArgumentParser(prog="python -m agents", description=__doc__.split("\n")[0])
     presets = "; ".join(
-        f"{algo}: {', '.join(sorted(t.PRESETS))}" for algo, t in sorted(CONFIG_TYPES.items())
+        f"{algo}: {', '.join(sorted(t.PRESETS))} (default {t.DEFAULT_PRESET})"
+        for algo, t in sorted(CONFIG_TYPES.items())
     )
     ap.add_argument(
         "--algo", required=True, choices=sorted(base.ALGOS), help="the controller or learner"
@@ -97,7 +107,7 @@ def main(argv=None) -> dict:
     ap.add_argument(
         "--config",
         default=None,
-        help=f"hyperparameter preset (default: the algorithm's); {presets}",
+        help=f"hyperparameter preset; {presets}",
     )
     ap.add_argument(
         "--episodes", type=int, default=50, help="final evaluation episodes (default 50)"
@@ -136,8 +146,12 @@ def main(argv=None) -> dict:
                 f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out"
             )
         module.make_policy(env_config, config.to_hyper())
+        total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
+        warning = None if total is None else budgets.check(config, total, "--steps", " ")
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
+    if warning:
+        print(f"{ap.prog}: warning: {warning}", file=sys.stderr, flush=True)
     logger = None
     if args.logdir is not None:
         from agents.tensorboard import TensorBoardLogger
@@ -146,36 +160,24 @@ def main(argv=None) -> dict:
             logger = TensorBoardLogger(args.logdir)
         except ImportError as e:  # one line naming the extra, not a traceback
             raise SystemExit(f"python -m agents --logdir: {e}") from None
-    total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
-    bar = progress(
-        total=total or None,
-        unit="step",
-        unit_scale=True,
-        desc=f"{args.algo} {args.mode} N={args.stages}",
-    )
-
-    shown = []  # the steps reported so far
-
-    def show(step: int, metrics: dict) -> None:
-        shown.append(step)
-        bar.set_postfix(P_Pmax=f"{metrics['normalized_power']:.3f}", refresh=False)
-        bar.update(
-            max(0, min(int(step), total or int(step)) - bar.n)
-        )  # the last chunk may pass the total
-
+    bar = StepProgress(total, f"{args.algo} {args.mode} N={args.stages}")
+    show = bar
     if logger is not None:
         logger.then, show = show, logger
     try:
-        result = base.train(
-            args.algo,
-            env_config,
-            seed=args.seed,
-            total_steps=args.steps,
-            progress_fn=show,
-            config=config,
-        )
+        with warnings.catch_warnings():  # the budget's warning is said above
+            warnings.simplefilter("ignore", budgets.BudgetWarning)
+            result = base.train(
+                args.algo,
+                env_config,
+                seed=args.seed,
+                total_steps=args.steps,
+                progress_fn=show,
+                progress=False,
+                config=config,
+            )
     except ValueError as exc:
-        if shown:  # a failure during training: its traceback
+        if bar.first is not None:  # a failure during training: its traceback
             raise
         bar.close()  # the trainer's own checks of the budget against its config: one line, as the ones above
         message = (
@@ -222,7 +224,7 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
         evaluation=ev.summary,
         train_steps=result.env_steps,
     )
-    write_json_atomic(out / "summary.json", summary)
+    write_json_atomic(out / "summary.json", summary, reasons=NULL_REASONS)
     s = ev.summary
     best = (
         "_best" if s["score"] == "P/P_best" else ""
@@ -232,11 +234,21 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
         f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
         f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
         f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
-        f"wall time {result.wall_time.get('total', float('nan')):.1f} s "
-        f"(simulation {result.wall_time.get('simulation', float('nan')):.1f} s, "
-        f"optimisation {result.wall_time.get('optimisation', float('nan')):.1f} s); written to {out}"
+        f"{wall_time_line(result.wall_time)}; written to {out}"
     )
     return summary
+
+
+def wall_time_line(wall: dict) -> str:
+    """The wall time of a training in words (s): its parts, compiling among them where the trainer timed it
+    apart (the off-policy learners), else said to be inside them."""
+    total = wall.get("total", float("nan"))
+    parts = [k for k in ("compile", "simulation", "optimisation", "evaluation") if k in wall]
+    said = [f"{k} {wall[k]:.1f} s" for k in parts]
+    if "compile" not in wall:
+        return f"wall time {total:.1f} s ({', '.join(said)}; both include compiling)"
+    other = total - sum(wall[k] for k in parts)
+    return f"wall time {total:.1f} s ({', '.join(said)}, other {max(0.0, other):.1f} s)"
 
 
 def run() -> None:

@@ -41,7 +41,7 @@ def get_policy(name: str, env_config: dict, seed: int = 0):
     if name in base.ALGOS:
         # A controller with nothing to learn is evaluated as its training; one episode, as nothing reads it here.
         curve = {} if registry.get(name).learner else {"curve_episodes": 1}
-        result = base.train(name, env_config, seed=seed, **curve)
+        result = base.train(name, env_config, seed=seed, progress=False, **curve)
         return result.policy(), result.params, env_config
     path = Path(name)
     if not path.exists():

@@ -16,7 +16,7 @@ import re
 from pathlib import Path
 from typing import Callable
 
-from agents.io import write_json_atomic
+from agents.io import read_json, write_json_atomic
 
 
 def config_hash(config: dict) -> str:
@@ -46,7 +46,7 @@ class CellStore:
             if path is None:
                 return None
         try:
-            data = json.loads(path.read_text())
+            data = read_json(path)
             if data["config"] != json.loads(json.dumps(config, default=str)):
                 raise ValueError("stored configuration differs")
             return data["result"]

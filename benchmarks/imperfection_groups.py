@@ -18,7 +18,6 @@ it) and writes ``imperfection_groups.json``.
 
 from __future__ import annotations
 
-import json
 import platform
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.io import write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
@@ -74,7 +74,12 @@ def score(args, env_config: dict) -> float:
         )
         return float(ev.normalized_power_best[:, -1].mean())
     result = agents.train(
-        args.algo, env_config, seed=args.eval_seed, curve_episodes=args.episodes, **args.sets
+        args.algo,
+        env_config,
+        seed=args.eval_seed,
+        curve_episodes=args.episodes,
+        progress=False,
+        **args.sets,
     )
     return float(result.curve["normalized_power"][-1] * best_ratio(env_config))
 
@@ -211,7 +216,7 @@ def main(argv=None) -> dict:
         "rows": rows,
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "imperfection_groups.json").write_text(json.dumps(result, indent=1))
+    write_json_atomic(args.out / "imperfection_groups.json", result)
     print(table(rows, columns(args)))
     return result
 

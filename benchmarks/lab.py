@@ -38,6 +38,8 @@ import sys
 import time
 from pathlib import Path
 
+from agents.io import dumps_json, read_json, write_json_atomic
+
 ROOT = Path(__file__).resolve().parents[1]
 IOC_ARGS = ["--stages", "5", "--mode", "hard", "--imperfections", "lab"]
 # name: (controller, settings). The physics-informed controller's best settings at the lab level
@@ -253,7 +255,7 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     )
     early, checked = early_frames(out / "documents.jsonl", out.parent / TICK_LOG)
     return {
-        **json.loads((out / "summary.json").read_text()),
+        **read_json(out / "summary.json"),
         "first_tick": first["doc"]["data"]["bench_detector_tick"],
         "wall_s": wall_s,
         "early_frames": early,
@@ -464,7 +466,7 @@ def kill_check(
     ioc.kill()
     rc = runner.wait(120)
     exited = time.time()
-    summary = json.loads((out / "summary.json").read_text())
+    summary = read_json(out / "summary.json")
     lines = docs.read_text().splitlines()
     last = json.loads(lines[-1])
     return {
@@ -742,8 +744,8 @@ def main(argv=None) -> dict:
     }
     print(table(rows))
     if result["kill"]:
-        print("IOC SIGKILL:", json.dumps(result["kill"]))
-    (args.out / "lab.json").write_text(json.dumps(result, indent=1, default=float))
+        print("IOC SIGKILL:", dumps_json(result["kill"], indent=None))
+    write_json_atomic(args.out / "lab.json", result)
     return result
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.io import write_json_atomic
+from agents.io import read_json, write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
@@ -64,7 +64,7 @@ def run_one(
     env_config = {"stages": stages, "mode": mode}
     hyper = {} if config is None else {"config": config}
     t0 = time.perf_counter()
-    result = base.train(algo, env_config, seed=seed, total_steps=steps, **hyper)
+    result = base.train(algo, env_config, seed=seed, total_steps=steps, progress=False, **hyper)
     train_s = time.perf_counter() - t0
     ev = agents.evaluate(result, env_config, episodes=episodes, seed=1000 + seed)
     if ckpt_dir is not None:
@@ -172,7 +172,7 @@ def main(argv=None) -> dict:
     if path.exists() and not args.fresh:
         done = {
             run_key(r["algo"], r["mode"], r["seed"]): r
-            for r in json.loads(path.read_text())["runs"]
+            for r in read_json(path)["runs"]
             if r["status"] == "ok" and r["stages"] == args.stages
         }
     ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"

@@ -24,13 +24,13 @@ writes ``trim_loss.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from agents import TrimConfig
+from agents.io import write_json_atomic
 from ops_jax.env import PROBES
 from ops_jax.cli.progress import keep_ctrl_c
 from benchmarks.sweep.reality import LEVELS, level_env
@@ -94,7 +94,9 @@ def measure(
 
     env = ENVS[env_name]
     t0 = time.perf_counter()
-    results = agents.train_seeds(algo, env, seeds=seeds, total_steps=steps, config=config)
+    results = agents.train_seeds(
+        algo, env, seeds=seeds, total_steps=steps, config=config, progress=False
+    )
     train_s = time.perf_counter() - t0
     rows = []
     for seed, result in zip(seeds, results):
@@ -205,7 +207,7 @@ def main(argv=None) -> dict:
         "rows": rows,
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "trim_loss.json").write_text(json.dumps(result, indent=1))
+    write_json_atomic(args.out / "trim_loss.json", result)
     print(table(rows, args.margin))
     return result
 

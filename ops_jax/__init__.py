@@ -5,8 +5,11 @@ the Brax adapter, the agents and rendering import their own dependencies when us
 """
 
 from ops_jax.cli import extras
-from ops_jax import noise, physics
-from ops_jax.env import (
+
+extras.install_excepthook()  # first: a Ctrl-C or a missing extra while the rest imports is one line too
+
+from ops_jax import noise, physics  # noqa: E402
+from ops_jax.env import (  # noqa: E402
     MODES,
     REWARDS,
     EnvConfig,
@@ -15,8 +18,8 @@ from ops_jax.env import (
     OPSEnv,
     make,
 )
-from ops_jax.trajectories import Rollout, rollout
-from ops_jax.spec import EnvSpec
+from ops_jax.trajectories import Rollout, rollout  # noqa: E402
+from ops_jax.spec import EnvSpec  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -44,4 +47,3 @@ def _register_gymnasium() -> None:
 
 
 _register_gymnasium()
-extras.install_excepthook()

@@ -60,6 +60,7 @@ import numpy as np
 import ops_jax
 from ops_jax.cli import runtime
 from ops_jax.cli.parser import ArgumentParser
+from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 from ops_jax.env import option_names
 from ops_jax.adapters.gymnasium.codec import FlatCodec
 
@@ -281,7 +282,10 @@ class _BenchGroupBase:
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
         if self.tick_log is not None:
             self.tick_log.write(
-                json.dumps({"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints})
+                json.dumps(
+                    {"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints},
+                    allow_nan=False,  # strict JSON: setpoints are finite (the PVs refuse others)
+                )
                 + "\n"
             )
         values = self.bench.tick(setpoints)
@@ -431,10 +435,24 @@ def tune_server(rate: float) -> None:
 
 
 def main(argv=None) -> None:
+    """Serve the IOC until Ctrl-C (or SIGINT): then one line, exit status 130, while starting as well."""
+    keep_ctrl_c()
     ap = parser()
     args = ap.parse_args(argv)
     if not (args.lockstep or (math.isfinite(args.rate) and 0 < args.rate <= 10_000)):
         ap.error(f"--rate must be a number in (0, 10000] Hz, got {args.rate}")
+    try:
+        group = _start(ap, args)
+    except KeyboardInterrupt:
+        exit_interrupted("stopped while starting; it served nothing")
+    from caproto.server import run
+
+    run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)  # returns on Ctrl-C
+    exit_interrupted(f"the IOC {args.prefix} stopped; its PVs are gone")
+
+
+def _start(ap, args):
+    """The PV group of the IOC ``args`` describe: its simulator built and compiled, the server tuned."""
     runtime.start_single_threaded()  # a tick is one small call
     try:
         bench = Bench(
@@ -446,8 +464,6 @@ def main(argv=None) -> None:
         )
     except (TypeError, ValueError) as exc:
         ap.error(str(exc))
-    from caproto.server import run
-
     try:
         tick_log = (
             None if args.tick_log is None else open(args.tick_log, "a", buffering=1)
@@ -460,8 +476,7 @@ def main(argv=None) -> None:
     warning = port_warning(int(get_environment_variables()["EPICS_CA_SERVER_PORT"]))
     if warning:
         print(warning, file=sys.stderr, flush=True)
-    group = pv_group(bench, args.prefix, args.rate, args.lockstep, tick_log)
-    run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)
+    return pv_group(bench, args.prefix, args.rate, args.lockstep, tick_log)
 
 
 if __name__ == "__main__":

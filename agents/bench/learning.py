@@ -42,7 +42,7 @@ from agents import api as base, registry
 from agents.learners.offpolicy import observer, driver as offpolicy, replay
 from agents.bench.loop import check_lengths
 from agents.envs import built, train_env_config
-from agents.io import kept_dir, replace_dir, temp_dir
+from agents.io import kept_dir, replace_dir, temp_dir, write_json_atomic
 from ops_jax.cli.progress import progress
 
 PUBLISH_STEPS = 10  # env steps between two hand-overs of the actor network
@@ -548,8 +548,8 @@ class Learning:
         staging = temp_dir(self.out, "checkpoint")
         base.save(staging, result)
         (staging / "learner.msgpack").write_bytes(blob)
-        (staging / "learner.json").write_text(
-            json.dumps({"counts": dataclasses.asdict(c), "from": self.from_policy}, indent=1)
+        write_json_atomic(
+            staging / "learner.json", {"counts": dataclasses.asdict(c), "from": self.from_policy}
         )
         replace_dir(staging, self.out / "checkpoint")
         return self.out / "checkpoint"

@@ -28,10 +28,11 @@ The watchdog stops the run at once and writes nothing more when a PV disconnects
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
 ends the run after the current step, a second one at once (``user_stops``). Written to ``DIR``:
 ``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P / P_max and
-P / P_best against time, the PSD after lock beside it; learning: the update ratio too), ``summary.json`` (the lock
-figures of ``ops_jax.lock`` too; learning: the step counts and update ratio) and, learning, ``checkpoint/``.
-Exit status 0 when the run ended by time, steps or the user, 3 when the watchdog stopped it, 2 for bad
-arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing recorded).
+P / P_best against time, the PSD after lock beside it; learning: the update ratio too), ``summary.json`` (the lock figures of ``ops_jax.lock`` too; learning: the step counts and update
+ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time or steps, 130 when the user
+ended it with Ctrl-C (143 with SIGTERM; everything recorded is written first), 3 when the watchdog stopped it,
+2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing
+recorded).
 
 ``python -m agents.bench template --out FILE`` writes a mapping to start from, ``python -m agents.bench check
 --mapping FILE`` reads every PV it names once (``agents.bench.template``).
@@ -41,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import os
 import signal
@@ -73,7 +73,7 @@ from agents.bench.loop import (
     load_controller,  # noqa: F401
 )
 from agents.cli import parse_set
-from agents.io import write_json_atomic
+from agents.io import dumps_json, write_json_atomic
 from ops_jax import lock
 from ops_jax.cli import runtime
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
@@ -81,7 +81,7 @@ from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
 # waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
 SWITCH_S = 0.0005
-EXIT_WATCHDOG = 3
+EXIT_WATCHDOG = 3  # the watchdog's (safety) stop; the user's: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)
 
 
 def say(line: str) -> None:
@@ -470,7 +470,9 @@ def main(argv=None) -> int:
             rate_hz=summary["rate_hz"],
         )
         print(report.readable(summary, out), flush=True)
-    return EXIT_WATCHDOG if stopped else 0
+    if stopped:
+        return EXIT_WATCHDOG
+    return 128 + (int(loop.user_stop) or signal.SIGINT) if summary["stopped_by"] == USER_STOP else 0
 
 
 QUIET_LOGGERS = (
@@ -505,7 +507,8 @@ def _writer(out: Path):
             out / "documents.jsonl", "a"
         ) as f:  # a page (plain types already) at once, one open per page
             f.writelines(
-                json.dumps({"name": "event", "doc": e}) + "\n" for e in unpack_event_page(doc)
+                dumps_json({"name": "event", "doc": e}, indent=None) + "\n"
+                for e in unpack_event_page(doc)
             )
 
     return write
@@ -523,7 +526,7 @@ def user_stops(loop: Loop):
         elif loop.user_stop:
             loop.trip(USER_STOP)
         else:
-            loop.user_stop = True
+            loop.user_stop = signum  # (truthy) the signal that ended the run: its exit status
             os.write(2, b"agents.bench.runner: stopping after the current step (again: at once)\n")
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}

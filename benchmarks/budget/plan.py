@@ -293,6 +293,7 @@ def _adapt(cell: dict) -> dict:
         cell["pretrain_env"],
         seed=cell["seed"],
         total_steps=cell["pretrain_steps"],
+        progress=False,
         **cell["pretrain_hyper"],
     )
     pretrain_s = time.perf_counter() - t0
@@ -321,7 +322,12 @@ def _per_budget(cell: dict) -> dict:
         t0 = time.perf_counter()
         try:
             result = agents.train(
-                cell["algo"], cell["env_config"], seed=cell["seed"], total_steps=k, **cell["hyper"]
+                cell["algo"],
+                cell["env_config"],
+                seed=cell["seed"],
+                total_steps=k,
+                progress=False,
+                **cell["hyper"],
             )
         except ValueError as exc:
             errors[str(k)] = str(exc)
@@ -341,7 +347,9 @@ def compute(cell: dict) -> dict:
 
     if cell["kind"] in REFERENCE_KINDS:
         t0 = time.perf_counter()
-        result = agents.train(cell["algo"], cell["env_config"], seed=cell["seed"], **cell["hyper"])
+        result = agents.train(
+            cell["algo"], cell["env_config"], seed=cell["seed"], progress=False, **cell["hyper"]
+        )
         score = _score(result, cell["env_config"], cell)
         return {
             "scores": {str(k): score for k in cell["checkpoints"]},

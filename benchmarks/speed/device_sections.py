@@ -288,7 +288,9 @@ def train_rate(algo: str, steps: int, hyper: dict, deadline: float, record, out:
         if time.monotonic() > deadline:
             raise OutOfTime(f"stopped at its deadline after {int(step):,} of {steps:,} env steps")
 
-    result = agents.train(algo, ENV, seed=0, total_steps=steps, progress_fn=progress_fn, **hyper)
+    result = agents.train(
+        algo, ENV, seed=0, total_steps=steps, progress_fn=progress_fn, progress=False, **hyper
+    )
     wall = time.perf_counter() - t0
     trained = result.env_steps
     out.update(

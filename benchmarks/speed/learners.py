@@ -49,7 +49,9 @@ def measure_one(algo: str, steps: int) -> dict:
     import agents
 
     t0, c0 = time.perf_counter(), time.process_time()
-    result = agents.train(algo, ENV, seed=0, total_steps=steps, **_sweep_hyper(algo))
+    result = agents.train(
+        algo, ENV, seed=0, total_steps=steps, progress=False, **_sweep_hyper(algo)
+    )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     trained = result.env_steps
     return dict(

@@ -15,13 +15,13 @@ the section (``Reality``: its cells and its report: reality.md / .csv / .json an
 from __future__ import annotations
 
 import csv
-import json
 import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
+from agents.io import write_json_atomic
 from benchmarks.sweep.records import Controller, Evaluation, seed_label
 from benchmarks.sweep.section import TEST_SEED_OFFSET, Section
 
@@ -255,7 +255,7 @@ def report(
                         *(f"{x:.6f}" for x in intervals[algo][n]),
                     ]
                 )
-    (out / "reality.json").write_text(json.dumps(results, indent=1))
+    write_json_atomic(out / "reality.json", results)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
     x = np.array([s for _, s in LEVELS])

@@ -18,6 +18,19 @@ ENVS = ("training", "testing")
 MIN_BOLD_SEEDS = 3  # fewer seeds per cell cannot support a Welch's t-test verdict: nothing is bold
 
 
+def quick_note(p: dict) -> list:
+    """The lines under a table's title that say a quick preset's budgets are too small to learn (none for the
+    other presets)."""
+    if p["name"] != "quick":
+        return []
+    learners = ", ".join(f"{NAMES[a]} {n:,}" for a, n in p["budgets"].items() if n)
+    return [
+        f"**Quick preset: its training budgets (env steps: {learners}) are far too small to learn.** These "
+        "numbers show that the sweep runs, not how well the learners control; the default preset's do.",
+        "",
+    ]
+
+
 def bold_rule(seeds: int) -> str:
     """The bolding rule as stated under a table of ``seeds`` seeds per cell."""
     if seeds < MIN_BOLD_SEEDS:
@@ -112,7 +125,9 @@ def table1(out: Path, runs: dict, p: dict):
     sep = "|" + "---|" * (len(algos) + 2)
     text = (
         f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
-        f"{p['name']})\n\nMean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
+        f"{p['name']})\n\n"
+        + "".join(f"{line}\n" for line in quick_note(p))
+        + "Mean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
         "and the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published values "
         "(20 seeds, stable-baselines3).\n\n"
         + "\n".join([header, sep, *rows_md])
@@ -238,6 +253,7 @@ def table2(out: Path, runs: dict, p: dict):
     lines = [
         "# Table 2: time usage, 5-stage hard (TPS = seconds per step)",
         "",
+        *quick_note(p),
         "Ours: this machine, batched JAX; per-step times are wall time divided by environment steps "
         "(simulation = stepping the environment, optimisation = the rest of training). Convergence "
         'step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value; "not '
@@ -360,6 +376,7 @@ def stages(out: Path, res: dict, p: dict):
     lines = [
         "# Stage scan: final testing P/Pmax vs stage count N",
         "",
+        *quick_note(p),
         "| N | mode | " + " | ".join(NAMES[a] for a in p["stage_algos"]) + " |",
         "|" + "---|" * (len(p["stage_algos"]) + 2),
     ]
@@ -424,7 +441,11 @@ def transfer(out: Path, res: dict, p: dict):
     plt = _plt()
     algos = p["algos"]
     fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
-    lines = ["# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax", ""]
+    lines = [
+        "# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax",
+        "",
+        *quick_note(p),
+    ]
     for ax, algo in zip(np.atleast_1d(axes), algos):
         seeds = sorted({k[3] for k in res})
         m = np.array(
@@ -471,6 +492,7 @@ def feedback(out: Path, res: dict, p: dict):
     lines = [
         "# Feedback delay: trained at k = 1 (hard), tested at k",
         "",
+        *quick_note(p),
         "| algo | " + " | ".join(f"k={k} final / mean" for k in ks) + " |",
         "|" + "---|" * (len(ks) + 1),
     ]
@@ -519,9 +541,9 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
     if wall == wall:
         times = [f"- whole command: {wall:.1f} s", *times]
 
-    files = sorted(
-        f.name
-        for f in out.iterdir()
+    files = sorted(  # the reports and those of a section in its own folder (budget/budget.md)
+        f.relative_to(out).as_posix()
+        for f in (*out.glob("*"), *out.glob("*/*"))
         if f.suffix in (".md", ".csv", ".png") and f.name != "summary.md"
     )
     lines = [

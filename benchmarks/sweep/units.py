@@ -115,6 +115,7 @@ class Sweep:
                     env,
                     seed=seed,
                     total_steps=config["steps"],
+                    progress=False,
                     **config["hyper"],
                     **curve,
                 )
@@ -159,6 +160,7 @@ class Sweep:
                             controller.env,
                             seeds=todo,
                             total_steps=config["steps"],
+                            progress=False,
                             **config["hyper"],
                         ),
                     )

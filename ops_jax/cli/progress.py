@@ -12,6 +12,7 @@ time follows the measured cost rather than the count.
 from __future__ import annotations
 
 import _thread
+import contextlib
 import os
 import signal
 import sys
@@ -51,6 +52,7 @@ class PlainProgress:
         file=None,
         interval: float | None = None,
         unit_scale: bool = False,
+        remaining: bool = True,
         **_ignored,
     ):
         self.iterable = iterable
@@ -63,6 +65,7 @@ class PlainProgress:
         if interval is None:
             interval = float(os.environ.get(INTERVAL_ENV, DEFAULT_INTERVAL_S))
         self.interval = interval
+        self.remaining = remaining  # False: the caller says the remaining time (``StepProgress``)
         self.n = 0
         self.postfix = ""
         self.start = time.monotonic()
@@ -97,7 +100,7 @@ class PlainProgress:
             f"{rate:.3g} {self.unit}/s",
             f"{format_seconds(elapsed)} elapsed",
         ]
-        if self.total and rate > 0:
+        if self.total and rate > 0 and self.remaining:
             parts.append(f"~{format_seconds((self.total - self.n) / rate)} remaining")
         if self.postfix:
             parts.append(self.postfix)
@@ -153,10 +156,77 @@ def progress(
             dynamic_ncols=True,
             **tqdm_kwargs,
         )
+    tqdm_kwargs.pop("bar_format", None)
     tqdm_kwargs.pop("leave", None)
     tqdm_kwargs.pop("position", None)
     tqdm_kwargs.pop("dynamic_ncols", None)
     return PlainProgress(iterable, total=total, desc=desc, unit=unit, file=stream, **tqdm_kwargs)
+
+
+class StepProgress:
+    """A training's progress as a ``progress_fn(step, metrics)``: env steps done, the latest evaluation P/Pmax,
+    "compiling" until the first report (the compilation and warm-up before it are timed and said), then the
+    remaining time from the rate since that report, so the compiling does not distort it. ``close()`` ends the
+    bar; ``n`` is the steps reported."""
+
+    def __init__(self, total: int | None, desc: str, file=None):
+        self.total = total or None
+        eta = {
+            "remaining": False,
+            "bar_format": "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
+        }
+        self.bar = progress(
+            total=self.total, unit="step", unit_scale=True, desc=desc, file=file, **eta
+        )
+        self.bar.set_postfix_str("compiling", refresh=True)
+        self.start = time.monotonic()
+        self.first = None  # (time, step) of the first report
+
+    @property
+    def n(self) -> int:
+        return int(self.bar.n)
+
+    def __call__(self, step: int, metrics: dict) -> None:
+        now, step = time.monotonic(), int(step)
+        said = (
+            [f"P/Pmax {metrics['normalized_power']:.3f}"] if "normalized_power" in metrics else []
+        )
+        if self.first is None:
+            self.first = (now, step)
+            said.append(f"{format_seconds(now - self.start)} compiling and warming up")
+        elif now > self.first[0] and step > self.first[1]:
+            rate = (step - self.first[1]) / (now - self.first[0])
+            said.append(f"{rate:.3g} step/s")
+            if self.total:
+                said.append(f"~{format_seconds((self.total - step) / rate)} remaining")
+        self.bar.set_postfix_str(", ".join(said), refresh=False)
+        done = min(step, self.total or step)  # the last chunk may pass the total
+        self.bar.update(max(0, done - self.bar.n))
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+@contextlib.contextmanager
+def reporting(show: bool | None, progress_fn, total: int | None, desc: str):
+    """A training's ``progress_fn``: ``progress_fn`` (may be None) and, with ``show`` (None: when stderr is a
+    terminal), a ``StepProgress`` bar, closed on the way out; None when neither."""
+    if show is None:
+        show = is_terminal(sys.stderr)
+    if not show:
+        yield progress_fn
+        return
+    bar = StepProgress(total, desc)
+
+    def both(step, metrics):
+        bar(step, metrics)
+        if progress_fn is not None:
+            progress_fn(step, metrics)
+
+    try:
+        yield both
+    finally:
+        bar.close()
 
 
 def keep_ctrl_c() -> None:

@@ -3,6 +3,7 @@ checkpoints (round trip, missing, corrupt), bad input."""
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -199,7 +200,8 @@ def test_training_cli_shows_progress_and_writes_its_summary(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["algo"] == "spgd" and summary["evaluation"]["episodes"] == 4
     assert 0 < summary["evaluation"]["final_mean"] <= 1
-    assert "P_Pmax=" in res.stderr  # the progress line's evaluation metric
+    assert re.search(r"P/Pmax \d\.\d{3}, \d+:\d\d compiling and warming up", res.stderr), res.stderr
+    assert "(simulation " in res.stdout and "both include compiling" in res.stdout, res.stdout
     assert (out / "summary.json").stat().st_mode == (
         out / "curve.csv"
     ).stat().st_mode  # its neighbours' permissions
@@ -234,13 +236,18 @@ def test_training_cli_refuses_bad_arguments_in_one_line(argv, words, tmp_path):
         (["--algo", "spgd", "--steps", "400"], "--steps: spgd trains nothing"),
         (
             ["--algo", "droq", "--config", "budget", "--steps", "500"],
-            "--steps must be >= the warm-up of learning_starts = 1000",
+            "--steps 500 takes no gradient step: its first 1,000 env steps are the random warm-up",
+        ),
+        (
+            ["--algo", "td3", "--steps", "4096"],
+            "--steps 4096 takes no gradient step: its first 4,096 env steps are the random warm-up",
         ),
     ],
 )
-def test_training_cli_refuses_a_budget_its_trainer_refuses_in_one_line(argv, words, tmp_path):
-    """--steps for a controller with nothing to train, or under a learner's warm-up (the trainer's own check, after
-    the progress line): one error line, exit status 2, nothing written."""
+def test_training_cli_refuses_a_budget_that_cannot_learn_in_one_line(argv, words, tmp_path):
+    """--steps for a controller with nothing to train, or one that ends within a learner's warm-up (no gradient
+    step): one error line before any other output, naming the budget to type instead; exit status 2, nothing
+    written."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
     res = subprocess.run(
         [sys.executable, "-m", "agents", *argv, "--stages", "2", "--out", str(tmp_path / "run")],
@@ -249,8 +256,12 @@ def test_training_cli_refuses_a_budget_its_trainer_refuses_in_one_line(argv, wor
         text=True,
         timeout=300,
     )
-    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
-    assert res.stderr.splitlines()[-1].startswith(f"python -m agents: error: {words}"), res.stderr
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    said = res.stderr.strip()
+    assert res.stderr.splitlines() == [said], said  # one line, no progress before it
+    assert said.startswith(f"python -m agents: error: {words}"), said
+    if "takes no gradient step" in words:
+        assert re.search(r"; try --steps \d+ \(--steps \d+ takes one\)$", said), said
     assert not (tmp_path / "run").exists()
 
 

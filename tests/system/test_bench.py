@@ -1189,7 +1189,7 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
 
 
 def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
-    """SIGINT: the run ends after the current step, exit status 0, everything written."""
+    """SIGINT: the run ends after the current step, exit status 130 (the user's stop), everything written."""
     proc = bench_run(
         iocs["free"],
         tmp_path,
@@ -1212,7 +1212,7 @@ def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
         proc.proc.send_signal(signal.SIGINT)
     rc, log = finish(proc, timeout=60)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert (rc, summary["stopped_by"]) == (0, "user"), log
+    assert (rc, summary["stopped_by"]) == (130, "user"), log
     assert "stopping after the current step" in log and "watchdog:" not in log, log
     docs = documents(tmp_path)
     assert docs[-1]["name"] == "stop" and docs[-1]["doc"]["exit_status"] == "success"
@@ -1221,7 +1221,7 @@ def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
 
 def test_a_burst_of_ctrl_c_stops_at_once_as_the_user_and_loses_nothing(iocs, tmp_path):
     """SIGINT every 50 ms: the first ends the run after its step, a second still within the run stops it at once,
-    counted as the user's (exit 0, no watchdog line); those that land after the run ended, while its files are
+    counted as the user's (exit 130, no watchdog line); those that land after the run ended, while its files are
     written, are ignored: the summary, the plot and the documents are all there, and no traceback."""
     proc = bench_run(
         iocs["free"],
@@ -1243,7 +1243,7 @@ def test_a_burst_of_ctrl_c_stops_at_once_as_the_user_and_loses_nothing(iocs, tmp
         proc.proc.send_signal(signal.SIGINT)
         time.sleep(0.05)
     rc, log = finish(proc, timeout=60)
-    assert rc == 0 and "Traceback" not in log and "watchdog:" not in log, log
+    assert rc == 130 and "Traceback" not in log and "watchdog:" not in log, log
     assert "the run has ended; writing what it recorded" in log, (
         log
     )  # presses after the run were answered

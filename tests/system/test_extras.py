@@ -2,6 +2,7 @@
 subprocess whose ``sitecustomize`` makes the module unimportable (as in an install without the extra)."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -70,3 +71,23 @@ def test_a_program_without_its_extra_names_the_install_command(modules, args, tm
 def test_other_programs_keep_their_traceback(tmp_path):
     out = _run_without(["ray"], ["-c", "import ops_jax, ray"], tmp_path)
     assert out.returncode == 1 and "Traceback" in out.stderr and "ModuleNotFoundError" in out.stderr
+
+
+def test_the_benchs_learner_without_the_agents_extra_names_it_and_what_it_installs(tmp_path):
+    """``.[lab]`` alone: learning on the bench (DroQ: flax networks, optax optimisers, brax's replay buffer)
+    stops with a last line naming the agents extra and the modules it brings."""
+    learn = ["--prefix", "NOONE:", "--stages", "3", "--learn", "droq", "--steps", "100"]
+    out = _run_without(
+        ["brax", "flax", "optax", "scipy", "ray"],
+        ["-m", "agents.bench", *learn, "--out", "o"],
+        tmp_path,
+    )
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    assert re.fullmatch(
+        r"python -m agents\.bench needs (brax|flax|optax), which the agents extra installs \(with [a-z, ]+\): "
+        r'pip install -e "\.\[agents\]"',
+        last,
+    ), last
+    assert all(m in last for m in ("brax", "flax", "optax")), last
+    assert not (tmp_path / "o").exists()
