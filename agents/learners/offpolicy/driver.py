@@ -29,6 +29,10 @@ iterations (an estimate: it leaves out the actor's forward pass used for explora
 ``optimisation`` = training-chunk time - that estimate. The warm-up is ``ceil(learning_starts / (num_envs * unroll))``
 iterations.
 
+Checkpoints (``checkpoints``, one seed): the whole training state between two chunks, written every
+``Checkpoints.every`` env steps and on SIGINT or SIGTERM; a later call with the same settings continues from it
+through the same chunks, to the same result (``agents.learners.offpolicy.checkpoint``).
+
 Curve (one point after the warm-up and after every training chunk of about ``eval_every`` env
 steps): 'step', 'normalized_power' (mean P/Pmax over the last 10 of 200 steps of
 ``eval_episodes`` deterministic episodes on the training model, drift fully on, fixed key),
@@ -285,6 +289,11 @@ class _Session:
         for k, v in point.items():
             run.curve[k].append(v)
         self.report(run, point["normalized_power"], m)
+        self.keep(run, last)
+
+    def keep(self, run, last: bool) -> None:
+        """A checkpoint of ``run`` when one is due (not at the ``last`` point: the caller saves the result) or a
+        signal asked the run to stop (``checkpoint.Stopped`` raised after it)."""
         ck = self.checkpoints
         if ck is not None and (ck.stop_signal is not None or (ck.due(run.step) and not last)):
             if ck.saved_step != run.step:
@@ -318,6 +327,7 @@ class _Session:
         run.timing["compile"] += time.perf_counter() - t0
         sim_per_chunk = run.sim_per_iter * chunk
         while run.chunks < n_chunks:
+            self.keep(run, last=True)  # a stop asked for while compiling: before the next chunk
             t0 = time.perf_counter()
             run.ts, m = train_compiled(run.ts)
             m = jax.device_get(m)
@@ -328,12 +338,25 @@ class _Session:
             self.record(run, m, last=run.chunks == n_chunks)
 
     def results(self, run) -> list[base.TrainResult]:
-        curves = {k: np.stack(run.curve[k], 1) for k in checkpoint.CURVE if k != "step"}
-        steps = np.asarray(run.curve["step"])
-        timing = run_with_total(run, self.t_start).timing
-        return _results(
-            self.learner, self.env_config, self.h, self.seeds, run.ts, steps, curves, timing
-        )
+        """One TrainResult per seed of ``run`` (its seconds shared out over the seeds)."""
+        n, ts = len(self.seeds), run.ts
+        timing = {k: v / n for k, v in run_with_total(run, self.t_start).timing.items()}
+        params = jax.device_get(policy_params(ts))
+        kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
+        curve = {k: np.stack(run.curve[k], 1) for k in checkpoint.CURVE if k != "step"}
+        return [
+            base.TrainResult(
+                self.learner.name,
+                self.env_config,
+                dict(self.h),
+                jax.tree.map(lambda x: x[i], params),
+                dict(step=np.asarray(run.curve["step"]), **{k: v[i] for k, v in curve.items()}),
+                dict(timing, seeds_in_call=n),
+                seed,
+                jax.tree.map(lambda x: x[i], kept),
+            )
+            for i, seed in enumerate(self.seeds)
+        ]
 
 
 def run_with_total(run, t_start: float):
@@ -367,34 +390,3 @@ def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> 
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
     return seeds, c.to_hyper()
-
-
-def _results(
-    learner: Learner,
-    env_config: dict,
-    h: dict,
-    seeds: list,
-    ts,
-    steps: np.ndarray,
-    curves: dict,
-    timing: dict,
-) -> list[base.TrainResult]:
-    """One TrainResult per seed of the seed-batched final state ``ts``, ``curves`` (name -> (seeds, points)) at
-    env ``steps`` and the call's ``timing`` (s, shared out over the seeds)."""
-    timing = {k: v / len(seeds) for k, v in timing.items()}
-    timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(policy_params(ts))
-    kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
-    return [
-        base.TrainResult(
-            learner.name,
-            env_config,
-            dict(h),
-            jax.tree.map(lambda x: x[i], params),
-            dict(step=steps, **{k: v[i] for k, v in curves.items()}),
-            dict(timing),
-            seed,
-            jax.tree.map(lambda x: x[i], kept),
-        )
-        for i, seed in enumerate(seeds)
-    ]
