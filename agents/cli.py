@@ -39,6 +39,7 @@ import agents
 from agents import api as base, registry
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
+from agents.learners.offpolicy.checkpoint import EVERY as CHECKPOINT_EVERY
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c, progress
 from ops_jax.cli.parser import ArgumentParser
 
@@ -118,7 +119,7 @@ def checkpointing(args, out: Path):
         return None
     from agents.learners.offpolicy import checkpoint
 
-    return checkpoint.Checkpoints(out / "checkpoint", args.checkpoint_every or checkpoint.EVERY)
+    return checkpoint.Checkpoints(out / "checkpoint", args.checkpoint_every or CHECKPOINT_EVERY)
 
 
 def replacing(args, out: Path, progress_fn):
@@ -232,7 +233,8 @@ def main(argv=None) -> dict:
         type=int,
         default=None,
         metavar="M",
-        help="env steps between two checkpoints, rounded up to whole training chunks (td3, droq; default 10000)",
+        help="env steps between two checkpoints, rounded up to whole training chunks "
+        f"(td3, droq; default {CHECKPOINT_EVERY})",
     )
     args = ap.parse_args(argv)
     out = args.out or Path("runs") / args.algo
