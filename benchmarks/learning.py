@@ -210,6 +210,7 @@ def format_table(agg: dict) -> str:
 
 def main(argv=None) -> dict:
     from agents.api import ALGOS, algo_module
+    from agents.learners.offpolicy.checkpoint import EVERY
 
     ap = ArgumentParser(
         prog="python -m benchmarks.learning",
@@ -242,8 +243,7 @@ def main(argv=None) -> dict:
         type=int,
         default=None,
         metavar="M",
-        help="TD3, DroQ: env steps between two checkpoints of a run "
-        "(default: agents.learners.offpolicy.checkpoint.EVERY, 10000)",
+        help=f"TD3, DroQ: env steps between two checkpoints of a run (default {EVERY})",
     )
     args = ap.parse_args(argv)
     keep_ctrl_c()
