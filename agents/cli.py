@@ -28,6 +28,7 @@ import sys
 import ast
 import csv
 import dataclasses
+import json
 import shlex
 import shutil
 import signal
@@ -93,24 +94,35 @@ def refusal(args, out: Path) -> str | None:
     return None
 
 
-def check_resume(args, out: Path, env_config: dict, config) -> None:
-    """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with these settings."""
+def check_resume(args, out: Path, env_config: dict, config) -> bool:
+    """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with these settings
+    (False: train on), or the trained policy of one stopped before its evaluation was written (True: that is left)."""
     if not args.resume:
-        return
+        return False
     from agents.learners.offpolicy import checkpoint
 
-    if (out / "summary.json").exists() or checkpoint.stored_meta(out / "checkpoint") is None:
-        raise ValueError(
-            f"--resume: the run in {out} has ended its training (its checkpoint holds no training state); "
-            "--overwrite trains it again"
-        )
+    if (out / "summary.json").exists():
+        raise ValueError(f"--resume: the run in {out} is finished; --overwrite trains it again")
     if args.steps is not None:
         config = dataclasses.replace(config, total_steps=args.steps)
     wanted = checkpoint.identity(args.algo, env_config, config.to_hyper(), [args.seed])
     try:
-        checkpoint.check_fits(out / "checkpoint", wanted)
+        if checkpoint.check_fits(out / "checkpoint", wanted) is not None:
+            return False
+        meta = json.loads((out / "checkpoint" / "meta.json").read_text())
+        trained = [meta["algo"], meta["env_config"], meta["hyper"], [meta["seed"]]]
+        if diffs := checkpoint.differences(checkpoint.identity(*trained), wanted):
+            raise ValueError(
+                f"the policy in {out / 'checkpoint'} is of another run: {'; '.join(diffs)}"
+            )
+    except (OSError, KeyError, TypeError):
+        raise ValueError(
+            f"--resume: the checkpoint in {out} holds no training state to continue; --overwrite trains "
+            "it again"
+        ) from None
     except ValueError as exc:
         raise ValueError(f"--resume: {exc}; give the options the run was started with") from None
+    return True
 
 
 def checkpointing(args, out: Path):
@@ -259,9 +271,11 @@ def main(argv=None) -> dict:
                 f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out"
             )
         module.make_policy(env_config, config.to_hyper())
-        check_resume(args, out, env_config, config)
+        trained = check_resume(args, out, env_config, config)  # True: only its evaluation is left
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
+    if trained:
+        return finish_kept(args, out, env_config, agents.load(out / "checkpoint"))
     logger = None
     if args.logdir is not None:
         from agents.tensorboard import TensorBoardLogger
@@ -317,13 +331,18 @@ def main(argv=None) -> dict:
         bar.close()
         if logger is not None:
             logger.close()
+    return finish_kept(args, out, env_config, result)
+
+
+def finish_kept(args, out: Path, env_config: dict, result) -> dict:
+    """``finish``; a Ctrl-C there is one line saying what was kept (the trained policy: --resume evaluates it)."""
     try:
         return finish(args, out, env_config, result)
     except KeyboardInterrupt:
         kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
         exit_interrupted(
             f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
-            "gives the trained policy)"
+            "gives the trained policy; --resume writes its evaluation)"
         )
 
 

@@ -1,6 +1,7 @@
 """Training that never loses work, in real subprocesses of ``python -m agents``: TD3 stopped by SIGINT and DroQ
 killed by SIGKILL mid-run, after a checkpoint, then resumed, end with the same env steps, curve, parameters and
-testing score as the run never stopped (bit for bit); a second run into the same --out is refused and leaves the
+testing score as the run never stopped (bit for bit); a run stopped after its training, before its evaluation was
+written, is evaluated by --resume; a second run into the same --out is refused and leaves the
 first run's files byte for byte; --overwrite replaces it. The refusals of the other algorithms, in process."""
 
 import json
@@ -129,6 +130,12 @@ def _refused(argv, cwd: Path, words: str) -> None:
     assert _files(cwd / "run") == before
 
 
+def _score(files: dict) -> dict:
+    """The testing score of a finished run's ``summary.json``: all of its evaluation but a wall time."""
+    evaluation = json.loads(files["summary.json"])["evaluation"]
+    return {k: v for k, v in evaluation.items() if k != "inference_s_per_step"}
+
+
 def _the_same_as_never_stopped(argv, cwd: Path) -> None:
     """The finished run in ``cwd/run`` is refused a second time, then ``--overwrite`` trains it again from
     the start without a stop: the same steps, curve, parameters and testing score, bit for bit."""
@@ -141,10 +148,7 @@ def _the_same_as_never_stopped(argv, cwd: Path) -> None:
     h = CONFIG_TYPES[summary[0]["algo"]].make(None, total_steps=STEPS, **SMALL[summary[0]["algo"]])
     warm, n_chunks, chunk = schedule(h.to_hyper())
     assert summary[0]["train_steps"] == summary[1]["train_steps"] == (warm + n_chunks * chunk) * 4
-    scores = [
-        {k: v for k, v in s["evaluation"].items() if k != "inference_s_per_step"} for s in summary
-    ]
-    assert scores[0] == scores[1]  # all but a wall time
+    assert _score(resumed) == _score(never_stopped)
     for name in ("checkpoint/params.msgpack", "curve.csv"):
         assert resumed[name] == never_stopped[name], name
     assert sorted(resumed) == sorted(
@@ -170,6 +174,14 @@ def test_td3_stopped_by_ctrl_c_resumes_to_the_same_result(tmp_path, this_build):
     assert command[:3] == ["python", "-m", "agents"] and command[-1] == "--resume", command
     resumed = _run(command[3:], tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
+    finished = _files(tmp_path / "run")
+    for name in ("summary.json", "curve.csv", "curve.png"):  # as if killed while it evaluated
+        (tmp_path / "run" / name).unlink()
+    evaluated = _run([*argv, "--resume"], tmp_path)  # the trained policy's evaluation, no training
+    assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+    again = _files(tmp_path / "run")
+    assert _score(again) == _score(finished) and again["curve.csv"] == finished["curve.csv"]
+    assert again["checkpoint/params.msgpack"] == finished["checkpoint/params.msgpack"]
     _the_same_as_never_stopped(argv, tmp_path)
 
 

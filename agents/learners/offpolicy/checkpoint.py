@@ -90,13 +90,8 @@ def stored_meta(folder: Path) -> dict | None:
         raise ValueError(f"the training state in {kept} cannot be read: {exc!r}") from exc
 
 
-def check_fits(folder: Path, wanted: dict) -> dict | None:
-    """The stored ``training.json`` in ``folder`` (None without one); ValueError naming each setting in which
-    ``wanted`` (``identity``) differs from it."""
-    meta = stored_meta(folder)
-    if meta is None:
-        return None
-    stored = meta.get("run", {})
+def differences(stored: dict, wanted: dict) -> list[str]:
+    """Each setting in which ``wanted`` differs from ``stored`` (both ``identity``), with both values."""
     diffs = []
     for part, value in wanted.items():
         was = stored.get(part)
@@ -108,6 +103,16 @@ def check_fits(folder: Path, wanted: dict) -> dict | None:
             ]
         elif value != was:
             diffs.append(f"{part} (stored {was!r}, now {value!r})")
+    return diffs
+
+
+def check_fits(folder: Path, wanted: dict) -> dict | None:
+    """The stored ``training.json`` in ``folder`` (None without one); ValueError naming each setting in which
+    ``wanted`` (``identity``) differs from it."""
+    meta = stored_meta(folder)
+    if meta is None:
+        return None
+    diffs = differences(meta.get("run", {}), wanted)
     if diffs or meta.get("format") != FORMAT:
         raise ValueError(
             f"the training state in {folder} is of another run: {'; '.join(diffs) or 'its format'}"
