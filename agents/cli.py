@@ -11,11 +11,11 @@ Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every c
 the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
 (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
 tensorboard extra). An ``--out`` that holds a run (any of ``RUN_FILES``) is refused (exit 2, before any work)
-unless ``--overwrite`` (its run's files deleted before training) or ``--resume`` (TD3 and DroQ: the run continued
-from its checkpoint to its ``--steps`` total, with the options it was started with). TD3 and DroQ write
-``checkpoint/`` as they train, every ``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``).
-It prints the testing score, P/P_best with imperfections, else
-P/Pmax. A progress bar (``ops_jax.cli.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
+unless ``--overwrite`` (its files deleted once the new training has started) or ``--resume`` (TD3 and DroQ: the
+run continued from its checkpoint to its ``--steps`` total, with the options it was started with; a run stopped
+after its training: its evaluation written). TD3 and DroQ write ``checkpoint/`` as they train, every
+``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``). It prints the testing score, P/P_best
+with imperfections, else P/Pmax. A progress bar (``ops_jax.cli.progress``: tqdm on a terminal, plain lines elsewhere) shows env steps,
 steps/s, the latest evaluation P/Pmax and the ETA. Ctrl-C stops it with one line saying what was kept
 and exit status 130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load``
 reads it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other algorithms
