@@ -3,26 +3,37 @@
 Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
 
     python -m agents --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
-                     [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
-                     [--logdir DIR]
+                           [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
+                           [--logdir DIR] [--resume | --overwrite] [--checkpoint-every M]
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
 the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
 (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
-tensorboard extra). It prints the testing score, P/P_best with imperfections, else
-P/Pmax, and the wall time in parts (compiling apart where the trainer times it). A progress bar
-(``ops_jax.cli.progress.StepProgress``: tqdm on a terminal, plain lines elsewhere) shows env steps, the latest
-evaluation P/Pmax, "compiling" until the first report and the remaining time from the rate after it. A budget that
-takes no gradient step is refused before any output, naming the ``--steps`` to type instead; one whose warm-up
-takes most of it is warned about before the work starts (``agents.budgets``). Ctrl-C stops it with one line
-saying what was kept (nothing during training, the checkpoint after it) and exit status 130.
+tensorboard extra). An ``--out`` that holds a run (any of ``RUN_FILES``) is refused (exit 2, before any work)
+unless ``--overwrite`` (its files deleted once the new training has started) or ``--resume`` (TD3 and DroQ: the
+run continued from its checkpoint to its ``--steps`` total, with the options it was started with; a run stopped
+after its training: its evaluation written). TD3 and DroQ write ``checkpoint/`` as they train, every
+``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``). It prints the testing score, P/P_best
+with imperfections, else P/Pmax, and the wall time in parts (compiling apart where the trainer times it). A
+progress bar (``ops_jax.cli.progress.StepProgress``) shows env steps, the latest evaluation P/Pmax, "compiling"
+until the first report and the remaining time from the rate after it. A budget that takes no gradient step is
+refused before any output, naming the ``--steps`` to type instead; one whose warm-up takes most of it is warned
+about before the work starts (``agents.budgets``). Ctrl-C stops it with one line saying what was kept
+and exit status 130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load``
+reads it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other algorithms
+keep nothing of their training; after training, the checkpoint.
 """
 
 from __future__ import annotations
 
 import ast
 import csv
+import dataclasses
+import json
+import shlex
+import shutil
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -30,10 +41,10 @@ from pathlib import Path
 import numpy as np
 
 import agents
-from agents import api as base
-from agents import budgets
+from agents import api as base, budgets, registry
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
+from agents.learners.offpolicy.checkpoint import EVERY as CHECKPOINT_EVERY
 from ops_jax.cli.progress import StepProgress, exit_interrupted, keep_ctrl_c
 from ops_jax.cli.parser import ArgumentParser
 
@@ -54,6 +65,117 @@ def parse_set(items) -> dict:
         except (ValueError, SyntaxError):
             out[k] = v
     return out
+
+
+RUN_FILES = ("checkpoint", "checkpoint.old", "summary.json", "curve.csv", "curve.png")
+
+
+def held_run(out: Path) -> list[str]:
+    """The files of a run of this command that ``out`` holds (none: no run)."""
+    return [name for name in RUN_FILES if (out / name).exists()]
+
+
+def resumable() -> list[str]:
+    """The algorithms that checkpoint as they train and continue a run (the off-policy learners)."""
+    return [a.name for a in registry.REGISTRY.values() if a.off_policy]
+
+
+def refusal(args, out: Path) -> str | None:
+    """Why the arguments cannot run on ``out`` as it is (a run there, and neither --resume nor --overwrite), or
+    cannot resume; None when they can. Reads nothing but the folder's names: before any work."""
+    held, can = held_run(out), resumable()
+    if args.resume and args.overwrite:
+        return "give --resume (continue the run in --out) or --overwrite (replace it), not both"
+    if args.algo not in can and (args.resume or args.checkpoint_every is not None):
+        option = "--resume" if args.resume else "--checkpoint-every"
+        return (
+            f"{option}: {args.algo} does not checkpoint while it trains, so it cannot continue a run "
+            f"mid-way ({' and '.join(can)} can); --overwrite trains it again"
+        )
+    if args.resume and not held:
+        return f"--resume: no run in {out} to continue; leave --resume out to start one"
+    if held and not (args.resume or args.overwrite):
+        return (
+            f"--out {out} holds a run ({', '.join(held)}): give --resume to continue it or "
+            "--overwrite to replace it"
+        )
+    return None
+
+
+def check_resume(args, out: Path, env_config: dict, config) -> bool:
+    """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with these settings
+    (False: train on), or the trained policy of one stopped before its evaluation was written (True: that is left)."""
+    if not args.resume:
+        return False
+    from agents.learners.offpolicy import checkpoint
+
+    if (out / "summary.json").exists():
+        raise ValueError(f"--resume: the run in {out} is finished; --overwrite trains it again")
+    if args.steps is not None:
+        config = dataclasses.replace(config, total_steps=args.steps)
+    wanted = checkpoint.identity(args.algo, env_config, config.to_hyper(), [args.seed])
+    try:
+        if checkpoint.check_fits(out / "checkpoint", wanted) is not None:
+            return False
+        meta = json.loads((out / "checkpoint" / "meta.json").read_text())
+        trained = [meta["algo"], meta["env_config"], meta["hyper"], [meta["seed"]]]
+        if diffs := checkpoint.differences(checkpoint.identity(*trained), wanted):
+            raise ValueError(
+                f"the policy in {out / 'checkpoint'} is of another run: {'; '.join(diffs)}"
+            )
+    except (OSError, KeyError, TypeError):
+        raise ValueError(
+            f"--resume: the checkpoint in {out} holds no training state to continue; --overwrite trains "
+            "it again"
+        ) from None
+    except ValueError as exc:
+        raise ValueError(f"--resume: {exc}; give the options the run was started with") from None
+    return True
+
+
+def checkpointing(args, out: Path):
+    """The run's ``Checkpoints`` into ``out/checkpoint`` (TD3, DroQ), else None."""
+    if args.algo not in resumable():
+        return None
+    from agents.learners.offpolicy import checkpoint
+
+    return checkpoint.Checkpoints(out / "checkpoint", args.checkpoint_every or CHECKPOINT_EVERY)
+
+
+def replacing(args, out: Path, progress_fn):
+    """``progress_fn``; with --overwrite, its first call first deletes the run in ``out``: once training has
+    started, every check passed (a refused budget or a Ctrl-C while starting keeps the old run)."""
+    if not args.overwrite:
+        return progress_fn
+    cleared = []
+
+    def report(step: int, metrics: dict) -> None:
+        if not cleared:
+            for name in held_run(out):
+                path = out / name
+                shutil.rmtree(path) if path.is_dir() else path.unlink()
+            cleared.append(step)
+        progress_fn(step, metrics)
+
+    return report
+
+
+def interrupted(argv, out: Path, at: str, checkpoints, stop) -> tuple[str, int]:
+    """The line and exit status of a training stopped by Ctrl-C or SIGTERM (``stop``): what was kept, how to go on."""
+    status = 128 + getattr(stop, "signum", signal.SIGINT)
+    saved = None if checkpoints is None else checkpoints.saved_step
+    if saved is None:
+        again = "run the same command again to train from the start"
+        return f"stopped {at}; nothing written to {out}; {again}", status
+    words = [
+        w for w in (sys.argv[1:] if argv is None else argv) if w not in ("--overwrite", "--resume")
+    ]
+    again = shlex.join(["python", "-m", "agents", *words, "--resume"])
+    return (
+        f"stopped {at}; the run up to step {saved:,} is in {out / 'checkpoint'} (agents.load reads it); "
+        f"continue it with: {again}",
+        status,
+    )
 
 
 def write_curve_csv(path: Path, curve: dict) -> None:
@@ -125,17 +247,29 @@ def main(argv=None) -> dict:
         default=None,
         help="TensorBoard event files of the training curve (needs the tensorboard extra)",
     )
+    ap.add_argument("--resume", action="store_true", help="continue the run in --out (td3, droq)")
+    ap.add_argument("--overwrite", action="store_true", help="replace the run in --out")
+    ap.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        metavar="M",
+        help="env steps between two checkpoints, rounded up to whole training chunks "
+        f"(td3, droq; default {CHECKPOINT_EVERY})",
+    )
     args = ap.parse_args(argv)
+    out = args.out or Path("runs") / args.algo
+    if (refused := refusal(args, out)) is not None:
+        ap.exit(2, f"{ap.prog}: error: {refused}\n")
     keep_ctrl_c()
 
-    out = args.out or Path("runs") / args.algo
     try:
         module = base.algo_module(
             args.algo
         )  # its extra's imports fail here, before the progress starts
     except KeyboardInterrupt:
         exit_interrupted(f"stopped while starting; nothing written to {out}")
-    ap.check_least(args, steps=0, episodes=1)
+    ap.check_least(args, steps=0, episodes=1, checkpoint_every=1)
     try:  # every argument checked before the progress starts: a mistake is one line
         env_config = base.check_env_config(
             {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
@@ -146,10 +280,13 @@ def main(argv=None) -> dict:
                 f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out"
             )
         module.make_policy(env_config, config.to_hyper())
+        trained = check_resume(args, out, env_config, config)  # True: only its evaluation is left
         total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
-        warning = None if total is None else budgets.check(config, total, "--steps", " ")
+        warning = None if total is None or trained else budgets.check(config, total, "--steps", " ")
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
+    if trained:
+        return finish_kept(args, out, env_config, agents.load(out / "checkpoint"))
     if warning:
         print(f"{ap.prog}: warning: {warning}", file=sys.stderr, flush=True)
     logger = None
@@ -161,6 +298,7 @@ def main(argv=None) -> dict:
         except ImportError as e:  # one line naming the extra, not a traceback
             raise SystemExit(f"python -m agents --logdir: {e}") from None
     bar = StepProgress(total, f"{args.algo} {args.mode} N={args.stages}")
+    checkpoints = checkpointing(args, out)
     show = bar
     if logger is not None:
         logger.then, show = show, logger
@@ -172,9 +310,10 @@ def main(argv=None) -> dict:
                 env_config,
                 seed=args.seed,
                 total_steps=args.steps,
-                progress_fn=show,
+                progress_fn=replacing(args, out, show),
                 progress=False,
                 config=config,
+                **({} if checkpoints is None else {"checkpoints": checkpoints}),
             )
     except ValueError as exc:
         if bar.first is not None:  # a failure during training: its traceback
@@ -184,23 +323,27 @@ def main(argv=None) -> dict:
             str(exc).replace("total_steps", "--steps", 1) if args.steps is not None else str(exc)
         )
         ap.exit(2, f"{ap.prog}: error: {message}\n")
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
         bar.close()
-        at = f"at step {bar.n:,} of {total:,}" if total else "during training"
-        exit_interrupted(
-            f"stopped {at}; nothing written to {out}; run the same command again to train from the start"
-        )
+        step = getattr(stop, "step", bar.n)
+        at = f"at step {step:,} of {total:,}" if total else "during training"
+        exit_interrupted(*interrupted(argv, out, at, checkpoints, stop))
     finally:
         bar.close()
         if logger is not None:
             logger.close()
+    return finish_kept(args, out, env_config, result)
+
+
+def finish_kept(args, out: Path, env_config: dict, result) -> dict:
+    """``finish``; a Ctrl-C there is one line saying what was kept (the trained policy: --resume evaluates it)."""
     try:
         return finish(args, out, env_config, result)
     except KeyboardInterrupt:
         kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
         exit_interrupted(
             f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
-            "gives the trained policy)"
+            "gives the trained policy; --resume writes its evaluation)"
         )
 
 

@@ -3,7 +3,7 @@ report the testing P/Pmax (mean +- std over seeds), wall time per run and test-t
 
     python -m benchmarks.learning [--algos td3 sac ...] [--modes easy medium hard] [--seeds 5]
                                   [--stages 5] [--steps N] [--config fast] [--episodes 50]
-                                  [--out results/learning] [--fresh]
+                                  [--out results/learning] [--fresh] [--checkpoint-every M]
 
 Each run: ``agents.train(algo, {"stages", "mode"}, seed=s, total_steps=--steps, config=--config)``,
 then ``agents.evaluate`` on the testing environment (seed 1000 + s, drift fully on in hard mode,
@@ -13,8 +13,11 @@ that do, and the wall time (total, simulation, optimisation). Results go to ``<o
 (rewritten atomically after every run; a stored run with the same hyperparameters, as resolved now
 (so a changed default counts), and the same --episodes is reused, and said so, unless ``--fresh``;
 one with others is rerun)
-and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. A run that fails is recorded with
-its error and printed; nothing is skipped silently.
+and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. TD3 and DroQ write that checkpoint as they train
+too, every ``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``): a run stopped by Ctrl-C
+(one line, exit status 130, the finished runs kept) or a kill continues from it when the command is run again with
+the same settings (a checkpoint of other settings, or with ``--fresh``, is discarded, and said so). A run that
+fails is recorded with its error and printed; nothing is skipped silently.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import numpy as np
 
 from agents.io import read_json, write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
-from ops_jax.cli.progress import keep_ctrl_c
+from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 
 
 def run_key(algo: str, mode: str, seed: int) -> str:
@@ -47,6 +50,32 @@ def expected_hyper(algo: str, steps, config) -> dict:
     return json.loads(json.dumps(h))
 
 
+def checkpointing(
+    algo: str, env_config: dict, seed: int, steps, config, folder: Path, every, fresh
+):
+    """``(Checkpoints in folder, a note)`` of a TD3 or DroQ run (a checkpoint there of other settings, or with
+    ``fresh``, removed; the note says so, or from which step the run continues), else ``(None, None)``."""
+    import shutil
+
+    from agents import api as base, registry
+    from agents.learners.offpolicy import checkpoint
+
+    if not registry.get(algo).off_policy:
+        return None, None
+    env_config = base.check_env_config(env_config)
+    wanted = checkpoint.identity(algo, env_config, expected_hyper(algo, steps, config), [seed])
+    try:
+        meta = checkpoint.check_fits(folder, wanted)
+        note = None if meta is None else f"continuing from its checkpoint at step {meta['step']:,}"
+        if meta is not None and fresh:
+            raise ValueError("--fresh")
+    except ValueError as exc:
+        note = f"discarding its checkpoint: {exc}"
+        for stale in (folder, Path(f"{folder}.old")):
+            shutil.rmtree(stale, ignore_errors=True)
+    return checkpoint.Checkpoints(folder, every or checkpoint.EVERY), note
+
+
 def run_one(
     algo: str,
     stages: int,
@@ -56,13 +85,16 @@ def run_one(
     config,
     episodes: int,
     ckpt_dir: Path | None,
+    checkpoints=None,
 ) -> dict:
-    """Train and evaluate one (algo, mode, seed); returns the run record."""
+    """Train and evaluate one (algo, mode, seed), ``checkpoints`` (TD3, DroQ) as it trains; the run record."""
     import agents
     from agents import api as base
 
-    env_config = {"stages": stages, "mode": mode}
+    env_config = base.check_env_config({"stages": stages, "mode": mode})
     hyper = {} if config is None else {"config": config}
+    if checkpoints is not None:
+        hyper["checkpoints"] = checkpoints
     t0 = time.perf_counter()
     result = base.train(algo, env_config, seed=seed, total_steps=steps, progress=False, **hyper)
     train_s = time.perf_counter() - t0
@@ -89,6 +121,52 @@ def run_one(
         curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
         hyper=result.hyper,
     )
+
+
+def run_job(args, job: tuple, ckpt_dir: Path | None, write, kept: str) -> dict:
+    """The run record of ``job`` (algo, mode, seed) with ``main``'s arguments, its checkpoints (TD3, DroQ), lines
+    to ``write``; a Ctrl-C or SIGTERM is one line (``kept``: what the finished runs left) and exit status 130 (143)."""
+    algo, mode, seed = job
+    key, checkpoints = run_key(*job), None
+    try:
+        if ckpt_dir is not None:
+            checkpoints, note = checkpointing(
+                algo,
+                {"stages": args.stages, "mode": mode},
+                seed,
+                args.steps,
+                args.config,
+                ckpt_dir / f"{algo}_{mode}_s{seed}",
+                args.checkpoint_every,
+                args.fresh,
+            )
+            if note:
+                write(f"{key}: {note}")
+        rec = run_one(
+            algo,
+            args.stages,
+            mode,
+            seed,
+            args.steps,
+            args.config,
+            args.episodes,
+            ckpt_dir,
+            checkpoints,
+        )
+    except KeyboardInterrupt as stop:
+        saved = checkpoints is not None and checkpoints.saved_step is not None
+        exit_interrupted(
+            f"stopped during {key}; {kept}"
+            + (f", this run's checkpoint in {checkpoints.folder}" if saved else "")
+            + "; run the same command again to go on from there",
+            128 + getattr(stop, "signum", 2),
+        )
+    wall = rec["wall_time"].get("total", float("nan"))
+    write(
+        f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
+        f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s"
+    )
+    return rec
 
 
 def aggregate(runs: list[dict]) -> dict:
@@ -132,6 +210,7 @@ def format_table(agg: dict) -> str:
 
 def main(argv=None) -> dict:
     from agents.api import ALGOS, algo_module
+    from agents.learners.offpolicy.checkpoint import EVERY
 
     ap = ArgumentParser(
         prog="python -m benchmarks.learning",
@@ -159,9 +238,18 @@ def main(argv=None) -> dict:
         "--fresh", action="store_true", help="ignore runs already in <out>/learning.json"
     )
     ap.add_argument("--no-checkpoints", action="store_true")
+    ap.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        metavar="M",
+        help=f"TD3, DroQ: env steps between two checkpoints of a run (default {EVERY})",
+    )
     args = ap.parse_args(argv)
     keep_ctrl_c()
-    ap.check_least(args, seeds=1, stages=1, episodes=1, steps=0)  # before any run
+    ap.check_least(
+        args, seeds=1, stages=1, episodes=1, steps=0, checkpoint_every=1
+    )  # before any run
     for algo in args.algos:  # a missing extra stops here, at once, naming its install command
         algo_module(algo)
 
@@ -200,14 +288,8 @@ def main(argv=None) -> dict:
         if stored is not None:
             bar.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
         try:
-            rec = run_one(
-                algo, args.stages, mode, seed, args.steps, args.config, args.episodes, ckpt_dir
-            )
-            wall = rec["wall_time"].get("total", float("nan"))
-            bar.write(
-                f"{key}: testing P/Pmax {rec['testing_p_pmax']:.4f}, steps to 0.9 {rec['steps_to_0p9']}, "
-                f"{rec['fraction_reached_0p9']:.0%} reach it, wall {wall:.1f} s"
-            )
+            kept = f"the {len(runs)} finished runs are in {path}"
+            rec = run_job(args, (algo, mode, seed), ckpt_dir, bar.write, kept)
         except Exception as exc:  # recorded and printed, never silently skipped
             rec = dict(
                 algo=algo,

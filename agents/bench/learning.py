@@ -40,6 +40,7 @@ import numpy as np
 
 from agents import api as base, registry
 from agents.learners.offpolicy import observer, driver as offpolicy, replay
+from agents.learners.offpolicy.checkpoint import is_key, raw_keys
 from agents.bench.loop import check_lengths
 from agents.envs import built, train_env_config
 from agents.io import kept_dir, replace_dir, temp_dir, write_json_atomic
@@ -207,15 +208,6 @@ def mend_documents(path: Path) -> None:
                 f.truncate(size - len(tail) + start)
 
 
-def _is_key(x) -> bool:
-    return jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
-
-
-def _raw(tree):
-    """``tree`` with its PRNG keys as their raw data (serialisable)."""
-    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
-
-
 def _acting(ts):
     """What the exploration reads of a training state: the actor's parameters and the observation statistics."""
     return ts._replace(
@@ -294,9 +286,9 @@ class Learning:
             state = serialization.msgpack_restore((checkpoint / "learner.msgpack").read_bytes())
             meta = json.loads((checkpoint / "learner.json").read_text())
             template = self._saved()
-            raw = serialization.from_state_dict(_raw(template), state["state"])
+            raw = serialization.from_state_dict(raw_keys(template), state["state"])
             fields = jax.tree.map(
-                lambda f, r: jax.random.wrap_key_data(r) if _is_key(f) else jnp.asarray(r, f.dtype),
+                lambda f, r: jax.random.wrap_key_data(r) if is_key(f) else jnp.asarray(r, f.dtype),
                 template,
                 raw,
             )
@@ -527,7 +519,7 @@ class Learning:
             c.curve["step"].append(c.env_steps)
             c.curve["normalized_power"].append(self.power_sum[0] / self.power_sum[1])
             self.power_sum = [0.0, 0]
-        host = jax.device_get(_raw(self._saved()))
+        host = jax.device_get(raw_keys(self._saved()))
         result = base.TrainResult(
             self.learner.name,
             self.env_config,

@@ -259,10 +259,10 @@ def _interrupt_main_soon() -> None:
     _thread.interrupt_main(signal.SIGINT)
 
 
-def exit_interrupted(line: str) -> None:
-    """Ctrl-C: print ``line`` (what was kept) and exit at once with status 130 (128 + SIGINT, as a shell
-    reports it). ``os._exit``: XLA may be mid-computation in its own threads, and the normal interpreter
-    teardown then can crash."""
+def exit_interrupted(line: str, status: int = 130) -> None:
+    """Ctrl-C: print ``line`` (what was kept) and exit at once with ``status``, 130 (128 + SIGINT, as a shell
+    reports it; 143 for SIGTERM). ``os._exit``: XLA may be mid-computation in its own threads, and the normal
+    interpreter teardown then can crash."""
     sys.stdout.flush()
     print(f"interrupted: {line}", file=sys.stderr, flush=True)
-    os._exit(130)
+    os._exit(status)

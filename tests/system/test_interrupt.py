@@ -1,4 +1,4 @@
-"""Ctrl-C on the training command, the throughput benchmark and the GIF command, in real subprocesses under a watchdog:
+"""Ctrl-C on the training command (TD3: its checkpoint written), the throughput benchmark and the GIF command, in real subprocesses under a watchdog:
 one line saying what was kept, exit status 130, no traceback."""
 
 import json
@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import agents
 from processes import default_sigint
 
 REPO = Path(__file__).resolve().parents[2]
@@ -59,15 +60,17 @@ def _last_line(out: subprocess.CompletedProcess) -> str:
 
 
 def test_ctrl_c_during_training_exits_130_with_one_line(tmp_path):
-    out = _interrupt_after(
-        ["-m", "agents", "--algo", "td3", "--stages", "2", "--steps", "1000000", "--out", "run"],
-        "step/s",
-        tmp_path,
-    )
+    args = ["-m", "agents", "--algo", "td3", "--stages", "2", "--steps", "1000000", "--out", "run"]
+    out = _interrupt_after(args, "step/s", tmp_path)
     line = _last_line(out)
     assert out.returncode == 130, out.stdout[-2000:]
     assert line.startswith("interrupted: stopped at step ") and "of 1,000,000" in line, line
-    assert "run the same command again" in line and not (tmp_path / "run").exists()
+    step = int(
+        line.split()[4].replace(",", "")
+    )  # TD3 ends its chunk and writes its checkpoint there
+    assert f"the run up to step {step:,} is in run/checkpoint (agents.load reads it)" in line, line
+    assert line.endswith("continue it with: python -m agents " + " ".join(args[2:]) + " --resume")
+    assert agents.load(tmp_path / "run" / "checkpoint").env_steps == step
 
 
 def test_ctrl_c_during_throughput_keeps_the_measured_rows(tmp_path):

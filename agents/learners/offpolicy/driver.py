@@ -29,6 +29,10 @@ iterations (an estimate: it leaves out the actor's forward pass used for explora
 ``optimisation`` = training-chunk time - that estimate. The warm-up is ``ceil(learning_starts / (num_envs * unroll))``
 iterations.
 
+Checkpoints (``checkpoints``, one seed): the whole training state between two chunks, written every
+``Checkpoints.every`` env steps and on SIGINT or SIGTERM; a later call with the same settings continues from it
+through the same chunks, to the same result (``agents.learners.offpolicy.checkpoint``).
+
 Curve (one point after the warm-up and after every training chunk of about ``eval_every`` env
 steps): 'step', 'normalized_power' (mean P/Pmax over the last 10 of 200 steps of
 ``eval_episodes`` deterministic episodes on the training model, drift fully on, fixed key),
@@ -37,6 +41,7 @@ steps): 'step', 'normalized_power' (mean P/Pmax over the last 10 of 200 steps of
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from typing import Callable, NamedTuple, Sequence
@@ -46,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import api as base
-from agents.learners.offpolicy import observer, replay
+from agents.learners.offpolicy import build, checkpoint, observer, replay
 from agents.envs import built, train_env_config
 
 
@@ -113,129 +118,6 @@ class Learner(NamedTuple):
         wrapped by ``agents.learners.offpolicy.observer.Observed`` with an observer."""
         seen = self._observer(env_config, h)
         return env if seen is None else observer.Observed(env, seen)
-
-
-def seed_axes(ts):
-    """vmap axes of a seed-batched training state: 0 for every per-seed leaf; ``None`` for what
-    all seeds share (the step counts and buffer positions, which advance identically, and the
-    environment parameters). Shared counters keep ``lax.cond`` a real branch under vmap (the
-    buffer's wrap-around roll, the delayed actor update) instead of computing both sides."""
-    axes = jax.tree.map(lambda _: 0, ts)
-    buffer = axes.buffer.replace(insert_position=None, sample_position=None)
-    return axes._replace(buffer=buffer, updates=None, env_params=None)
-
-
-def _placed_first(place, out):
-    """``(place(ts), rest)`` of a ``(ts, rest)`` pair."""
-    return place(out[0]), out[1]
-
-
-def _over_seeds(fns: dict, evaluate_fn, ts_shape, num_seeds: int, sharding) -> dict:
-    """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
-    the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
-    measured ~10% slower on CPU). With a ``sharding`` of the seed axis, every returned state is
-    constrained to it (per-seed leaves split over devices, shared leaves replicated), so each
-    compiled function gets the layout it was compiled for."""
-    axes = seed_axes(ts_shape)
-    is_none = lambda x: x is None  # noqa: E731
-
-    def place(ts):
-        if sharding is None:
-            return ts
-        shared = jax.sharding.NamedSharding(sharding.mesh, jax.sharding.PartitionSpec())
-        return jax.tree.map(
-            lambda a, sub: jax.lax.with_sharding_constraint(sub, sharding if a == 0 else shared),
-            axes,
-            ts,
-            is_leaf=is_none,
-        )
-
-    if num_seeds > 1:
-
-        def over(f, in_axes, out_axes):
-            return jax.vmap(f, in_axes=in_axes, out_axes=out_axes)
-    else:
-
-        def reshape(tree, axes, fn):
-            return jax.tree.map(
-                lambda a, sub: sub if a is None else jax.tree.map(fn, sub),
-                axes,
-                tree,
-                is_leaf=is_none,
-            )
-
-        def over(f, in_axes, out_axes):
-            def one(*args):
-                out = f(*(reshape(x, a, lambda v: v[0]) for x, a in zip(args, in_axes)))
-                return reshape(out, out_axes, lambda v: v[None])
-
-            return one
-
-    def train_chunk(ts, n):
-        ts, metrics = over(lambda t: fns["train_chunk"](t, n), (axes,), (axes, 0))(ts)
-        return place(ts), metrics
-
-    return dict(
-        init=jax.jit(lambda k, p: place(over(fns["init"], (0, None), axes)(k, p))),
-        warmup=jax.jit(
-            lambda ts, n, random: _placed_first(
-                place, over(lambda t: fns["warmup"](t, n, random), (axes,), (axes, 0))(ts)
-            ),
-            static_argnums=(1, 2),
-        ),
-        fit_norm=jax.jit(lambda ts, obs: place(over(fns["fit_norm"], (axes, 0), axes)(ts, obs))),
-        train_chunk=jax.jit(train_chunk, static_argnums=1, donate_argnums=0),
-        evaluate=jax.jit(over(evaluate_fn, (0, None, 0, None), 0)),
-    )
-
-
-# Hyperparameters that leave the compiled training programs unchanged.
-_RUN_KEYS = ("config", "total_steps", "learning_starts", "eval_every", "eval_episodes")
-_BUILDS: dict = {}
-
-
-def _cached_build(learner: Learner, env_config: dict, h: dict, num_seeds: int) -> dict:
-    """Seed-vmapped jitted training functions, built once per (learner, static env config,
-    hyperparameters) in this process, so that other seeds or modes (their ``EnvParams`` are
-    arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
-    env, env_params = built(train_env_config(env_config, h["train_reward"]))
-    sharding = base.split_over_devices(num_seeds, "seeds")
-    key = (
-        learner.name,
-        env.config,
-        repr(sorted((k, v) for k, v in h.items() if k not in _RUN_KEYS)),
-        num_seeds > 1,
-        sharding,
-    )
-    if key not in _BUILDS:
-        raw = learner.build(learner.training_env(env, env_config, h), h)
-        evaluate_fn = base.evaluator(
-            env, learner.make_policy(env_config, h), env.config.max_steps, 10
-        )
-        ts_shape = jax.eval_shape(raw["init"], jax.random.key(0), env_params)
-        fns = _over_seeds(raw, evaluate_fn, ts_shape, num_seeds, sharding)
-        fns["sharding"] = sharding
-        compiled = {}
-
-        def get_compiled(name, *args):
-            """``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts, length); "evaluate":
-            its args) compiled."""
-            static = args[1:] if name in ("warmup", "train_chunk") else None
-            arrays = args[:1] if static is not None else args
-            sig = (
-                name,
-                static,
-                str(
-                    jax.tree.map(lambda x: (x.shape, x.dtype, getattr(x, "sharding", None)), arrays)
-                ),
-            )
-            if sig not in compiled:
-                compiled[sig] = fns[name].lower(*args).compile()
-            return compiled[sig]
-
-        fns["compiled"] = get_compiled
-        _BUILDS[key] = fns
-    return _BUILDS[key], env_params
 
 
 def check_seed(seed):
@@ -323,6 +205,7 @@ def train_seeds(
     config=None,
     snapshot_fn: Callable[[int, list], None] | None = None,
     start_from=None,
+    checkpoints: checkpoint.Checkpoints | None = None,
     **hyper,
 ) -> list[base.TrainResult]:
     """Train ``learner`` for several seeds at once: one jitted call vmapped over the seeds (sharded
@@ -330,81 +213,155 @@ def train_seeds(
     ``snapshot_fn(step, params)`` (optional) gets each seed's policy params (host copies) after the
     warm-up and after every training chunk: a run of ``total_steps`` T passes through the states of
     the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up).
-    ``start_from`` (optional): one TrainResult of this learner per seed, continued (module docstring)."""
+    ``start_from`` (optional): one TrainResult of this learner per seed, continued (module docstring).
+    ``checkpoints`` (optional; one seed, no ``start_from``): an ``agents.learners.offpolicy.checkpoint.Checkpoints``:
+    the run checkpoints as it trains, continues the run stored there, and stops on SIGINT or SIGTERM at the end of
+    the current chunk with a checkpoint (raising ``checkpoint.Stopped``)."""
     env_config = base.check_env_config(env_config)
     seeds, h = _run_settings(learner, seeds, total_steps, config, hyper)
+    if checkpoints is not None and (len(seeds) > 1 or start_from is not None):
+        raise ValueError("checkpoints take one seed and no start_from")
     warm_iters, n_chunks, chunk = schedule(h)
-    per_iter = h["num_envs"] * h["unroll"]
-    fns, env_params = _cached_build(learner, env_config, h, len(seeds))
-    eval_ids = jnp.arange(h["eval_episodes"])
+    fns, env_params = build.cached_build(learner, env_config, h, len(seeds))
+    session = _Session(learner, env_config, h, seeds, fns, env_params)
+    session.progress_fn, session.snapshot_fn = progress_fn, snapshot_fn
+    with checkpoints.stop_requests() if checkpoints else contextlib.nullcontext():
+        ts = fns["init"](session.k_init, env_params)
+        run = checkpoints.restore(ts, session.wanted) if checkpoints else None
+        session.checkpoints = checkpoints
+        if run is None:
+            if start_from is not None:
+                ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
+            run = session.start(ts, warm_iters, random=start_from is None)
+            session.record(run, None, last=n_chunks == 0)
+        else:  # this call's seconds add to the stored run's
+            session.t_start -= run.timing.pop("total")
+            session.compile_evaluation(run)
+        session.train(run, n_chunks, chunk)
+    return session.results(run)
 
-    t_start = time.perf_counter()
-    timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
-    keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
-    k_init, k_eval = keys[:, 0], keys[:, 1]
-    if fns["sharding"] is not None:
-        k_init, k_eval = jax.device_put((k_init, k_eval), fns["sharding"])
-    ts = fns["init"](k_init, env_params)
-    if start_from is not None:
-        ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
-    ts, sim_per_iter = _warm_up(fns, ts, warm_iters, timing, random=start_from is None)
 
-    t0 = time.perf_counter()
-    evaluate_fn = fns["compiled"]("evaluate", policy_params(ts), env_params, k_eval, eval_ids)
-    timing["compile"] += time.perf_counter() - t0
+class _Session:
+    """One call of ``train_seeds``: its evaluation, reports, checkpoints and training chunks around a ``Run``."""
 
-    def run_eval(ts):
+    progress_fn = snapshot_fn = checkpoints = None
+
+    def __init__(self, learner, env_config, h, seeds, fns, env_params):
+        self.learner, self.env_config, self.h, self.seeds = learner, env_config, h, seeds
+        self.fns, self.env_params, self.t_start = fns, env_params, time.perf_counter()
+        self.eval_ids, self.per_iter = jnp.arange(h["eval_episodes"]), h["num_envs"] * h["unroll"]
+        self.wanted = checkpoint.identity(learner.name, env_config, h, seeds)
+        keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
+        self.k_init, self.k_eval = keys[:, 0], keys[:, 1]
+        if fns["sharding"] is not None:
+            self.k_init, self.k_eval = jax.device_put((self.k_init, self.k_eval), fns["sharding"])
+
+    def start(self, ts, warm_iters: int, random: bool):
+        """The ``Run`` after the warm-up of the fresh (or continued) state ``ts``, its evaluation compiled."""
+        timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
+        ts, sim_per_iter = _warm_up(self.fns, ts, warm_iters, timing, random)
+        curve = {k: [] for k in checkpoint.CURVE}
+        run = checkpoint.Run(ts, warm_iters * self.per_iter, 0, curve, timing, sim_per_iter)
+        self.compile_evaluation(run)
+        return run
+
+    def compile_evaluation(self, run) -> None:
         t0 = time.perf_counter()
-        npow = evaluate_fn(policy_params(ts), env_params, k_eval, eval_ids)[0]
-        npow = np.asarray(npow)  # (seeds, steps, episodes)
-        timing["evaluation"] += time.perf_counter() - t0
-        return npow[:, -10:].mean((1, 2)), npow[:, -1].mean(1)
+        args = (policy_params(run.ts), self.env_params, self.k_eval, self.eval_ids)
+        self.evaluate = self.fns["compiled"]("evaluate", *args)
+        run.timing["compile"] += time.perf_counter() - t0
 
-    def report(step, npow, m=None):
-        if snapshot_fn is not None:
-            params = jax.device_get(policy_params(ts))
-            snapshot_fn(step, [jax.tree.map(lambda x: x[i], params) for i in range(len(seeds))])
-        if progress_fn is not None:
-            progress_fn(
-                step,
+    def record(self, run, m, last: bool) -> None:
+        """Evaluate the run's state, add the curve point, report it; then a checkpoint when due or asked for
+        (``checkpoint.Stopped`` after the latter)."""
+        t0 = time.perf_counter()
+        npow = self.evaluate(policy_params(run.ts), self.env_params, self.k_eval, self.eval_ids)[0]
+        npow = np.asarray(npow)  # (seeds, steps, episodes)
+        run.timing["evaluation"] += time.perf_counter() - t0
+        nan = np.full(len(self.seeds), np.nan)
+        point = dict(
+            step=run.step,
+            normalized_power=npow[:, -10:].mean((1, 2)),
+            final_normalized_power=npow[:, -1].mean(1),
+            critic_loss=nan if m is None else np.asarray(m["critic_loss"]),
+            actor_loss=nan if m is None else np.asarray(m["actor_loss"]),
+        )
+        for k, v in point.items():
+            run.curve[k].append(v)
+        self.report(run, point["normalized_power"], m)
+        self.keep(run, last)
+
+    def keep(self, run, last: bool) -> None:
+        """A checkpoint of ``run`` when one is due (not at the ``last`` point: the caller saves the result) or a
+        signal asked the run to stop (``checkpoint.Stopped`` raised after it)."""
+        ck = self.checkpoints
+        if ck is not None and (ck.stop_signal is not None or (ck.due(run.step) and not last)):
+            if ck.saved_step != run.step:
+                ck.write(run_with_total(run, self.t_start), self.wanted, self.results(run)[0])
+            if ck.stop_signal is not None:
+                raise checkpoint.Stopped(ck.stop_signal, run.step)
+
+    def report(self, run, npow, m) -> None:
+        if self.snapshot_fn is not None:
+            params = jax.device_get(policy_params(run.ts))
+            self.snapshot_fn(
+                run.step, [jax.tree.map(lambda x: x[i], params) for i in range(len(self.seeds))]
+            )
+        if self.progress_fn is not None:
+            self.progress_fn(
+                run.step,
                 dict(
                     normalized_power=float(npow.mean()),
-                    elapsed_s=time.perf_counter() - t_start,
-                    update_ratio=replay.updates_per_iter(h) / per_iter,
+                    elapsed_s=time.perf_counter() - self.t_start,
+                    update_ratio=replay.updates_per_iter(self.h) / self.per_iter,
                     **_chunk_metrics(m),
                 ),
             )
 
-    nan = np.full(len(seeds), np.nan)
-    step = warm_iters * per_iter
-    sim_per_chunk = sim_per_iter * chunk
-    if chunk:
+    def train(self, run, n_chunks: int, chunk: int) -> None:
+        """The run's remaining training chunks, each followed by ``record``."""
+        if run.chunks >= n_chunks:
+            return
         t0 = time.perf_counter()
-        train_compiled = fns["compiled"]("train_chunk", ts, chunk)
-        timing["compile"] += time.perf_counter() - t0
-    npow, final = run_eval(ts)
-    steps, npows, finals, closses, alosses = [step], [npow], [final], [nan], [nan]
-    report(step, npow)
-    for _ in range(n_chunks):
-        t0 = time.perf_counter()
-        ts, m = train_compiled(ts)
-        m = jax.device_get(m)
-        dt = time.perf_counter() - t0
-        timing["simulation"] += min(sim_per_chunk, dt)
-        timing["optimisation"] += max(0.0, dt - sim_per_chunk)
-        step += chunk * per_iter
-        npow, final = run_eval(ts)
-        steps.append(step), npows.append(npow), finals.append(final)
-        closses.append(np.asarray(m["critic_loss"])), alosses.append(np.asarray(m["actor_loss"]))
-        report(step, npow, m)
-    timing["total"] = time.perf_counter() - t_start
-    curves = dict(
-        normalized_power=np.stack(npows, 1),
-        final_normalized_power=np.stack(finals, 1),
-        critic_loss=np.stack(closses, 1),
-        actor_loss=np.stack(alosses, 1),
-    )
-    return _results(learner, env_config, h, seeds, ts, np.asarray(steps), curves, timing)
+        train_compiled = self.fns["compiled"]("train_chunk", run.ts, chunk)
+        run.timing["compile"] += time.perf_counter() - t0
+        sim_per_chunk = run.sim_per_iter * chunk
+        while run.chunks < n_chunks:
+            self.keep(run, last=True)  # a stop asked for while compiling: before the next chunk
+            t0 = time.perf_counter()
+            run.ts, m = train_compiled(run.ts)
+            m = jax.device_get(m)
+            dt = time.perf_counter() - t0
+            run.timing["simulation"] += min(sim_per_chunk, dt)
+            run.timing["optimisation"] += max(0.0, dt - sim_per_chunk)
+            run.step, run.chunks = run.step + chunk * self.per_iter, run.chunks + 1
+            self.record(run, m, last=run.chunks == n_chunks)
+
+    def results(self, run) -> list[base.TrainResult]:
+        """One TrainResult per seed of ``run`` (its seconds shared out over the seeds)."""
+        n, ts = len(self.seeds), run.ts
+        timing = {k: v / n for k, v in run_with_total(run, self.t_start).timing.items()}
+        params = jax.device_get(policy_params(ts))
+        kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
+        curve = {k: np.stack(run.curve[k], 1) for k in checkpoint.CURVE if k != "step"}
+        return [
+            base.TrainResult(
+                self.learner.name,
+                self.env_config,
+                dict(self.h),
+                jax.tree.map(lambda x: x[i], params),
+                dict(step=np.asarray(run.curve["step"]), **{k: v[i] for k, v in curve.items()}),
+                dict(timing, seeds_in_call=n),
+                seed,
+                jax.tree.map(lambda x: x[i], kept),
+            )
+            for i, seed in enumerate(self.seeds)
+        ]
+
+
+def run_with_total(run, t_start: float):
+    """``run`` with its seconds' ``total`` (from ``t_start``, perf_counter) added to a copy of its timing."""
+    return dataclasses.replace(run, timing=dict(run.timing, total=time.perf_counter() - t_start))
 
 
 def policy_params(ts) -> dict:
@@ -433,34 +390,3 @@ def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> 
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
     return seeds, c.to_hyper()
-
-
-def _results(
-    learner: Learner,
-    env_config: dict,
-    h: dict,
-    seeds: list,
-    ts,
-    steps: np.ndarray,
-    curves: dict,
-    timing: dict,
-) -> list[base.TrainResult]:
-    """One TrainResult per seed of the seed-batched final state ``ts``, ``curves`` (name -> (seeds, points)) at
-    env ``steps`` and the call's ``timing`` (s, shared out over the seeds)."""
-    timing = {k: v / len(seeds) for k, v in timing.items()}
-    timing["seeds_in_call"] = len(seeds)
-    params = jax.device_get(policy_params(ts))
-    kept = jax.device_get({k: v for k, v in ts._asdict().items() if k not in _FRESH})
-    return [
-        base.TrainResult(
-            learner.name,
-            env_config,
-            dict(h),
-            jax.tree.map(lambda x: x[i], params),
-            dict(step=steps, **{k: v[i] for k, v in curves.items()}),
-            dict(timing),
-            seed,
-            jax.tree.map(lambda x: x[i], kept),
-        )
-        for i, seed in enumerate(seeds)
-    ]

@@ -274,7 +274,8 @@ def train(
     """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
     steps (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
     overrides of its fields; ``progress_fn`` and the curve as in ``agents.learners.offpolicy.td3.train``; ``start_from=result``
-    continues from an earlier run in this process (``agents.learners.offpolicy.driver``)."""
+    continues from an earlier run in this process (``agents.learners.offpolicy.driver``), ``checkpoints=Checkpoints(folder)``
+    checkpoints it as it trains (``agents.learners.offpolicy.checkpoint``)."""
     return train_seeds(
         env_config,
         seeds=[offpolicy.check_seed(seed)],

@@ -284,7 +284,9 @@ def train(
     "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every
     evaluation with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most
     ``total_steps`` env steps (whole iterations, ``agents.learners.offpolicy.driver.schedule``); the curve's 'step' holds the true
-    counts. ``start_from=result`` continues from an earlier run in this process (``agents.learners.offpolicy.driver``)."""
+    counts. ``start_from=result`` continues from an earlier run in this process (``agents.learners.offpolicy.driver``);
+    ``checkpoints=Checkpoints(folder)`` checkpoints the run as it trains and continues the one stored there
+    (``agents.learners.offpolicy.checkpoint``)."""
     return train_seeds(
         env_config,
         seeds=[offpolicy.check_seed(seed)],

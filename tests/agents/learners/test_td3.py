@@ -191,7 +191,7 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path, this_build):
     any gradient step, equal to float rounding after 80), the seeds differ; with two (forced CPU)
     devices (a subprocess, started first to overlap) the seed axis is split across them."""
     code = (
-        "import json, sys, numpy as np, jax, agents; from agents import td3;"
+        "import json, sys, numpy as np, jax, agents; from agents.learners.offpolicy import td3;"
         f"both = td3.train_seeds({ENV!r}, seeds=[3, 5], total_steps={FEW_STEPS}, **{FEW!r});"
         "np.savez(sys.argv[1], *[np.ravel(x) for r in both for x in jax.tree.leaves(r.params)]);"
         "sharded = [str(agents.api.split_over_devices(2, 'seeds').spec)];"
