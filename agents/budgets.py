@@ -6,7 +6,6 @@ any work starts."""
 
 from __future__ import annotations
 
-from agents.config import PPOConfig, ReplayConfig, SACConfig
 
 SMALL_SHARE = 0.5  # a budget training less than this share of its env steps is warned about
 
@@ -15,43 +14,29 @@ class BudgetWarning(UserWarning):
     """A training budget that a learner's warm-up takes most of (``check``)."""
 
 
-def _ceil_to(n: int, unit: int) -> int:
+def ceil_to(n: int, unit: int) -> int:
+    """``n`` rounded up to a whole number of ``unit``."""
     return -(-n // unit) * unit
+
+
+def brax_units(num_evals: int, units: int) -> int:
+    """Training steps of ``units`` that brax's trainers run: whole epochs, one per evaluation but the
+    first (``agents.learners.brax.training``)."""
+    epochs = min(max(num_evals - 1, 1), units)
+    return epochs * (units // epochs) if epochs else 0
 
 
 def layout(config) -> tuple[int, int, str] | None:
     """(env steps before the first gradient step, env steps per training step, what the first ones are) of a
-    learner's ``config``; None for a config this module does not know (a controller's)."""
-    if isinstance(config, ReplayConfig):
-        per_iter = config.num_envs * config.unroll
-        warm = _ceil_to(config.learning_starts, per_iter)
-        rounded = (
-            f", rounded up to iterations of {per_iter}" if warm != config.learning_starts else ""
-        )
-        why = f"the random warm-up (learning_starts = {config.learning_starts:,}{rounded})"
-        return warm, per_iter, why
-    if isinstance(config, SACConfig):
-        why = f"the replay prefill (min_replay_size = {config.min_replay_size:,})"
-        return _ceil_to(config.min_replay_size, config.num_envs), config.num_envs, why
-    if isinstance(config, PPOConfig):
-        unit = config.batch_size * config.unroll_length * config.num_minibatches
-        return 0, unit, ""
-    return None
+    learner's ``config`` (its ``budget_layout``); None for a controller's."""
+    return config.budget_layout()
 
 
 def trained_steps(config, total: int) -> int:
     """Env steps of a ``total``-step budget that train (the rest: the warm-up, and what whole training
     steps and evaluation chunks leave out)."""
     warm, unit, _ = layout(config)
-    units = max(0, (total - warm) // unit)
-    if isinstance(config, ReplayConfig):  # chunks of about eval_every, whole iterations each
-        per_chunk = max(1, config.eval_every // unit)
-        chunks = -(-units // per_chunk)
-        return chunks * (units // chunks) * unit if chunks else 0
-    epochs = min(
-        max(config.num_evals - 1, 1), units
-    )  # brax's epochs (agents.learners.brax.training)
-    return epochs * (units // epochs) * unit if epochs else 0
+    return config.trained_units(max(0, (total - warm) // unit)) * unit
 
 
 def least_steps(config) -> int:
@@ -64,7 +49,7 @@ def useful_steps(config) -> int:
     """The least budget (env steps, whole training steps past the warm-up) of which at least
     ``SMALL_SHARE`` trains."""
     warm, unit, _ = layout(config)
-    total = warm + max(unit, _ceil_to(int(warm * SMALL_SHARE / (1 - SMALL_SHARE)), unit))
+    total = warm + max(unit, ceil_to(int(warm * SMALL_SHARE / (1 - SMALL_SHARE)), unit))
     while trained_steps(config, total) < SMALL_SHARE * total:
         total += unit
     return total

@@ -99,6 +99,15 @@ class AlgoConfig:
         """Gradient steps per env step of training (0 for a controller that trains no network)."""
         return 0.0
 
+    def budget_layout(self) -> tuple[int, int, str] | None:
+        """(env steps before the first gradient step, env steps per training step, what the first ones
+        are) of a budget (``agents.budgets``); None for a controller, which trains nothing."""
+        return None
+
+    def trained_units(self, units: int) -> int:
+        """Training steps that ``units`` affordable ones become (whole chunks or epochs)."""
+        return units
+
     @classmethod
     def names(cls) -> list:
         """The fields that can be set (``config``, the preset's name, is not one of them)."""

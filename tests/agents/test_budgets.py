@@ -10,7 +10,7 @@ import pytest
 import agents
 from agents import budgets
 from agents.api import EvalResult, TrainResult
-from agents.config import DroQConfig, PPOConfig, SACConfig, TD3Config
+from agents import DroQConfig, PPOConfig, SACConfig, TD3Config
 from agents.learners.offpolicy.driver import schedule
 from ops_jax.cli import progress as progress_module
 from ops_jax.cli.progress import StepProgress

@@ -38,6 +38,7 @@ import jax
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
+from agents import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo
@@ -119,6 +120,14 @@ class PPOConfig(AlgoConfig):
     total_steps: int = field(COUNT0)
     num_evals: int = field(COUNT)
     num_eval_envs: int = field(COUNT)
+
+    def budget_layout(self) -> tuple[int, int, str]:
+        """No warm-up; updates of ``batch_size * unroll_length * num_minibatches`` env steps."""
+        return 0, self.batch_size * self.unroll_length * self.num_minibatches, ""
+
+    def trained_units(self, units: int) -> int:
+        """brax's whole epochs."""
+        return budgets.brax_units(self.num_evals, units)
 
     def updates_per_step(self) -> float:
         """Per training step brax collects ``batch_size * num_minibatches * unroll_length`` env steps and

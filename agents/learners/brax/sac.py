@@ -29,6 +29,7 @@ import jax
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
+from agents import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo
@@ -112,6 +113,15 @@ class SACConfig(AlgoConfig):
     total_steps: int = field(COUNT0)
     num_evals: int = field(COUNT)
     num_eval_envs: int = field(COUNT)
+
+    def budget_layout(self) -> tuple[int, int, str]:
+        """The replay prefill, then steps of ``num_envs`` env steps (``agents.budgets``)."""
+        why = f"the replay prefill (min_replay_size = {self.min_replay_size:,})"
+        return budgets.ceil_to(self.min_replay_size, self.num_envs), self.num_envs, why
+
+    def trained_units(self, units: int) -> int:
+        """brax's whole epochs."""
+        return budgets.brax_units(self.num_evals, units)
 
     def updates_per_step(self) -> float:
         return self.grad_updates_per_step / self.num_envs

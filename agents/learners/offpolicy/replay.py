@@ -10,6 +10,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from agents import budgets
 from agents.config import COUNT, HISTORY, UNIT, AlgoConfig, choice, field, optional
 from ops_jax.env import REWARDS
 
@@ -34,6 +35,25 @@ class ReplayConfig(AlgoConfig):
     fit_iters: int | None = field(optional(COUNT), default=None, kw_only=True)
     # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
     fit_history: int | None = field(optional(HISTORY), default=None, kw_only=True)
+
+    def budget_layout(self) -> tuple[int, int, str]:
+        """The random warm-up, then iterations of ``num_envs * unroll`` env steps (``agents.budgets``)."""
+        per_iter = self.num_envs * self.unroll
+        warm = budgets.ceil_to(self.learning_starts, per_iter)
+        rounded = (
+            f", rounded up to iterations of {per_iter}" if warm != self.learning_starts else ""
+        )
+        return (
+            warm,
+            per_iter,
+            f"the random warm-up (learning_starts = {self.learning_starts:,}{rounded})",
+        )
+
+    def trained_units(self, units: int) -> int:
+        """Whole chunks of about ``eval_every`` env steps, whole iterations each."""
+        per_chunk = max(1, self.eval_every // (self.num_envs * self.unroll))
+        chunks = -(-units // per_chunk)
+        return chunks * (units // chunks) if chunks else 0
 
     def updates_per_step(self) -> float:
         return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
