@@ -30,7 +30,7 @@ PLACEHOLDERS = {"ALGO": "td3", "ADDRESS": "auto", "PORT": "6379", "X": "out", ".
 SHRINK = {
     "total_steps=300_000": "total_steps=5_000",
     "episodes=50": "episodes=2",
-    "4096, 200)": "64, 20)",
+    "1024, 200)": "64, 20)",
     "total_steps=20_000": "total_steps=1_000",
 }  # the last: DroQ's budget run cut to its random warm-up
 # Long-running commands that run for real (in a temporary folder) until their output shows this text.
