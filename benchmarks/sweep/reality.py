@@ -152,15 +152,8 @@ def report(
     """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv, reality.json,
     reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
     from benchmarks import robust
-    from benchmarks.sweep.report import (
-        NAMES,
-        _fmt,
-        _plt,
-        aggregate_table,
-        bold_mask,
-        bold_rule,
-        performance_profile,
-    )
+    from benchmarks.sweep.report import NAMES, bold_mask, bold_rule, mean_std_cell, pyplot
+    from benchmarks.sweep.report_table1 import aggregate_table, performance_profile
 
     names = [n for n, _ in LEVELS]
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
@@ -177,7 +170,8 @@ def report(
     ]
     for algo in results:
         cells = [
-            _fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names
+            mean_std_cell(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo])
+            for n in names
         ]
         a, training = algo.split("/")
         lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
@@ -256,7 +250,7 @@ def report(
                     ]
                 )
     (out / "reality.json").write_text(json.dumps(results, indent=1))
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     x = np.array([s for _, s in LEVELS])
     algos = list(dict.fromkeys(a.split("/")[0] for a in results))
