@@ -197,7 +197,7 @@ def _score_lines(results: dict, preset: dict, names: list, intervals: dict) -> l
 def _aggregate_lines(matrices: dict, command: str, wall_s: float | None) -> list:
     """reality.md after its tables: the aggregate over the levels, the trainings and the command."""
     from benchmarks import robust
-    from benchmarks.sweep.report_table1 import aggregate_table
+    from benchmarks.sweep.report import aggregate_table
 
     took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
     return [
@@ -255,9 +255,9 @@ def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
 
 def _plot_levels(path: Path, results: dict, names: list) -> None:
     """reality.png: each controller's final P / P_best (mean ± std) per level, a line style per training."""
-    from benchmarks.sweep.report import pyplot
+    from benchmarks.sweep.report import _plt
 
-    plt = pyplot()
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
     x = np.array([s for _, s in LEVELS])
     algos = list(dict.fromkeys(a.split("/")[0] for a in results))

@@ -1,6 +1,6 @@
-"""The reports of ``benchmarks.sweep`` (results/<name>/): the shared formatting (bolding, cells, figures), table 2,
-the training and testing curves and the summary page; table 1: report_table1.py; the stage, transfer and
-feedback scans: report_scans.py."""
+"""The reports of ``benchmarks.sweep`` (results/<name>/): the shared formatting (bolding, cells, the
+aggregate table, figures), table 2, the training and testing curves and the summary page; table 1:
+report_table1.py; the stage, transfer and feedback scans: report_scans.py."""
 
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def mean_std_cell(mean, std, bold=False) -> str:
     return f"**{s}**" if bold else s
 
 
-def pyplot():
+def _plt():
     """matplotlib.pyplot on the Agg backend (no display)."""
     import matplotlib
 
@@ -63,6 +63,26 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def aggregate_table(scores: dict) -> list:
+    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the probability of
+    improvement over every other label (P(row > column), averaged over tasks)."""
+    from benchmarks import robust
+
+    labels = list(scores)
+    lines = [
+        "| | IQM [95 % CI] | " + " | ".join(f"P(> {b})" for b in labels) + " |",
+        "|---|---|" + "---|" * len(labels),
+    ]
+    for a in labels:
+        ci = "{:.4f} [{:.4f}, {:.4f}]".format(*robust.bootstrap_ci(scores[a]))
+        poi = [
+            "–" if b == a else f"{robust.probability_of_improvement(scores[a], scores[b]):.2f}"
+            for b in labels
+        ]
+        lines.append(f"| {a} | {ci} | " + " | ".join(poi) + " |")
+    return lines
 
 
 def convergence_step(steps, values, tol=0.02):
@@ -156,14 +176,14 @@ def save_figure(fig, legend_ax, path: Path) -> None:
     legend_ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    pyplot().close(fig)
+    _plt().close(fig)
 
 
 def _per_mode_figure(
     out: Path, filename: str, title: str, xlabel: str, ylabel: str, draw, ylim=None
 ):
     """One panel per mode (``draw(ax, mode)`` plots into it), shared y axis, written to ``out/filename``."""
-    plt = pyplot()
+    plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
     for ax, mode in zip(axes, MODES):
         draw(ax, mode)

@@ -9,7 +9,7 @@ import numpy as np
 
 from agents.registry import NAMES
 from benchmarks.sweep.paper import MODES
-from benchmarks.sweep.report import convergence_step, pyplot, save_figure
+from benchmarks.sweep.report import convergence_step, _plt, save_figure
 
 
 def _stage_finals_panel(ax, res: dict, p: dict, ns: list, mode: str) -> list:
@@ -71,7 +71,7 @@ def _stage_convergence_panel(ax, res: dict, p: dict, ns: list) -> None:
 def stages(out: Path, res: dict, p: dict):
     """stages.md (final testing P/Pmax per stage count, mode and algorithm) and stages.png (a panel per mode
     and one of the convergence steps)."""
-    plt = pyplot()
+    plt = _plt()
     ns = sorted({k[0] for k in res})
     fig, axes = plt.subplots(
         1, len(p["stage_modes"]) + 1, figsize=(5 * (len(p["stage_modes"]) + 1), 4)
@@ -90,7 +90,7 @@ def stages(out: Path, res: dict, p: dict):
 
 
 def transfer(out: Path, res: dict, p: dict):
-    plt = pyplot()
+    plt = _plt()
     algos = p["algos"]
     fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
     lines = ["# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax", ""]
@@ -134,7 +134,7 @@ def transfer(out: Path, res: dict, p: dict):
 
 
 def feedback(out: Path, res: dict, p: dict):
-    plt = pyplot()
+    plt = _plt()
     ks = p["feedback_ks"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     lines = [

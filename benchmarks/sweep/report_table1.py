@@ -10,7 +10,15 @@ import numpy as np
 
 from agents.registry import NAMES
 from benchmarks.sweep.paper import MODES, PAPER_TABLE1
-from benchmarks.sweep.report import ENVS, bold_mask, bold_rule, mean_std_cell, pyplot, save_figure
+from benchmarks.sweep.report import (
+    ENVS,
+    aggregate_table,
+    bold_mask,
+    bold_rule,
+    mean_std_cell,
+    _plt,
+    save_figure,
+)
 
 
 def _per_seed_final(record, env):
@@ -136,33 +144,13 @@ def robust_tables(finals: dict, algos) -> list:
     return lines
 
 
-def aggregate_table(scores: dict) -> list:
-    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the probability of
-    improvement over every other label (P(row > column), averaged over tasks)."""
-    from benchmarks import robust
-
-    labels = list(scores)
-    lines = [
-        "| | IQM [95 % CI] | " + " | ".join(f"P(> {b})" for b in labels) + " |",
-        "|---|---|" + "---|" * len(labels),
-    ]
-    for a in labels:
-        ci = "{:.4f} [{:.4f}, {:.4f}]".format(*robust.bootstrap_ci(scores[a]))
-        poi = [
-            "–" if b == a else f"{robust.probability_of_improvement(scores[a], scores[b]):.2f}"
-            for b in labels
-        ]
-        lines.append(f"| {a} | {ci} | " + " | ".join(poi) + " |")
-    return lines
-
-
 def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> None:
     """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring above tau, with
     its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
     from benchmarks import robust
 
     taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)
-    plt = pyplot()
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for i, (label, x) in enumerate(scores.items()):
         prof, lo, hi = robust.profile_ci(x, taus)
