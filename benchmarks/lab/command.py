@@ -46,6 +46,7 @@ from benchmarks.lab.runs import (
 
 
 def table(rows: list) -> str:
+    """The markdown table of ``rows`` (one per run: its summary with the row's labels)."""
     head = (
         "| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) "
         "| CPU ms/step | P / P_best | clipped / wrapped moves | early frames | stopped by |\n"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 START_S = 300  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
+TICK_LOG = "ticks.jsonl"  # the IOC's --tick-log, beside its ioc.log
 
 
 def free_port(other: int | None = None) -> int:
@@ -86,6 +87,7 @@ class Process:
             )
 
     def text(self) -> str:
+        """The output so far."""
         return self.log.read_text()
 
     def wait_for(self, needle: str, timeout: float = START_S) -> "Process":
@@ -118,9 +120,6 @@ class Process:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
         self.proc.wait(30)
-
-
-TICK_LOG = "ticks.jsonl"  # the IOC's --tick-log, beside its ioc.log
 
 
 def start_ioc(out: Path, *args, cpus: set | None = None) -> Process:
