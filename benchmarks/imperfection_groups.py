@@ -21,6 +21,7 @@ from __future__ import annotations
 import platform
 import sys
 import time
+from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -141,10 +142,8 @@ def table(rows: list, cols) -> str:
     return "\n".join([head, *body])
 
 
-def main(argv=None) -> dict:
-    keep_ctrl_c()
-    from agents.cli import parse_set
-    from agents.registry import get
+def parser() -> ArgumentParser:
+    """The command line of ``python -m benchmarks.imperfection_groups``."""
     from ops_jax.env import PROBES
 
     ap = ArgumentParser(
@@ -195,6 +194,15 @@ def main(argv=None) -> dict:
     ap.add_argument("--episodes", type=int, default=32)
     ap.add_argument("--eval-seed", type=int, default=4242)
     ap.add_argument("--out", type=Path, default=Path("results/imperfection_groups"))
+    return ap
+
+
+def _parse(argv) -> Namespace:
+    """The parsed command line (``sets``: the parsed ``--set``); bad arguments fail naming them."""
+    from agents.cli import parse_set
+    from agents.registry import get
+
+    ap = parser()
     args = ap.parse_args(argv)
     ap.check_least(args, episodes=1)
     if not 0 < args.scale <= 10:
@@ -207,6 +215,13 @@ def main(argv=None) -> dict:
             get(args.algo).config.make(**args.sets)
     except (TypeError, ValueError) as exc:
         ap.error(str(exc))
+    return args
+
+
+def main(argv=None) -> dict:
+    """Measure, print the table and write ``OUT/imperfection_groups.json``: its content."""
+    keep_ctrl_c()
+    args = _parse(argv)
     rows = measure(args)
     result = {
         "command": "python -m benchmarks.imperfection_groups",

@@ -133,8 +133,8 @@ def table(rows: list, margin: float) -> str:
     return "\n".join([head, *body])
 
 
-def main(argv=None) -> dict:
-    keep_ctrl_c()
+def parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.trim_loss``."""
     ap = argparse.ArgumentParser(
         prog="python -m benchmarks.trim_loss", description=__doc__.split("\n")[0]
     )
@@ -170,6 +170,12 @@ def main(argv=None) -> dict:
         help="how the test episodes read a probe: instant (the default) or frame (a frame later, as on a bench)",
     )
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
+    return ap
+
+
+def _parse(argv) -> argparse.Namespace:
+    """The parsed command line; bad arguments fail naming them."""
+    ap = parser()
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.steps < 1 or not args.margin >= 0:
         ap.error("--episodes and --steps must be >= 1 and --margin >= 0")
@@ -184,6 +190,13 @@ def main(argv=None) -> dict:
             f"--config must be one of {args.algo}'s presets {sorted(get(args.algo).config.PRESETS)}, "
             f"got {args.config!r}"
         )
+    return args
+
+
+def main(argv=None) -> dict:
+    """Measure each environment, print the table and write ``OUT/trim_loss.json``: its content."""
+    keep_ctrl_c()
+    args = _parse(argv)
     rows = []
     for env_name in args.envs:
         new = measure(

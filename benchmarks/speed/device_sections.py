@@ -102,13 +102,53 @@ def device_info() -> dict:
     )
 
 
+def _scan_batches(
+    measure_one, model: str, n: int, batch_list, cfg_deadline: float, record, out: dict, s: dict
+) -> None:
+    """``measure_one(model, n, batch)`` over ``batch_list`` into ``out["rows"]`` and the config's summary ``s``
+    until the next batch would pass ``cfg_deadline`` or the device runs out of memory."""
+    import gc
+
+    for b in batch_list:
+        t0 = time.monotonic()
+        out["running"] = dict(model=model, stages=n, batch=b)
+        try:
+            row = measure_one(model, n, b)
+        except Exception as err:  # noqa: BLE001 (out of memory ends the scan; anything else is recorded)
+            out.pop("running", None)
+            gc.collect()
+            s["stopped"] = "oom" if is_oom(err) else "error"
+            s["oom_at_batch" if is_oom(err) else "error"] = b if is_oom(err) else short_error(err)
+            break
+        out.pop("running", None)
+        cost = time.monotonic() - t0
+        row["wall_s"] = cost
+        out["rows"].append(row)
+        s["batches"].append(b)
+        if s["best_steps_per_s"] is None or row["steps_per_s"] > s["best_steps_per_s"]:
+            s["best_steps_per_s"], s["best_batch"] = row["steps_per_s"], b
+        record(out)
+        print(
+            f"  {model} N={n} batch {b}: {row['steps_per_s']:,.0f} env-steps/s "
+            f"(compile {row['compile_s']:.1f} s)",
+            flush=True,
+        )
+        compile_s = min(row["compile_s"], cost)
+        grow = 1.1 * (batch_list[batch_list.index(b) + 1] / b if b != batch_list[-1] else 1)
+        if (
+            b != batch_list[-1]
+            and time.monotonic() + compile_s + grow * (cost - compile_s) > cfg_deadline
+        ):
+            s["stopped"] = "budget"
+            break
+
+
 def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) -> None:
     """For each (model, stages) of ``configs``, ``measure_one(model, stages, batch) -> row`` over
     ``batch_list`` until the next batch would pass the config's share of the time to ``deadline`` or
     the device runs out of memory; rows and a summary per config go into ``out`` (saved by ``record``)."""
-    import gc
-
-    rows, summary = out.setdefault("rows", []), out.setdefault("configs", [])
+    out.setdefault("rows", [])
+    summary = out.setdefault("configs", [])
     out["planned"] = [dict(model=m, stages=n) for m, n in configs]
     record(out)
     weights = [CONFIG_WEIGHTS.get(c, 1.0) for c in configs]
@@ -128,40 +168,7 @@ def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) 
             error=None,
         )
         summary.append(s)
-        for b in batch_list:
-            t0 = time.monotonic()
-            out["running"] = dict(model=model, stages=n, batch=b)
-            try:
-                row = measure_one(model, n, b)
-            except Exception as err:  # noqa: BLE001 (out of memory ends the scan; anything else is recorded)
-                out.pop("running", None)
-                gc.collect()
-                s["stopped"] = "oom" if is_oom(err) else "error"
-                s["oom_at_batch" if is_oom(err) else "error"] = (
-                    b if is_oom(err) else short_error(err)
-                )
-                break
-            out.pop("running", None)
-            cost = time.monotonic() - t0
-            row["wall_s"] = cost
-            rows.append(row)
-            s["batches"].append(b)
-            if s["best_steps_per_s"] is None or row["steps_per_s"] > s["best_steps_per_s"]:
-                s["best_steps_per_s"], s["best_batch"] = row["steps_per_s"], b
-            record(out)
-            print(
-                f"  {model} N={n} batch {b}: {row['steps_per_s']:,.0f} env-steps/s "
-                f"(compile {row['compile_s']:.1f} s)",
-                flush=True,
-            )
-            compile_s = min(row["compile_s"], cost)
-            grow = 1.1 * (batch_list[batch_list.index(b) + 1] / b if b != batch_list[-1] else 1)
-            if (
-                b != batch_list[-1]
-                and time.monotonic() + compile_s + grow * (cost - compile_s) > cfg_deadline
-            ):
-                s["stopped"] = "budget"
-                break
+        _scan_batches(measure_one, model, n, batch_list, cfg_deadline, record, out, s)
         record(out)
 
 

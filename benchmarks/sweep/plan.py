@@ -13,7 +13,7 @@ from __future__ import annotations
 from agents.registry import Registry
 from benchmarks.budget import plan as budget
 from benchmarks.sweep import lock_table, presets, reality
-from benchmarks.sweep import report
+from benchmarks.sweep import report, report_scans, report_table1
 from benchmarks.sweep.paper import MODES
 from benchmarks.sweep.records import Controller, Evaluation, seed_label
 from benchmarks.sweep.section import TEST_SEED_OFFSET, CellSection, Section
@@ -62,7 +62,7 @@ class Table1(Section):
         return table1_runs(sweep)
 
     def report(self, sweep, runs):
-        report.table1(sweep.out, runs, sweep.preset)
+        report_table1.table1(sweep.out, runs, sweep.preset)
         report.training_curves(sweep.out, runs, sweep.preset)
         report.testing_curves(sweep.out, runs, sweep.preset)
         lock_table.lock_table(sweep.out, runs, sweep.preset)
@@ -115,7 +115,7 @@ class Stages(Section):
         return res
 
     def report(self, sweep, res):
-        report.stages(sweep.out, res, sweep.preset)
+        report_scans.stages(sweep.out, res, sweep.preset)
 
 
 class TableOneEvaluations(Section):
@@ -177,7 +177,7 @@ class Transfer(TableOneEvaluations):
         ]
 
     def report(self, sweep, res):
-        report.transfer(sweep.out, res, sweep.preset)
+        report_scans.transfer(sweep.out, res, sweep.preset)
 
 
 class Feedback(TableOneEvaluations):
@@ -193,7 +193,7 @@ class Feedback(TableOneEvaluations):
         ]
 
     def report(self, sweep, res):
-        report.feedback(sweep.out, res, sweep.preset)
+        report_scans.feedback(sweep.out, res, sweep.preset)
 
 
 PLAN = Registry("sweep section")  # name -> Section, in the order the sweep runs and reports them

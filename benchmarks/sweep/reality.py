@@ -146,23 +146,18 @@ def best_ratios() -> dict:
     return {name: best_ratio(level_env(scale)) for name, scale in LEVELS}
 
 
-def report(
-    out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None
-) -> None:
-    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv, reality.json,
-    reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
-    from benchmarks import robust
-    from benchmarks.sweep.report import (
-        NAMES,
-        _fmt,
-        _plt,
-        aggregate_table,
-        bold_mask,
-        bold_rule,
-        performance_profile,
-    )
+def _label(algo: str) -> str:
+    """A result's row label: the controller's name (its training)."""
+    from benchmarks.sweep.report import NAMES
 
-    names = [n for n, _ in LEVELS]
+    a, training = algo.split("/")
+    return f"{NAMES.get(a, a)} ({training})"
+
+
+def _score_lines(results: dict, preset: dict, names: list, intervals: dict) -> list:
+    """reality.md's tables: the Welch-bolded means ± std, then the IQM over seeds [95 % CI]."""
+    from benchmarks.sweep.report import bold_mask, bold_rule, mean_std_cell
+
     bold = {n: bold_mask({a: results[a][n] for a in results}) for n in names}
     seeds = len(next(iter(results.values()))[names[0]])
     lines = [
@@ -177,10 +172,10 @@ def report(
     ]
     for algo in results:
         cells = [
-            _fmt(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo]) for n in names
+            mean_std_cell(np.mean(results[algo][n]), np.std(results[algo][n]), bold[n][algo])
+            for n in names
         ]
-        a, training = algo.split("/")
-        lines.append(f"| {NAMES.get(a, a)} ({training}) | " + " | ".join(cells) + " |")
+        lines.append(f"| {_label(algo)} | " + " | ".join(cells) + " |")
     lines += [
         "",
         bold_rule(seeds),
@@ -190,20 +185,22 @@ def report(
         "| controller | " + " | ".join(names) + " |",
         "|---|" + "---|" * len(names),
     ]
-    intervals = {
-        algo: {n: robust.bootstrap_ci(results[algo][n]) for n in names} for algo in results
-    }
-    label = {
-        algo: f"{NAMES.get(algo.split('/')[0], algo)} ({algo.split('/')[1]})" for algo in results
-    }
     for algo in results:
         lines.append(
-            f"| {label[algo]} | "
+            f"| {_label(algo)} | "
             + " | ".join("{:.3f} [{:.3f}, {:.3f}]".format(*intervals[algo][n]) for n in names)
             + " |"
         )
-    matrices = {label[a]: np.array([results[a][n] for n in names]).T for a in results}
-    lines += [
+    return lines
+
+
+def _aggregate_lines(matrices: dict, command: str, wall_s: float | None) -> list:
+    """reality.md after its tables: the aggregate over the levels, the trainings and the command."""
+    from benchmarks import robust
+    from benchmarks.sweep.report import aggregate_table
+
+    took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
+    return [
         "",
         robust.NOTE,
         "",
@@ -214,9 +211,6 @@ def report(
         *aggregate_table(matrices),
         "",
         "![performance profile](reality_profile.png)",
-    ]
-    took = "" if wall_s is None else f", {wall_s / 60:.1f} min"
-    lines += [
         "",
         "Training: ideal (the ideal system), randomised (lab imperfections x U[0, 2) per episode), "
         "identify (ideal, with online identification of the imperfections), readout (identify, "
@@ -225,9 +219,11 @@ def report(
         f"Command: `{command}`; {time.strftime('%Y-%m-%d', time.gmtime())}, host {platform.node()} "
         f"({platform.processor() or platform.machine()}){took}.",
     ]
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "reality.md").write_text("\n".join(lines) + "\n")
-    with open(out / "reality.csv", "w", newline="") as f:
+
+
+def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
+    """reality.csv: per controller, training and level, the mean, std, seeds and IQM [95 % CI]."""
+    with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
             [
@@ -255,7 +251,12 @@ def report(
                         *(f"{x:.6f}" for x in intervals[algo][n]),
                     ]
                 )
-    write_json_atomic(out / "reality.json", results)
+
+
+def _plot_levels(path: Path, results: dict, names: list) -> None:
+    """reality.png: each controller's final P / P_best (mean ± std) per level, a line style per training."""
+    from benchmarks.sweep.report import _plt
+
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
     x = np.array([s for _, s in LEVELS])
@@ -273,7 +274,7 @@ def report(
             yerr=s,
             marker="o",
             capsize=3,
-            label=f"{NAMES.get(a, a)} ({training})",
+            label=_label(algo),
             color=color[a],
             linestyle={"randomised": "--", "identify": ":", "readout": "-."}.get(training, "-"),
         )
@@ -282,8 +283,30 @@ def report(
     ax.set_ylabel("final P / P_best")
     ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.02, 0.5))
     fig.tight_layout()
-    fig.savefig(out / "reality.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def report(
+    out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None
+) -> None:
+    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv, reality.json,
+    reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
+    from benchmarks import robust
+    from benchmarks.sweep.report_table1 import performance_profile
+
+    names = [n for n, _ in LEVELS]
+    intervals = {
+        algo: {n: robust.bootstrap_ci(results[algo][n]) for n in names} for algo in results
+    }
+    matrices = {_label(a): np.array([results[a][n] for n in names]).T for a in results}
+    lines = _score_lines(results, preset, names, intervals)
+    lines += _aggregate_lines(matrices, command, wall_s)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "reality.md").write_text("\n".join(lines) + "\n")
+    _write_csv(out / "reality.csv", results, names, intervals)
+    write_json_atomic(out / "reality.json", results)
+    _plot_levels(out / "reality.png", results, names)
     performance_profile(
         out / "reality_profile.png", matrices, "final P / P_best, levels none + lab + 2x lab"
     )

@@ -1,8 +1,9 @@
-"""Tables, figures and the summary page of ``benchmarks.sweep`` (results/<name>/)."""
+"""The reports of ``benchmarks.sweep`` (results/<name>/): the shared formatting (bolding, cells, the
+aggregate table, figures), table 2, the training and testing curves and the summary page; table 1:
+report_table1.py; the stage, transfer and feedback scans: report_scans.py."""
 
 from __future__ import annotations
 
-import csv
 import os
 import platform
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.registry import NAMES
-from benchmarks.sweep.paper import MODES, PAPER_TABLE1, PAPER_TABLE2
+from benchmarks.sweep.paper import MODES, PAPER_TABLE2
 
 ENVS = ("training", "testing")
 
@@ -61,126 +62,20 @@ def bold_mask(samples: dict, alpha: float = 0.05) -> dict:
     return mask
 
 
-def _fmt(mean, std, bold=False):
+def mean_std_cell(mean, std, bold=False) -> str:
+    """``mean ± std`` to 4 decimals, in bold if ``bold``."""
     s = f"{mean:.4f} ± {std:.4f}"
     return f"**{s}**" if bold else s
 
 
-def _per_seed_final(record, env):
-    return float(np.mean(record["train_env" if env == "training" else "test_env"]["final"]))
-
-
 def _plt():
+    """matplotlib.pyplot on the Agg backend (no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def table1(out: Path, runs: dict, p: dict):
-    """table1.md / .csv (mean ± std, Welch bolding, IQM [95 % CI] per cell; per algorithm the IQM over modes;
-    the probability of improvement between algorithms) and performance_profile.png."""
-    from benchmarks import robust
-
-    algos = p["algos"]
-    rows_md, rows_csv = [], []
-    finals = {}  # (env, algo): (seeds, modes) matrix of final P/Pmax
-    for mode in MODES:
-        for env in ENVS:
-            samples = {
-                a: [_per_seed_final(runs[mode, a, s], env) for s in range(p["seeds"])]
-                for a in algos
-            }
-            bold = bold_mask(samples)
-            paper = PAPER_TABLE1[mode, env]
-            cells = [_fmt(np.mean(samples[a]), np.std(samples[a]), bold[a]) for a in algos]
-            paper_cells = [_fmt(*paper[a]) if a in paper else "–" for a in algos]
-            intervals = {a: robust.bootstrap_ci(samples[a]) for a in algos}
-            rows_md.append(f"| {mode} | {env} | " + " | ".join(cells) + " |")
-            rows_md.append(
-                "| | IQM [95 % CI] | "
-                + " | ".join("{:.4f} [{:.4f}, {:.4f}]".format(*intervals[a]) for a in algos)
-                + " |"
-            )
-            rows_md.append("| | paper | " + " | ".join(paper_cells) + " |")
-            for a in algos:
-                finals.setdefault((env, a), []).append(samples[a])
-                rows_csv.append(
-                    [
-                        mode,
-                        env,
-                        a,
-                        np.mean(samples[a]),
-                        np.std(samples[a]),
-                        len(samples[a]),
-                        bold[a],
-                        *intervals[a],
-                        *(paper[a] if a in paper else ("", "")),
-                    ]
-                )
-    finals = {k: np.array(v).T for k, v in finals.items()}
-    header = "| mode | evaluation env | " + " | ".join(NAMES[a] for a in algos) + " |"
-    sep = "|" + "---|" * (len(algos) + 2)
-    text = (
-        f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
-        f"{p['name']})\n\n"
-        + "".join(f"{line}\n" for line in quick_note(p))
-        + "Mean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
-        "and the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published values "
-        "(20 seeds, stable-baselines3).\n\n"
-        + "\n".join([header, sep, *rows_md])
-        + "\n\n"
-        + bold_rule(p["seeds"])
-        + " The IQM rows are not bolded.\n\n"
-        + robust.NOTE
-        + "\n\n"
-        + "\n".join(robust_tables(finals, algos))
-        + "\n"
-    )
-    (out / "table1.md").write_text(text)
-    with open(out / "table1.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(
-            [
-                "mode",
-                "env",
-                "algo",
-                "mean",
-                "std",
-                "seeds",
-                "bold",
-                "iqm",
-                "iqm_ci_lo",
-                "iqm_ci_hi",
-                "paper_mean",
-                "paper_std",
-            ]
-        )
-        w.writerows(rows_csv)
-    performance_profile(
-        out / "performance_profile.png",
-        {NAMES[a]: finals["testing", a] for a in algos},
-        "final testing P/Pmax, 5-stage easy + medium + hard",
-    )
-
-
-def robust_tables(finals: dict, algos) -> list:
-    """Markdown lines: per evaluation env, each algorithm's IQM over seeds x modes [95 % CI], and the
-    probability that a seed of the row's algorithm beats one of the column's on the same mode."""
-    lines = [
-        "## Aggregate over the three modes",
-        "",
-        "IQM over every seed and mode (the three modes as tasks of a stratified bootstrap), and the "
-        "probability of improvement P(row > column): the chance that a seed of the row's algorithm ends "
-        "above a seed of the column's on the same mode (ties count half), averaged over the modes. "
-        "No bold in these tables.",
-        "",
-    ]
-    for env in ENVS:
-        lines += [f"**{env}**", "", *aggregate_table({NAMES[a]: finals[env, a] for a in algos}), ""]
-    return lines
 
 
 def aggregate_table(scores: dict) -> list:
@@ -201,26 +96,6 @@ def aggregate_table(scores: dict) -> list:
         ]
         lines.append(f"| {a} | {ci} | " + " | ".join(poi) + " |")
     return lines
-
-
-def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> None:
-    """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring above tau, with
-    its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
-    from benchmarks import robust
-
-    taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for i, (label, x) in enumerate(scores.items()):
-        prof, lo, hi = robust.profile_ci(x, taus)
-        ax.plot(taus, prof, color=f"C{i}", label=label)
-        ax.fill_between(taus, lo, hi, color=f"C{i}", alpha=0.15, lw=0)
-    ax.set_xlabel(f"tau ({xlabel})")
-    ax.set_ylabel("fraction of runs with score > tau")
-    ax.set_ylim(-0.02, 1.02)
-    ax.grid(alpha=0.3)
-    ax.set_title("performance profile (band: 95 % bootstrap CI)")
-    _save(fig, ax, path)
 
 
 def convergence_step(steps, values, tol=0.02):
@@ -310,7 +185,7 @@ def _band(ax, x, runs_y, label):
     ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
 
 
-def _save(fig, legend_ax, path: Path) -> None:
+def save_figure(fig, legend_ax, path: Path) -> None:
     """Legend on ``legend_ax``, tight layout, ``path`` written at 110 dpi, figure closed."""
     legend_ax.legend()
     fig.tight_layout()
@@ -332,7 +207,7 @@ def _per_mode_figure(
             ax.set_ylim(*ylim)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(ylabel)
-    _save(fig, axes[0], out / filename)
+    save_figure(fig, axes[0], out / filename)
 
 
 def training_curves(out: Path, runs: dict, p: dict):
@@ -365,156 +240,6 @@ def testing_curves(out: Path, runs: dict, p: dict):
         draw,
         ylim=(0, 1.02),
     )
-
-
-def stages(out: Path, res: dict, p: dict):
-    plt = _plt()
-    ns = sorted({k[0] for k in res})
-    fig, axes = plt.subplots(
-        1, len(p["stage_modes"]) + 1, figsize=(5 * (len(p["stage_modes"]) + 1), 4)
-    )
-    lines = [
-        "# Stage scan: final testing P/Pmax vs stage count N",
-        "",
-        *quick_note(p),
-        "| N | mode | " + " | ".join(NAMES[a] for a in p["stage_algos"]) + " |",
-        "|" + "---|" * (len(p["stage_algos"]) + 2),
-    ]
-    for ax, mode in zip(axes, p["stage_modes"]):
-        for algo in p["stage_algos"]:
-            finals = [
-                [
-                    np.mean(res[n, mode, algo, s]["test_env"]["final"])
-                    for s in range(p["stage_seeds"])
-                ]
-                for n in ns
-            ]
-            ax.errorbar(
-                ns,
-                np.mean(finals, 1),
-                yerr=np.std(finals, 1),
-                marker="o",
-                capsize=3,
-                label=NAMES[algo],
-            )
-        ax.set_title(f"{mode}")
-        ax.set_xlabel("stages N")
-        ax.set_ylabel("final testing P/Pmax")
-        ax.set_ylim(0, 1.05)
-        ax.grid(alpha=0.3)
-        for n in ns:
-            vals = [
-                np.mean(
-                    [
-                        np.mean(res[n, mode, a, s]["test_env"]["final"])
-                        for s in range(p["stage_seeds"])
-                    ]
-                )
-                for a in p["stage_algos"]
-            ]
-            lines.append(f"| {n} | {mode} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
-    ax = axes[-1]
-    hardest = p["stage_modes"][-1]
-    for algo in p["stage_algos"]:
-        conv = [
-            np.mean(
-                [
-                    convergence_step(
-                        res[n, hardest, algo, s]["curve"].get("step", []),
-                        res[n, hardest, algo, s]["curve"].get("normalized_power", []),
-                    )
-                    for s in range(p["stage_seeds"])
-                ]
-            )
-            for n in ns
-        ]
-        ax.plot(ns, conv, marker="o", label=NAMES[algo])
-    ax.set_title(f"training convergence step ({hardest})")
-    ax.set_xlabel("stages N")
-    ax.set_ylabel("environment steps")
-    ax.grid(alpha=0.3)
-    _save(fig, axes[0], out / "stages.png")
-    (out / "stages.md").write_text("\n".join(lines) + "\n")
-
-
-def transfer(out: Path, res: dict, p: dict):
-    plt = _plt()
-    algos = p["algos"]
-    fig, axes = plt.subplots(1, len(algos), figsize=(3.6 * len(algos), 3.4))
-    lines = [
-        "# Transfer: trained on one mode (rows), tested on each (columns), final P/Pmax",
-        "",
-        *quick_note(p),
-    ]
-    for ax, algo in zip(np.atleast_1d(axes), algos):
-        seeds = sorted({k[3] for k in res})
-        m = np.array(
-            [
-                [np.mean([np.mean(res[a, b, algo, s]["final"]) for s in seeds]) for b in MODES]
-                for a in MODES
-            ]
-        )
-        im = ax.imshow(m, vmin=0, vmax=1, cmap="viridis")
-        for i in range(3):
-            for j in range(3):
-                ax.text(
-                    j,
-                    i,
-                    f"{m[i, j]:.2f}",
-                    ha="center",
-                    va="center",
-                    color="w" if m[i, j] < 0.6 else "k",
-                )
-        ax.set_xticks(range(3), MODES)
-        ax.set_yticks(range(3), MODES)
-        ax.set_xlabel("tested on")
-        ax.set_ylabel("trained on")
-        ax.set_title(NAMES[algo])
-        lines += [
-            f"## {NAMES[algo]}",
-            "",
-            "| trained \\ tested | " + " | ".join(MODES) + " |",
-            "|---|---|---|---|",
-        ]
-        lines += [
-            f"| {MODES[i]} | " + " | ".join(f"{v:.3f}" for v in m[i]) + " |" for i in range(3)
-        ] + [""]
-    fig.colorbar(im, ax=np.atleast_1d(axes).tolist(), shrink=0.8, label="P/Pmax")
-    fig.savefig(out / "transfer.png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    (out / "transfer.md").write_text("\n".join(lines) + "\n")
-
-
-def feedback(out: Path, res: dict, p: dict):
-    plt = _plt()
-    ks = p["feedback_ks"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    lines = [
-        "# Feedback delay: trained at k = 1 (hard), tested at k",
-        "",
-        *quick_note(p),
-        "| algo | " + " | ".join(f"k={k} final / mean" for k in ks) + " |",
-        "|" + "---|" * (len(ks) + 1),
-    ]
-    seeds = sorted({key[2] for key in res})
-    for algo in p["algos"]:
-        finals = [np.mean([np.mean(res[k, algo, s]["final"]) for s in seeds]) for k in ks]
-        cum = [np.mean([np.mean(res[k, algo, s]["mean_curve"]) for s in seeds]) for k in ks]
-        axes[0].plot(ks, finals, marker="o", label=NAMES[algo])
-        axes[1].plot(ks, cum, marker="o", label=NAMES[algo])
-        lines.append(
-            f"| {NAMES[algo]} | "
-            + " | ".join(f"{f:.3f} / {c:.3f}" for f, c in zip(finals, cum))
-            + " |"
-        )
-    axes[0].set_ylabel("final P/Pmax")
-    axes[1].set_ylabel("P/Pmax averaged over the episode")
-    for ax in axes:
-        ax.set_xlabel("feedback delay factor k (free-run draws per control step)")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    _save(fig, axes[0], out / "feedback.png")
-    (out / "feedback.md").write_text("\n".join(lines) + "\n")
 
 
 def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall=float("nan")):

@@ -111,11 +111,11 @@ def _runs(algos, finals_by_algo):
 
 
 def test_table1_writes_iqm_intervals_improvement_and_a_profile(tmp_path):
-    from benchmarks.sweep import report as sweep_report
+    from benchmarks.sweep import report_table1
 
     algos = ["spgd", "td3"]
     finals = {"spgd": [0.1, 0.5, 0.6, 0.7, 0.9], "td3": [0.91, 0.92, 0.93, 0.94, 0.95]}
-    sweep_report.table1(
+    report_table1.table1(
         tmp_path, _runs(algos, finals), dict(algos=algos, seeds=5, episodes=4, name="synthetic")
     )
     md = (tmp_path / "table1.md").read_text()

@@ -1440,11 +1440,11 @@ def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):
 
     cores = os.sched_getaffinity(0)
     core = max(cores)
-    assert lab._other_cores(None) is None
-    others = lab._other_cores(core)
+    assert lab.other_cores(None) is None
+    others = lab.other_cores(core)
     assert others == ((cores - {core}) or None)
     with pytest.raises(ValueError, match=r"--cpu must be one of the cores .* got 100000"):
-        lab._other_cores(100_000)
+        lab.other_cores(100_000)
     proc = lab.Process(
         "http.server",
         ["0", "--bind", "127.0.0.1"],

@@ -210,15 +210,10 @@ def test_the_lab_benchmark_kills_a_learning_run_past_its_first_checkpoint_and_re
 
     learned, ran = lab.run_learning(
         tmp_path,
-        "droq",
-        300,
-        seconds=2,
-        rate=50,
-        stale_s=5,
-        frames_only=True,
-        sets=TINY[1::2],
-        kill_after=0.0,
-        checkpoint_every=100,
+        lab.LearnSettings(
+            "droq", 300, sets=tuple(TINY[1::2]), kill_after=0.0, checkpoint_every=100
+        ),
+        lab.RunSettings(seconds=2, rate=50, stale_s=5, frames_only=True),
     )
     resumed_from = learned["env_steps_resumed_from"]
     assert resumed_from in (100, 200) and learned["sessions"] == 2, learned

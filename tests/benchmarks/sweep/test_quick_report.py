@@ -1,11 +1,11 @@
 """The quick preset's reports say its budgets are too small to learn; the summary lists every report."""
 
-from benchmarks.sweep import plan as sweep_plan
+from benchmarks.sweep import presets
 from benchmarks.sweep import report
 
 
 def test_the_quick_presets_tables_say_its_budgets_cannot_learn():
-    quick, default = sweep_plan.preset("quick"), sweep_plan.preset("default")
+    quick, default = presets.preset("quick"), presets.preset("default")
     note = report.quick_note(quick)
     assert note[0].startswith(
         "**Quick preset: its training budgets (env steps: PPO 32,768, SAC 3,000"
@@ -20,7 +20,7 @@ def test_the_summary_lists_the_budget_sections_report_in_its_folder(tmp_path):
     (tmp_path / "table1.md").write_text("# t\n")
     (tmp_path / "cells").mkdir()
     (tmp_path / "cells" / "x.json").write_text("{}")
-    report.summary(tmp_path, sweep_plan.preset("quick"), ["budget"], {"budget": 1.0}, (1, 0))
+    report.summary(tmp_path, presets.preset("quick"), ["budget"], {"budget": 1.0}, (1, 0))
     text = (tmp_path / "summary.md").read_text()
     assert "- [budget/budget.md](budget/budget.md)" in text and "- [table1.md](table1.md)" in text
     assert "x.json" not in text
