@@ -31,7 +31,6 @@ import json
 import os
 import shutil
 import time
-from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -39,8 +38,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import budgets, registry
+from agents import registry
+from agents.learners import budgets
 from agents.envs import built, check_env_config
+from agents.evaluation import cached_evaluator, episode_ids
 from agents.io import dumps_json, read_json, temp_dir
 from ops_jax import EnvSpec
 from ops_jax import lock
@@ -142,7 +143,7 @@ def train(
     ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
     fields; ``progress_fn(step, metrics)`` is called after each evaluation. ``progress``: a progress bar on
     stderr (``ops_jax.cli.progress.StepProgress``; None: when stderr is a terminal, False: none); a budget
-    the warm-up takes most of is warned about first (``agents.budgets.BudgetWarning``)."""
+    the warm-up takes most of is warned about first (``agents.learners.budgets.BudgetWarning``)."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     if total_steps is not None and (
@@ -262,7 +263,8 @@ def evaluate(
             )
     policy, params = _as_policy(result_or_policy)
     steps = int(steps or env.config.max_steps)
-    run, warm = _cached_evaluator(result_or_policy, policy, env, steps, int(drift_episode))
+    ident = _source_ident(result_or_policy, policy)
+    run, warm = cached_evaluator(ident, policy, env, steps, int(drift_episode))
     key = jax.random.key(seed)
     ids = episode_ids(int(episodes))
     signature = (
@@ -311,29 +313,6 @@ def summarize(npow: np.ndarray, **extra) -> dict:
     )
 
 
-def split_over_devices(size: int, axis: str):
-    """A ``NamedSharding`` splitting a leading axis of length ``size`` over all local devices (a
-    multi-GPU host, or XLA_FLAGS=--xla_force_host_platform_device_count=K on CPU) when there are
-    several and they divide it; else None (one device)."""
-    devices = jax.local_devices()
-    if len(devices) < 2 or size % len(devices):
-        return None
-    mesh = jax.sharding.Mesh(np.array(devices), (axis,))
-    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(axis))
-
-
-def episode_ids(episodes: int):
-    """Episode indices, sharded with ``split_over_devices``: the jitted evaluation then splits its
-    episodes across devices. Results do not depend on the device count."""
-    ids = jnp.arange(episodes)
-    sharding = split_over_devices(episodes, "episodes")
-    return ids if sharding is None else jax.device_put(ids, sharding)
-
-
-_EVALUATORS: "OrderedDict[tuple, tuple]" = OrderedDict()
-_EVALUATORS_MAX = 64
-
-
 def _source_ident(source, policy: Policy):
     """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
     configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
@@ -346,90 +325,6 @@ def _source_ident(source, policy: Policy):
             json.dumps(source.hyper, sort_keys=True, default=str),
         )
     return ("policy", policy)
-
-
-def _cached_evaluator(source, policy: Policy, env, steps: int, drift_episode: int):
-    """``evaluator`` memoised, so repeated evaluations (seeds, testing environments, other modes
-    with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
-    what its policy is built from (algorithm, training configuration, hyperparameters), a policy
-    by identity; the environment by its static ``EnvConfig`` (its parameters are arguments).
-    Returns ``(run, warmed)``: ``warmed`` holds the argument signatures already run once."""
-    key = (_source_ident(source, policy), env.config, steps, drift_episode)
-    if key not in _EVALUATORS:
-        _EVALUATORS[key] = (
-            evaluator(env, policy, steps, drift_episode),
-            set(),
-        )  # + warmed signatures
-        if len(_EVALUATORS) > _EVALUATORS_MAX:
-            _EVALUATORS.popitem(last=False)
-    _EVALUATORS.move_to_end(key)
-    return _EVALUATORS[key]
-
-
-def evaluator(env, policy: Policy, steps: int, drift_episode: int, trajectory: bool = False):
-    """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning P/Pmax,
-    terminated flags and the readings made per step (the observation's frame and the probes left in; steps,
-    episodes), with ``trajectory`` also the delay offsets (steps + 1, episodes, N) wl after the reset and after each
-    step. The one rollout of a policy: ``evaluate`` and the episode renderer (``agents.episode``) use it."""
-    probes = [0]  # probe calls so far in the step being traced (each probe's own key)
-    axes_params = None
-
-    @jax.jit
-    def run(params, env_params, key, ids):
-        k_reset, k_init, k_run = jax.random.split(key, 3)
-        keys = jax.vmap(jax.random.fold_in, (None, 0))(k_reset, ids)
-        obs, states = jax.vmap(env.reset, in_axes=(0, axes_params, None))(
-            keys, env_params, drift_episode
-        )
-        carry = policy.init(k_init, obs)
-
-        def body(c, t):
-            obs, states, carry = c
-            k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
-            now = [
-                states
-            ]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
-            made = [jnp.ones(ids.shape, jnp.int32)]  # readings this step, per episode
-
-            def probe(offsets, active=None):
-                probes[0] += 1
-                keys = jax.vmap(jax.random.fold_in, (None, 0))(
-                    jax.random.fold_in(k_env, probes[0]), ids
-                )
-                p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(
-                    keys, now[0], offsets, env_params
-                )
-                if active is None:
-                    now[0] = probed
-                    made[0] = made[0] + 1
-                    return p
-                made[0] = made[0] + active.astype(jnp.int32)
-                now[0] = jax.tree.map(
-                    lambda a, b: jnp.where(
-                        active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b
-                    ),
-                    probed,
-                    now[0],
-                )
-                return jnp.where(active, p, jnp.nan)
-
-            probes[0] = 0
-            action, carry = policy.act(params, carry, obs, k_act, probe)
-            keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)
-            obs, states, _, term, _, info = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
-                keys, now[0], action, env_params
-            )
-            out = (info["normalized_power"], term, made[0]) + (
-                (states.deltas,) if trajectory else ()
-            )
-            return (obs, states, carry), out
-
-        _, out = jax.lax.scan(body, (obs, states, carry), jnp.arange(steps))
-        if trajectory:
-            out = (*out[:3], jnp.concatenate([states.deltas[None], out[3]]))
-        return out
-
-    return run
 
 
 # -- checkpoints --------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ with imperfections, else P/Pmax, and the wall time in parts (compiling apart whe
 progress bar (``ops_jax.cli.progress.StepProgress``) shows env steps, the latest evaluation P/Pmax, "compiling"
 until the first report and the remaining time from the rate after it. A budget that takes no gradient step is
 refused before any output, naming the ``--steps`` to type instead; one whose warm-up takes most of it is warned
-about before the work starts (``agents.budgets``). Ctrl-C stops it with one line saying what was kept
+about before the work starts (``agents.learners.budgets``). Ctrl-C stops it with one line saying what was kept
 and exit status 130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load``
 reads it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other algorithms
 keep nothing of their training; after training, the checkpoint.
@@ -41,7 +41,8 @@ from pathlib import Path
 import numpy as np
 
 import agents
-from agents import api as base, budgets, registry
+from agents import api as base, registry
+from agents.learners import budgets
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
 from agents.learners.offpolicy.checkpoint import EVERY as CHECKPOINT_EVERY

@@ -101,7 +101,7 @@ class AlgoConfig:
 
     def budget_layout(self) -> tuple[int, int, str] | None:
         """(env steps before the first gradient step, env steps per training step, what the first ones
-        are) of a budget (``agents.budgets``); None for a controller, which trains nothing."""
+        are) of a budget (``agents.learners.budgets``); None for a controller, which trains nothing."""
         return None
 
     def trained_units(self, units: int) -> int:

@@ -9,7 +9,7 @@ Command line (``python -m agents.episode [episode|frame] ...``; default ``episod
     python -m agents.episode frame --stages 5 --mode hard --policy random --steps 0 --out scope.png
 
 Episodes start as the 10th reset (hard mode's drift fully on) and run through the same rollout
-as ``agents.evaluate`` (``agents.api.evaluator``); the pictures use the exact field model
+as ``agents.evaluate`` (``agents.evaluation.evaluator``); the pictures use the exact field model
 (``ops_jax.render``). ``--policy PATH`` loads an ``agents.save`` checkpoint and runs on the
 checkpoint's own environment configuration.
 """
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ops_jax import physics, render
-from agents import api as base, registry
+from agents import api as base, evaluation, registry
 from ops_jax.cli.parser import ArgumentParser, run
 from ops_jax.cli.progress import keep_ctrl_c
 from agents.envs import built
@@ -74,14 +74,14 @@ def run_episode(
     seed: int = 0,
     episode: int = DRIFT_EPISODE,
 ) -> render.Episode:
-    """One episode of ``policy`` (probes allowed) through ``agents.api.evaluator``: the offsets
+    """One episode of ``policy`` (probes allowed) through ``agents.evaluation.evaluator``: the offsets
     after the reset and after every step, and their exact P / P_max (field model)."""
     env_config = base.check_env_config(env_config)
     env, env_params = built(env_config)
     steps = int(env.config.max_steps if steps is None else steps)
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
-    run = base.evaluator(env, policy, steps, int(episode), trajectory=True)
+    run = evaluation.evaluator(env, policy, steps, int(episode), trajectory=True)
     deltas = run(params, env_params, jax.random.key(seed), jnp.arange(1))[-1]
     deltas = np.asarray(deltas)[:, 0]
     p, _ = render.measure_frames(deltas, env.config.stages, env.config.detector)

@@ -218,7 +218,7 @@ def search(
 
     names = sorted(grid)
     combos = [dict(zip(names, vals)) for vals in itertools.product(*(grid[k] for k in names))]
-    from agents.api import evaluator, episode_ids
+    from agents.evaluation import evaluator, episode_ids
 
     runs = {}
     for m in modes:

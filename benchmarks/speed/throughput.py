@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ops_jax
-from agents.api import split_over_devices
+from agents.evaluation import split_over_devices
 from agents.io import write_json_atomic
 from benchmarks.common import load_reference_timing
 from ops_jax.cli.parser import ArgumentParser
@@ -43,7 +43,7 @@ GYMNAX_PATHS = ("step_batch", "gymnax")  # ... | jax.vmap of the gymnax adapter'
 def build(stages: int, model: str, batch: int, path: str = "step_batch"):
     """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS or GYMNAX_PATHS) from a given
     state. With several local devices that divide the batch, the batch is split across them
-    (``agents.api.split_over_devices``)."""
+    (``agents.evaluation.split_over_devices``)."""
     env, params = ops_jax.make(stages, "hard", model=model)
     step = env.step_batch if path == "step_batch" else jax.vmap(env.step, in_axes=(0, 0, 0, None))
     if path == "gymnax":

@@ -38,7 +38,7 @@ import jax
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
-from agents import budgets
+from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo

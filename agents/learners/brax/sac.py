@@ -29,7 +29,7 @@ import jax
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
 from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
-from agents import budgets
+from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo
@@ -115,7 +115,7 @@ class SACConfig(AlgoConfig):
     num_eval_envs: int = field(COUNT)
 
     def budget_layout(self) -> tuple[int, int, str]:
-        """The replay prefill, then steps of ``num_envs`` env steps (``agents.budgets``)."""
+        """The replay prefill, then steps of ``num_envs`` env steps (``agents.learners.budgets``)."""
         why = f"the replay prefill (min_replay_size = {self.min_replay_size:,})"
         return budgets.ceil_to(self.min_replay_size, self.num_envs), self.num_envs, why
 

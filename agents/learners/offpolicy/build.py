@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import jax
 
-from agents import api as base
+from agents import evaluation
 from agents.envs import built, train_env_config
 
 
@@ -93,7 +93,7 @@ def cached_build(learner, env_config: dict, h: dict, num_seeds: int) -> dict:
     hyperparameters) in this process, so that other seeds or modes (their ``EnvParams`` are
     arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
     env, env_params = built(train_env_config(env_config, h["train_reward"]))
-    sharding = base.split_over_devices(num_seeds, "seeds")
+    sharding = evaluation.split_over_devices(num_seeds, "seeds")
     key = (
         learner.name,
         env.config,
@@ -103,7 +103,7 @@ def cached_build(learner, env_config: dict, h: dict, num_seeds: int) -> dict:
     )
     if key not in _BUILDS:
         raw = learner.build(learner.training_env(env, env_config, h), h)
-        evaluate_fn = base.evaluator(
+        evaluate_fn = evaluation.evaluator(
             env, learner.make_policy(env_config, h), env.config.max_steps, 10
         )
         ts_shape = jax.eval_shape(raw["init"], jax.random.key(0), env_params)

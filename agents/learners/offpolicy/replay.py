@@ -10,7 +10,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from agents import budgets
+from agents.learners import budgets
 from agents.config import COUNT, HISTORY, UNIT, AlgoConfig, choice, field, optional
 from ops_jax.env import REWARDS
 
@@ -37,7 +37,7 @@ class ReplayConfig(AlgoConfig):
     fit_history: int | None = field(optional(HISTORY), default=None, kw_only=True)
 
     def budget_layout(self) -> tuple[int, int, str]:
-        """The random warm-up, then iterations of ``num_envs * unroll`` env steps (``agents.budgets``)."""
+        """The random warm-up, then iterations of ``num_envs * unroll`` env steps (``agents.learners.budgets``)."""
         per_iter = self.num_envs * self.unroll
         warm = budgets.ceil_to(self.learning_starts, per_iter)
         rounded = (

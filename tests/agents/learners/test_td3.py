@@ -194,7 +194,7 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path, this_build):
         "import json, sys, numpy as np, jax, agents; from agents.learners.offpolicy import td3;"
         f"both = td3.train_seeds({ENV!r}, seeds=[3, 5], total_steps={FEW_STEPS}, **{FEW!r});"
         "np.savez(sys.argv[1], *[np.ravel(x) for r in both for x in jax.tree.leaves(r.params)]);"
-        "sharded = [str(agents.api.split_over_devices(2, 'seeds').spec)];"
+        "sharded = [str(agents.evaluation.split_over_devices(2, 'seeds').spec)];"
         "print(json.dumps(dict(devices=jax.device_count(), sharded=sharded)))"
     )
     env = {

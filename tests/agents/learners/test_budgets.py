@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import agents
-from agents import budgets
+from agents.learners import budgets
 from agents.api import EvalResult, TrainResult
 from agents import DroQConfig, PPOConfig, SACConfig, TD3Config
 from agents.learners.offpolicy.driver import schedule
