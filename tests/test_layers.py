@@ -91,7 +91,7 @@ def cycles(graph: dict) -> list:
 def test_graph_sees_function_local_imports():
     graph = import_graph()
     assert "benchmarks.sweep.report" in graph["benchmarks.sweep.units"]  # imported inside Sweep.run
-    assert "ops_jax.render" in graph["ops_jax.adapters.gymnasium.env"]  # imported inside render()
+    assert "ops_jax.render" in graph["ops_jax.adapters.gymnasium.shared"]  # in render_scope()
     assert (
         "agents.learners.offpolicy.td3" in graph["agents.algos"]
     )  # named in the registry's table, imported at run time

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 from ops_jax.cli import extras
 from ops_jax.env import EnvParams, EnvState, OPSEnv
 from ops_jax.env import make as make_ops
-from ops_jax.adapters.gymnasium.env import _observation_bounds
+from ops_jax.adapters.gymnasium.shared import observation_bounds
 
 try:
     from flax import struct
@@ -97,12 +97,12 @@ class OPSGymnax(environment.Environment):
         """A finite Box from the parameters' physics and noise (the Gymnasium adapter's bounds)."""
         ops_params = (self.default_params if params is None else params).ops
         try:
-            bound = _observation_bounds(self.ops_env, ops_params)
+            bound = observation_bounds(self.ops_env, ops_params)
         except (
             jax.errors.ConcretizationTypeError,
             jax.errors.TracerArrayConversionError,
         ):  # traced: the defaults' bounds
-            bound = _observation_bounds(self.ops_env, self.default_params.ops)
+            bound = observation_bounds(self.ops_env, self.default_params.ops)
         return spaces.Box(
             jnp.asarray(-bound), jnp.asarray(bound), (self.ops_env.observation_size,), jnp.float32
         )

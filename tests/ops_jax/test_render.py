@@ -1,5 +1,7 @@
 """Pictures: oscilloscope frames (env.render), the episode GIF CLI, the objective landscape."""
 
+import sys
+
 import gymnasium
 import numpy as np
 import pytest
@@ -133,9 +135,10 @@ def test_landscape_in_chunks_equals_one_call(monkeypatch):
     """The offsets computed a chunk at a time (the last one padded) give what one call gives, to float32 rounding."""
     x = np.linspace(-1.0, 1.0, 23)
     whole = render.landscape(3, [1, 2], x)
+    landscape_module = sys.modules[render.landscape.__module__]  # where landscape reads the chunk
     monkeypatch.setattr(
-        render, "LANDSCAPE_CHUNK", 50
-    )  # 529 offsets: 10 whole chunks and a padded one
+        landscape_module, "LANDSCAPE_CHUNK", 50
+    )  # 529 offsets: 10 chunks and a padded one
     np.testing.assert_allclose(
         render.landscape(3, [1, 2], x), whole, atol=1e-6
     )  # float32: batch size moves an ulp
