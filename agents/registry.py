@@ -58,7 +58,8 @@ class OffPolicyModule(SeedsModule, Protocol):
 class Algo:
     """One algorithm: ``name`` (``agents.train``'s ``algo``), ``module`` (an ``AlgoModule``), ``config``
     (its ``agents.config.AlgoConfig`` type), ``display`` (tables, figures), ``vmaps_seeds`` (the module is a
-    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``)."""
+    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``), ``needs`` (a module its training imports,
+    imported by ``load``: where an extra is missing, the program stops there, before any work)."""
 
     name: str
     module: str
@@ -66,6 +67,7 @@ class Algo:
     display: str
     vmaps_seeds: bool = False
     off_policy: bool = False
+    needs: str = ""
 
     @property
     def learner(self) -> bool:
@@ -91,6 +93,8 @@ class Algo:
     def load(self) -> AlgoModule:
         """Its module (TypeError naming what the module lacks of ``members``)."""
         module = importlib.import_module(self.module)
+        if self.needs:
+            importlib.import_module(self.needs)
         missing = [m for m in self.members() if not hasattr(module, m)]
         if missing:
             raise TypeError(

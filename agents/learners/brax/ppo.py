@@ -36,7 +36,6 @@ from typing import ClassVar
 import jax
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
-from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
 from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
@@ -142,7 +141,7 @@ class PPOConfig(AlgoConfig):
             )
 
 
-ALGO = Algo("ppo", __name__, PPOConfig, "PPO")
+ALGO = Algo("ppo", __name__, PPOConfig, "PPO", needs="agents.learners.brax.compat")
 
 
 def _network_factory(c: PPOConfig):

@@ -27,7 +27,6 @@ from typing import ClassVar
 import jax
 
 from agents import api as base  # noqa: F401  (brax_compat: quiet brax import)
-from agents.learners.brax import compat  # noqa: F401  (brax quietly; without the agents extra: stops here)
 from agents.learners.brax import training as brax_training
 from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
@@ -134,7 +133,7 @@ class SACConfig(AlgoConfig):
             )
 
 
-ALGO = Algo("sac", __name__, SACConfig, "SAC")
+ALGO = Algo("sac", __name__, SACConfig, "SAC", needs="agents.learners.brax.compat")
 
 
 def _network_factory(c: SACConfig):
