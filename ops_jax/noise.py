@@ -25,6 +25,32 @@ def _unit(bits):
     return jax.lax.bitcast_convert_type((bits >> np.uint32(9)) | _ONE_BITS, jnp.float32) - 1.0
 
 
+_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+
+
+def _rotl(x, r):
+    return (x << np.uint32(r)) | (x >> np.uint32(32 - r))
+
+
+def _threefry_bits(key, n: int):
+    """``jax.random.bits(key, (n,), uint32)`` for a threefry2x32 key (partitionable mode): the same
+    Threefry-2x32 hash of the counters (0, j), unrolled. JAX's CPU lowering runs the 20 rounds as a
+    5-iteration loop that writes both words to memory each pass; unrolled, XLA fuses the hash into
+    the loops that use the bits. Other key types go through ``jax.random.bits``."""
+    if jax.random.key_impl(key) != "threefry2x32" or not jax.config.jax_threefry_partitionable:
+        return jax.random.bits(key, (n,), jnp.uint32)
+    k = jax.random.key_data(key)
+    ks = (k[..., 0:1], k[..., 1:2])
+    ks = (*ks, ks[0] ^ ks[1] ^ np.uint32(0x1BD11BDA))
+    x = [jnp.zeros((n,), jnp.uint32) + ks[0], jnp.arange(n, dtype=jnp.uint32) + ks[1]]
+    for i in range(5):
+        for r in _ROTATIONS[i % 2]:
+            x[0] = x[0] + x[1]
+            x[1] = x[0] ^ _rotl(x[1], r)
+        x = [x[0] + ks[(i + 1) % 3], x[1] + ks[(i + 2) % 3] + np.uint32(i + 1)]
+    return x[0] ^ x[1]
+
+
 def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> dict:
     """Standard draws from one key: ``normal`` {name: shape} -> N(0, 1) float32 (inverse-erf of a
     uniform, as ``jax.random.normal``); ``uniform`` {name: shape} -> U[-1, 1) float32.
@@ -36,7 +62,7 @@ def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> di
     specs = [(name, tuple(shape), int(np.prod(shape))) for name, shape in (normal or {}).items()]
     n_normal = sum(size for _, _, size in specs)
     specs += [(name, tuple(shape), int(np.prod(shape))) for name, shape in (uniform or {}).items()]
-    bits = jax.random.bits(key, (max(1, sum(size for _, _, size in specs)),), jnp.uint32)
+    bits = _threefry_bits(key, max(1, sum(size for _, _, size in specs)))
     u = 2.0 * _unit(bits) - 1.0
     z = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(jnp.maximum(_LOW, u[:n_normal]))
     values = jnp.concatenate(jax.lax.optimization_barrier((z, u[n_normal:])))
