@@ -4,9 +4,14 @@ its fusion with the frames' fit; ``wrap``, an offset from the nearest optimum.""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+if TYPE_CHECKING:
+    from agents.controllers.physics_informed import PhysicsConfig
 
 
 def wrap(x):
@@ -78,8 +83,11 @@ def per_theta(n: int, fit: int, column: int) -> np.ndarray:
     return out
 
 
-def identify_function(fit: int, n_theta: int, h: dict, residual, max_step, theta_lo, theta_hi):
-    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance."""
+def identify_function(
+    fit: int, n_theta: int, config: PhysicsConfig, residual, max_step, theta_lo, theta_hi
+):
+    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance (``config``'s
+    ``damping`` and ``forget``)."""
 
     def identify_one(z, th, info, y, hist):
         """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
@@ -93,21 +101,23 @@ def identify_function(fit: int, n_theta: int, h: dict, residual, max_step, theta
         A = J.T @ J
         prior_full = jnp.zeros((fit + n_theta,) * 2).at[fit:, fit:].set(info)
         A_reg = (
-            A + prior_full + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
+            A
+            + prior_full
+            + config.damping * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit + n_theta))
         )
         step = -jnp.linalg.solve(A_reg, J.T @ res(u))
         z_new = wrap(z + jnp.clip(step[:fit], -0.05, 0.05))
         th_new = jnp.clip(th + jnp.clip(step[fit:], -max_step, max_step), theta_lo, theta_hi)
         azz, azt, att = A[:fit, :fit], A[:fit, fit:], A[fit:, fit:]
         schur = att - azt.T @ jnp.linalg.solve(azz + 1e-6 * jnp.eye(fit), azt)
-        info_new = h["forget"] * info + schur
+        info_new = config.forget * info + schur
         return z_new, th_new, 0.5 * (info_new + info_new.T)
 
     return identify_one
 
 
-def calibrate_function(h: dict):
-    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line."""
+def calibrate_function(config: PhysicsConfig):
+    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line (``config``'s ``forget``)."""
     cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
     cal_mean = jnp.array([0.0, 1.0])
 
@@ -128,8 +138,8 @@ def calibrate_function(h: dict):
         innov = r - phi @ beta
         bound = CAL_CLIP * jnp.sqrt(CAL_NOISE**2 + phi @ cov @ phi)
         r_used = phi @ beta + jnp.clip(innov, -bound, bound)
-        info = h["forget"] * info + jnp.outer(phi, phi) / CAL_NOISE**2
-        vec = h["forget"] * vec + phi * r_used / CAL_NOISE**2
+        info = config.forget * info + jnp.outer(phi, phi) / CAL_NOISE**2
+        vec = config.forget * vec + phi * r_used / CAL_NOISE**2
         beta, cov = solve(info, vec)
         x_cal = (r - beta[0]) / beta[1]
         d = jnp.array([-1.0, -x_cal]) / beta[1]  # gradient of x_cal in (o, 1 + g)

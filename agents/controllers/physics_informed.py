@@ -16,7 +16,7 @@ State estimation (every control step, batched over B instances, jitted, no learn
   (``history`` 2-3) average that motion out of the comparison: docs/imperfections.md ("Frames compared").
 - Gauss-Newton / Levenberg-Marquardt from ``starts`` random points on the period torus plus the
   tracked prediction (last estimate + last move), ``iters`` iterations each (Jacobian by jacfwd);
-  the start with the lowest residual wins.
+  the start with the lowest residual wins (the model, its residual and the fit: ``agents.controllers.physics_fit``).
 
 Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0 elsewhere
 (``wrap`` maps to the nearest optimum, [-wl/4, wl/4)).
@@ -65,11 +65,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ops_jax import optics, physics
 from ops_jax.ranges import Range
 from agents.controllers import spgd
-from agents.controllers.identification import FIT_VAR0, NOISE_Y, calibrate_function, fuse
-from agents.controllers.identification import identify_function, per_theta, theta_layout, wrap
+from agents.controllers.identification import FIT_VAR0, fuse, theta_layout, wrap
+from agents.controllers.physics_fit import Shape, Steps, Theta, shape_of
+from agents.controllers.physics_fit import fitted_stages  # noqa: F401  (its place in the public API)
+from agents.controllers.physics_fit import steps_of, theta_of
 from agents.api import Policy, TrainResult, evaluated_result
 from agents.config import HISTORY, AlgoConfig, field, flag, optional
 from agents.registry import Algo
@@ -162,220 +163,157 @@ def params_of(env_params, xp=jnp) -> dict:
     }
 
 
-def fitted_stages(config) -> int:
-    """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the detector
-    "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
-    return config.stages if config.detector == "polariser" else config.stages - 1
-
-
-def _fit_functions(n: int, fit: int, cfg, identify: bool, layout: dict, h: dict) -> tuple:
-    """The fit: ``(moved, residual, estimate_one)``: the length change of a commanded move, the misfit of
-    the measurement model and the multi-start Levenberg-Marquardt estimate of the offsets of one instance."""
-    p_max = physics.p_max(n, cfg.detector)
-    peak = physics.peak_intensity(n)
-
-    def full(z):
-        return jnp.concatenate([z, jnp.zeros((*z.shape[:-1], n - fit), z.dtype)], axis=-1)
-
-    def model(z, th):  # z (..., fit), theta (n_theta,) -> y (..., ny)
-        if not identify:
-            m = physics.measure(full(z), stages=n, model="phasor", detector=cfg.detector)
-            return jnp.concatenate(
-                [(2 * m.power / p_max - 1)[..., None], 2 * m.samples / peak - 1], axis=-1
-            )
-        m = optics.measure(
-            full(z),
-            np.pi / 4 + th[layout["rotation"]],
-            th[layout["leak_amplitude"]] ** 2,
-            optics.ideal_pulses(n),
-            stages=n,
-            model="phasor",
-            detector=cfg.detector,
+def init_carry(shape: Shape, theta: Theta, b: int) -> dict:
+    """The carry of ``b`` instances before their first step: no earlier frame, move, estimate or drift; theta at
+    its start and prior (``identify``); the readout's calibration empty (``readout``)."""
+    ny, fit, older = shape.ny, shape.fit, shape.older
+    carry = {
+        "y_prev": jnp.zeros((b, ny), jnp.float32),
+        "dz_prev": jnp.zeros((b, fit), jnp.float32),
+        "z": jnp.zeros((b, fit), jnp.float32),
+        "v": jnp.zeros((b, fit), jnp.float32),
+        "valid": jnp.zeros((b,), jnp.float32),
+    }
+    if older:
+        carry.update(
+            y_older=jnp.zeros((b, older, ny), jnp.float32),
+            dz_older=jnp.zeros((b, older, fit), jnp.float32),
+            valid_older=jnp.zeros((b, older), jnp.float32),
         )
-        v = jnp.concatenate([(m.power / p_max)[..., None], m.samples / peak], axis=-1)
-        return 2 * ((1 + th[layout["detector_gain"]]) * v + th[layout["detector_offset"]]) - 1
+    if shape.identify:
+        n_theta = theta.start.size
+        carry.update(
+            theta=jnp.broadcast_to(theta.start, (b, n_theta)),
+            info=jnp.broadcast_to(theta.prior, (b, n_theta, n_theta)),
+        )
+    if shape.readout:
+        carry.update(
+            cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32),
+            cal_vec=jnp.zeros((b, fit, 2), jnp.float32),
+            fit_var=jnp.full((b, fit), FIT_VAR0, jnp.float32),
+        )
+    return carry
 
-    def moved(dz, th):
-        """The length change of a commanded move ``dz`` (wl) with the identified actuator gains."""
-        return dz * (1 + th[layout["actuator_gain"]]) if identify else dz
 
-    def residual(z, th, y, hist):
-        """Misfit of the latest frame ``y`` and, through the moves since, of the H frames before it.
-        ``hist``: (their frames y_prev (H, ny), newest first; the moves commanded after each dz_prev (H, fit);
-        the drift estimate v (fit,); their weights w (H,))."""
-        y_prev, dz_prev, v, w = hist
-        back = jnp.cumsum(
-            jax.vmap(moved, in_axes=(0, None))(dz_prev, th) + v, axis=0
-        )  # length change since each
-        out = model(jnp.concatenate([z[None], z[None] - back]), th)  # one pass of the model for all
-        return jnp.concatenate([out[0] - y, (w[:, None] * (out[1:] - y_prev)).ravel()])
+def earlier_frames(shape: Shape, carry: dict) -> tuple:
+    """(frames (B, H, ny), moves (B, H, fit), valid (B, H)) of the H frames before the latest, newest first, and
+    the carry's update that shifts them by one."""
+    frames, moves, valid = (
+        carry["y_prev"][:, None],
+        carry["dz_prev"][:, None],
+        carry["valid"][:, None],
+    )
+    older = shape.older
+    if not older:
+        return frames, moves, valid, {}
+    # ``dz_prev`` is read here, so that an observer may record the move really sent
+    frames = jnp.concatenate([frames, carry["y_older"]], axis=1)
+    moves = jnp.concatenate([moves, carry["dz_older"]], axis=1)
+    valid = jnp.concatenate([valid, carry["valid_older"]], axis=1)
+    shifted = dict(
+        y_older=frames[:, :older], dz_older=moves[:, :older], valid_older=valid[:, :older]
+    )
+    return frames, moves, valid, shifted
 
-    def lm(z, th, y, hist):
-        def body(z, _):
-            r = residual(z, th, y, hist)
-            J = jax.jacfwd(residual)(z, th, y, hist)
-            A = J.T @ J
-            A = A + h["damping"] * (jnp.diag(jnp.diag(A)) + 1e-6 * jnp.eye(fit))
-            step = -jnp.linalg.solve(A, J.T @ r)
-            return z + jnp.clip(step, -0.05, 0.05), None
 
-        z, _ = jax.lax.scan(body, z, None, length=h["iters"])
-        r = residual(z, th, y, hist)
-        return wrap(z), jnp.sum(r**2)
+def estimate(shape: Shape, steps: Steps, carry: dict, inputs: tuple, key) -> tuple:
+    """The offsets (B, fit) wl from the latest frame, the earlier ones and the length readouts: (z, theta, the
+    carry's update). ``inputs``: (theta (B, n_theta), y (B, ny), x_len (B, n) wl, z_pred (B, fit) wl, frames,
+    moves, valid of ``earlier_frames``)."""
+    th, y, x_len, z_pred, frames, moves, valid = inputs
+    config, fit = shape.config, shape.fit
+    if config.lengths_only or fit == 0:
+        return wrap(x_len[:, :fit]), th, {}
+    new = {}
+    hist = (frames, moves, carry["v"], config.w_hist * valid)
+    keys = jax.random.split(key, y.shape[0])
+    z = jax.vmap(steps.estimate_one)(keys, th, y, hist, z_pred, wrap(x_len[:, :fit]))
+    if shape.identify:
+        z, th, info = jax.vmap(steps.identify_one)(z, th, carry["info"], y, hist)
+        new.update(theta=th, info=info)
+    if shape.readout:
+        cal_info, cal_vec, z_cal, sd = jax.vmap(jax.vmap(steps.calibrate_one))(
+            carry["cal_info"], carry["cal_vec"], z, x_len[:, :fit]
+        )
+        z, fit_var = fuse(z, z_cal, sd, carry["fit_var"], config.forget)
+        new.update(cal_info=cal_info, cal_vec=cal_vec, fit_var=fit_var)
+    return z, th, new
 
-    def estimate_one(key, th, y, hist, z_pred, z_len):
-        cands = [z_pred[None]]
-        if h["starts"]:
-            cands.append(jax.random.uniform(key, (h["starts"], fit), minval=-0.25, maxval=0.25))
-        if h["use_lengths"]:
-            cands.append(z_len[None])
-        cands = jnp.concatenate(cands)
-        zs, cost = jax.vmap(lm, in_axes=(0, None, None, None))(cands, th, y, hist)
-        return zs[jnp.argmin(cost)]
 
-    return moved, residual, estimate_one
+def control(shape: Shape, carry: dict, z, z_pred, th, scale) -> tuple:
+    """The move to the nearest optimum: (action (B, n) in [-1, 1], the drift estimate v (B, fit) wl per step);
+    ``scale``: wl per action unit."""
+    config, fit, layout = shape.config, shape.fit, theta_layout(shape.n, shape.fit)
+    # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
+    v = carry["v"] + config.drift_gain * carry["valid"][:, None] * wrap(z - z_pred)
+    # wl moved per action unit
+    per_unit = scale * (1 + th[:, layout["actuator_gain"]]) if shape.identify else scale
+    a_fit = jnp.clip(-(config.gain * z + v) / per_unit, -1.0, 1.0)
+    b = z.shape[0]
+    return jnp.concatenate([a_fit, jnp.zeros((b, shape.n - fit), jnp.float32)], axis=1), v
+
+
+def held(obs_layout, hold: float, action, obs, key, probe):
+    """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step elsewhere."""
+    if probe is None:
+        raise ValueError(
+            "hold needs a probe (one more detector reading per step): run the controller "
+            "through agents.evaluate or agents.bench.runner, or set hold=None"
+        )
+    amp = spgd.HOLD["delta"]  # the hold's dither (wl)
+    s = spgd.dither(jax.random.fold_in(key, HOLD_STREAM), action.shape)
+    p0 = obs_layout.power(obs)
+    p1 = probe(amp * s, p0 >= hold)  # none under the hold, where the fit's move is sent
+    return spgd.held(action, p0, spgd.slope(p0, p1, s, amp), hold)
+
+
+def act_step(shape: Shape, steps: Steps, obs_layout, params: dict, carry: dict, obs, key, probe):
+    """One control step of B instances: (action (B, n), the next carry); ``params``: ``policy_params``."""
+    scale, window = params["action_scale"], params["window"]
+    b, n, fit = obs.shape[0], shape.n, shape.fit
+    y = obs_layout.detector(obs)
+    if obs_layout.lengths:
+        x_len = obs_layout.length_readouts(obs, window)
+    else:
+        x_len = jnp.zeros((b, n), jnp.float32)
+    th = carry["theta"] if shape.identify else jnp.zeros((b, 0), jnp.float32)
+    move = (
+        jax.vmap(steps.moved)(carry["dz_prev"], th) + carry["v"]
+    )  # length change + drift since y_prev
+    z_pred = wrap(carry["z"] + move)
+    frames, moves, valid, new = earlier_frames(shape, carry)
+    inputs = (th, y, x_len, z_pred, frames, moves, valid)
+    z, th, estimated = estimate(shape, steps, carry, inputs, key)
+    action, v = control(shape, carry, z, z_pred, th, scale)
+    if shape.config.hold is not None:
+        action = held(obs_layout, shape.config.hold, action, obs, key, probe)
+    dz = action[:, :fit] * scale
+    step = {"y_prev": y, "dz_prev": dz, "z": z, "v": v, "valid": jnp.ones((b,), jnp.float32)}
+    return action, {**step, **new, **estimated}
 
 
 def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
     """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
     env_config = check_env_config(env_config)
     config = hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)
-    h = config.to_hyper()
     env, _ = built(env_config)
-    cfg, obs_layout = env.config, env.layout
-    n = cfg.stages
-    ny = obs_layout.detector_size  # P and the 2^n - 1 samples
-    if not obs_layout.lengths and (h["use_lengths"] or h["lengths_only"]):
-        raise ValueError(
-            "use_lengths and lengths_only must be False on an environment without length readouts "
-            '(observe_lengths=False): use config="frames"'
-        )
-    fit = fitted_stages(cfg)
+    obs_layout = env.layout
+    shape = shape_of(config, env.config, obs_layout)
     default = policy_params(env_config)
-    identify = h["identify"] and fit > 0 and not h["lengths_only"]
-    readout = identify and h["use_lengths"]
-    layout = theta_layout(n, fit)
-    older = config.history - 1  # frames kept beyond the one before the latest
-    column = lambda c: jnp.asarray(per_theta(n, fit, c) if identify else np.zeros(0), jnp.float32)
-    theta0, theta_lo, theta_hi = column(0), column(2), column(3)
-    n_theta = theta0.size
-    prior = jnp.diag((NOISE_Y / column(1)) ** 2) if identify else jnp.zeros((0, 0), jnp.float32)
-    max_step = 0.1 * (theta_hi - theta_lo)  # per control step
-
-    hold, amp = h.get("hold"), spgd.HOLD["delta"]  # the hold's dither (wl)
-    moved, residual, estimate_one = _fit_functions(n, fit, cfg, identify, layout, h)
-    identify_one = identify_function(fit, n_theta, h, residual, max_step, theta_lo, theta_hi)
-    calibrate_one = calibrate_function(h)
+    theta = theta_of(shape)
+    steps = steps_of(shape, env.config.detector, theta)
 
     def init(key, obs):
         del key
-        b = obs.shape[0]
-        carry = {
-            "y_prev": jnp.zeros((b, ny), jnp.float32),
-            "dz_prev": jnp.zeros((b, fit), jnp.float32),
-            "z": jnp.zeros((b, fit), jnp.float32),
-            "v": jnp.zeros((b, fit), jnp.float32),
-            "valid": jnp.zeros((b,), jnp.float32),
-        }
-        if older:
-            carry.update(
-                y_older=jnp.zeros((b, older, ny), jnp.float32),
-                dz_older=jnp.zeros((b, older, fit), jnp.float32),
-                valid_older=jnp.zeros((b, older), jnp.float32),
-            )
-        if identify:
-            carry.update(
-                theta=jnp.broadcast_to(theta0, (b, n_theta)),
-                info=jnp.broadcast_to(prior, (b, n_theta, n_theta)),
-            )
-        if readout:
-            carry.update(
-                cal_info=jnp.zeros((b, fit, 2, 2), jnp.float32),
-                cal_vec=jnp.zeros((b, fit, 2), jnp.float32),
-                fit_var=jnp.full((b, fit), FIT_VAR0, jnp.float32),
-            )
-        return carry
-
-    def held(action, obs, key, probe):
-        """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step elsewhere."""
-        if probe is None:
-            raise ValueError(
-                "hold needs a probe (one more detector reading per step): run the controller "
-                "through agents.evaluate or agents.bench.runner, or set hold=None"
-            )
-        s = spgd.dither(jax.random.fold_in(key, HOLD_STREAM), action.shape)
-        p0 = obs_layout.power(obs)
-        p1 = probe(amp * s, p0 >= hold)  # none under the hold, where the fit's move is sent
-        return spgd.held(action, p0, spgd.slope(p0, p1, s, amp), hold)
+        return init_carry(shape, theta, obs.shape[0])
 
     def act(params, carry, obs, key, probe):
         p = default if params is None else params
-        scale, window = p["action_scale"], p["window"]
-        b = obs.shape[0]
-        y = obs_layout.detector(obs)
-        x_len = (
-            obs_layout.length_readouts(obs, window)
-            if obs_layout.lengths
-            else jnp.zeros((b, n), jnp.float32)
-        )
-        valid = carry["valid"][:, None]
-        th = carry["theta"] if identify else jnp.zeros((b, 0), jnp.float32)
-        move = (
-            jax.vmap(moved)(carry["dz_prev"], th) + carry["v"]
-        )  # length change + estimated drift since y_prev
-        z_pred = wrap(carry["z"] + move)
-        frames, moves, valid_hist = (
-            carry["y_prev"][:, None],
-            carry["dz_prev"][:, None],
-            carry["valid"][:, None],
-        )
-        new = {}
-        if older:  # newest first; ``dz_prev`` is read here, so that an observer may record the move really sent
-            frames = jnp.concatenate([frames, carry["y_older"]], axis=1)
-            moves = jnp.concatenate([moves, carry["dz_older"]], axis=1)
-            valid_hist = jnp.concatenate([valid_hist, carry["valid_older"]], axis=1)
-            new.update(
-                y_older=frames[:, :older],
-                dz_older=moves[:, :older],
-                valid_older=valid_hist[:, :older],
-            )
-        if h["lengths_only"] or fit == 0:
-            z = wrap(x_len[:, :fit])
-        else:
-            hist = (frames, moves, carry["v"], h["w_hist"] * valid_hist)
-            keys = jax.random.split(key, b)
-            z = jax.vmap(estimate_one)(keys, th, y, hist, z_pred, wrap(x_len[:, :fit]))
-            if identify:
-                z, th, info = jax.vmap(identify_one)(z, th, carry["info"], y, hist)
-                new.update(theta=th, info=info)
-            if readout:
-                cal_info, cal_vec, z_cal, sd = jax.vmap(jax.vmap(calibrate_one))(
-                    carry["cal_info"], carry["cal_vec"], z, x_len[:, :fit]
-                )
-                z, fit_var = fuse(z, z_cal, sd, carry["fit_var"], h["forget"])
-                new.update(cal_info=cal_info, cal_vec=cal_vec, fit_var=fit_var)
-        # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
-        v = carry["v"] + h["drift_gain"] * valid * wrap(z - z_pred)
-        per_unit = (
-            scale * (1 + th[:, layout["actuator_gain"]]) if identify else scale
-        )  # wl moved per action unit
-        a_fit = jnp.clip(-(h["gain"] * z + v) / per_unit, -1.0, 1.0)
-        action = jnp.concatenate([a_fit, jnp.zeros((b, n - fit), jnp.float32)], axis=1)
-        if hold is not None:
-            action = held(action, obs, key, probe)
-        dz = action[:, :fit] * scale
-        return action, {
-            "y_prev": y,
-            "dz_prev": dz,
-            "z": z,
-            "v": v,
-            "valid": jnp.ones((b,), jnp.float32),
-            **new,
-        }
+        return act_step(shape, steps, obs_layout, p, carry, obs, key, probe)
 
     def sent(params, carry, action):
         scale = (default if params is None else params)["action_scale"]
-        return dict(carry, dz_prev=jnp.clip(action[:, :fit], -1.0, 1.0) * scale)
+        return dict(carry, dz_prev=jnp.clip(action[:, : shape.fit], -1.0, 1.0) * scale)
 
     return Policy(init, act, sent)
 

@@ -81,9 +81,9 @@ def main(argv=None) -> str:
     store = CellStore(args.out / "cells")
     records = []
     for i, cell in enumerate(chosen):
-        label = f"{cell['env']}-{cell['algo']}-s{cell['seed']}"
+        label = f"{cell.env}-{cell.algo}-s{cell.seed}"
         t0 = time.perf_counter()
-        result = store.get(label, cell, lambda: plan.compute(cell))
+        result = store.get(label, cell.to_dict(), lambda: plan.compute(cell))
         records.append({"cell": cell, "result": result})
         before = f"before {result['before']:.3f}, " if "before" in result else ""
         print(

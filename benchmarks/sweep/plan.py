@@ -205,18 +205,24 @@ def default_sections() -> tuple:
     return tuple(name for name, s in PLAN.items() if s.default)
 
 
+def _budget_cell(config: dict) -> budget.Cell:
+    """The lab-budget cell of its stored configuration (the sweep's ``section`` key left out)."""
+    return budget.Cell.from_dict({k: v for k, v in config.items() if k != "section"})
+
+
 def _budget_section() -> CellSection:
     """Score against env steps on a lab's budget (benchmarks/budget/plan.py), at the budget preset of
-    ``presets.BUDGET_PRESETS``; part of a run without ``--only``."""
+    ``presets.BUDGET_PRESETS``; part of a run without ``--only``. Its cells are stored as dicts
+    (``benchmarks.budget.cell.Cell.to_dict``), read back into records here."""
     return CellSection(
         "budget",
-        lambda p: budget.cells(presets.BUDGET_PRESETS[p["name"]]),
-        budget.compute,
+        lambda p: [c.to_dict() for c in budget.cells(presets.BUDGET_PRESETS[p["name"]])],
+        lambda config: budget.compute(_budget_cell(config)),
         lambda records, out: budget.report(
-            [{"cell": c, "result": r} for c, r in records], out / "budget"
+            [{"cell": _budget_cell(c), "result": r} for c, r in records], out / "budget"
         ),
         default=True,
-        cost=budget.cost,
+        cost=lambda config: budget.cost(_budget_cell(config)),
     )
 
 

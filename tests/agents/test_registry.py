@@ -157,17 +157,15 @@ def test_registered_learner_in_the_budget_section(tiny):
     from benchmarks.budget import plan as budget
 
     cells = budget.cells("quick", only=["tiny"], seeds=[0])
-    assert [(c["kind"], c["algo"]) for c in cells] == [("learner", "tiny")] * len(
+    assert [(c.kind, c.algo) for c in cells] == [("learner", "tiny")] * len(
         budget.PRESETS["quick"]["envs"]
     )
     cell = cells[0]
-    assert cell["hyper"] == {"max_gain": 0.6} and cell["settings"]["max_gain"] == 0.6
+    assert cell.hyper == {"max_gain": 0.6} and cell.settings["max_gain"] == 0.6
     # a run per checkpoint (not off-policy): (fixed + per env step) + one evaluation each
-    assert budget.cost(cell) == pytest.approx(
-        sum(1.0 + 1e-3 * k + 1.0 for k in cell["checkpoints"])
-    )
+    assert budget.cost(cell) == pytest.approx(sum(1.0 + 1e-3 * k + 1.0 for k in cell.checkpoints))
     rec = budget.compute(cell)
-    assert set(rec["scores"]) == {str(k) for k in cell["checkpoints"]} and not rec["errors"]
+    assert set(rec["scores"]) == {str(k) for k in cell.checkpoints} and not rec["errors"]
     assert all(0.5 < v <= 1.0 for v in rec["scores"].values())
 
 

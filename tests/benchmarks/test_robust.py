@@ -156,7 +156,7 @@ def test_reality_and_budget_reports_carry_iqm_and_improvement(tmp_path):
     assert (tmp_path / "reality_profile.png").stat().st_size > 5000
 
     def record(algo, seed, scores):
-        cell = dict(
+        cell = budget.Cell(
             kind="learner",
             algo=algo,
             hyper={},
@@ -166,6 +166,7 @@ def test_reality_and_budget_reports_carry_iqm_and_improvement(tmp_path):
             checkpoints=[1000, 2000],
             episodes=8,
             eval_seed=1,
+            settings={},
         )
         return {
             "cell": cell,

@@ -9,7 +9,7 @@ import pytest
 
 import agents
 import ops_jax
-from agents.controllers import identification, physics_informed as pi
+from agents.controllers import identification, physics_fit, physics_informed as pi
 
 ENV = {"stages": 3, "mode": "hard", "model": "phasor"}
 
@@ -133,9 +133,10 @@ def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
     moves commanded since and of the drift estimate's steps: zero at the true offsets, and each earlier frame's
     block weighted by its own weight."""
     n, fit, history = 3, 2, 3
-    h = agents.PhysicsConfig.make("frames", history=history).to_hyper()
+    config = agents.PhysicsConfig.make("frames", history=history)
     cfg = ops_jax.make(**ENV)[0].config
-    _, residual, _ = pi._fit_functions(n, fit, cfg, False, identification.theta_layout(n, fit), h)
+    layout = identification.theta_layout(n, fit)
+    _, residual, _ = physics_fit.fit_functions(n, fit, cfg.detector, False, layout, config)
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.uniform(-0.2, 0.2, fit), jnp.float32)
     moves = jnp.asarray(rng.uniform(-0.05, 0.05, (history, fit)), jnp.float32)  # newest first

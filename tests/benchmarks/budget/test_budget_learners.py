@@ -2,6 +2,8 @@
 learning on a small budget, determinism, vmapped seeds, checkpoints, bad hyperparameters, the
 snapshots standing for shorter runs, and the report of tiny records."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -180,9 +182,9 @@ def test_td3_update_to_data_ratio():
 
 
 def test_budget_plan_cells_and_report(tmp_path):
-    default = [c for c in budget.cells("default") if c["kind"] in ("learner", "reference")]
-    assert {c["algo"] for c in default} == {"droq", "spgd", "physics"}
-    assert {c["algo"] for c in budget.cells("full")} == {
+    default = [c for c in budget.cells("default") if c.kind in ("learner", "reference")]
+    assert {c.algo for c in default} == {"droq", "spgd", "physics"}
+    assert {c.algo for c in budget.cells("full")} == {
         "droq",
         "td3",
         "sac",
@@ -192,25 +194,25 @@ def test_budget_plan_cells_and_report(tmp_path):
     }
     # the default plan fits the sweep's 20 minutes on 2 workers by the cost model (docs/learners.md: measured)
     assert sum(map(budget.cost, budget.cells("default"))) <= 2 * 20 * 60 * 1.05
-    assert {c["env"] for c in default} == {"hard", "hard + lab"}
+    assert {c.env for c in default} == {"hard", "hard + lab"}
     assert all(
-        c["checkpoints"] == [1000, 2000, 5000, 10_000, 20_000] and c["seed"] not in range(5)
+        c.checkpoints == (1000, 2000, 5000, 10_000, 20_000) and c.seed not in range(5)
         for c in default
     )
-    assert len({c["seed"] for c in default if c["algo"] == "droq"}) == 5
+    assert len({c.seed for c in default if c.algo == "droq"}) == 5
     # a cell names every setting its preset resolves to, so a changed preset is another cell, never a stored one
-    droq_cell = next(c for c in default if c["algo"] == "droq")
+    droq_cell = next(c for c in default if c.algo == "droq")
     assert (
-        droq_cell["hyper"] == {"config": "budget"}
-        and droq_cell["settings"] == DroQConfig.preset("budget").to_hyper()
+        droq_cell.hyper == {"config": "budget"}
+        and droq_cell.settings == DroQConfig.preset("budget").to_hyper()
     )
     assert (
-        len([c for c in default if c["algo"] == "spgd"]) == 2
+        len([c for c in default if c.algo == "spgd"]) == 2
     )  # one per environment: nothing to seed
     with pytest.raises(ValueError, match="preset must be one of"):
         budget.cells("slow")
     narrowed = budget.cells("default", only=["droq", "spgd"], seeds=[11, 12], envs=["hard"])
-    assert [(c["algo"], c["seed"], c["env"]) for c in narrowed] == [
+    assert [(c.algo, c.seed, c.env) for c in narrowed] == [
         ("droq", 11, "hard"),
         ("droq", 12, "hard"),
         ("spgd", 11, "hard"),
@@ -219,7 +221,7 @@ def test_budget_plan_cells_and_report(tmp_path):
         budget.cells("default", only=["a2c"])
 
     def record(algo, seed, scores, kind="learner"):
-        cell = dict(
+        cell = budget.Cell(
             kind=kind,
             algo=algo,
             hyper={},
@@ -229,6 +231,7 @@ def test_budget_plan_cells_and_report(tmp_path):
             checkpoints=[1000, 2000, 5000],
             episodes=32,
             eval_seed=4242,
+            settings={},
         )
         return {
             "cell": cell,
@@ -260,38 +263,38 @@ def test_budget_plan_cells_and_report(tmp_path):
 
 def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and worst seed."""
-    adapt = [c for c in budget.cells("default") if c["kind"] == "adapt"]
-    assert [c["seed"] for c in adapt] == [11, 12, 13, 14, 15] and len(
-        {c["bench_seed"] for c in adapt}
+    adapt = [c for c in budget.cells("default") if c.kind == "adapt"]
+    assert [c.seed for c in adapt] == [11, 12, 13, 14, 15] and len(
+        {c.bench_seed for c in adapt}
     ) == 5
     assert all(
-        c["pretrain_env"]["randomize"] == c["pretrain_env"]["randomize_layout"] == 1.0
-        and c["checkpoints"][-1] <= 5000
+        c.pretrain_env["randomize"] == c.pretrain_env["randomize_layout"] == 1.0
+        and c.checkpoints[-1] <= 5000
         for c in adapt
     )
-    assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0]["kind"] == "adapt"
+    assert budget.cells("default", envs=[budget.BENCH], seeds=[11])[0].kind == "adapt"
     at_lab = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_scale=1.0)
     assert (
-        {c["env_config"]["imperfection_scale"] for c in at_lab}
+        {c.env_config["imperfection_scale"] for c in at_lab}
         == {1.0}
-        != {adapt[0]["env_config"]["imperfection_scale"]}
+        != {adapt[0].env_config["imperfection_scale"]}
     )
-    assert at_lab[0]["env_config"] == budget.unseen_bench(
+    assert at_lab[0].env_config == budget.unseen_bench(
         budget.PRESETS["default"]["adapt"]["bench_env"], 1011, 1.0
     )
     for bad in (0, -1.0, 11.0, "2"):
         with pytest.raises(ValueError, match="bench_scale must be a number in"):
             budget.cells("default", bench_scale=bad)
     framed = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_probe="frame")
-    assert {c["env_config"]["probe"] for c in framed} == {"frame"} and "probe" not in adapt[0][
-        "env_config"
-    ]
+    assert {c.env_config["probe"] for c in framed} == {"frame"} and "probe" not in adapt[
+        0
+    ].env_config
     with pytest.raises(ValueError, match=r"bench_probe must be one of \['instant', 'frame'\]"):
         budget.cells("default", bench_probe="later")
     trimmed = budget.cells("default", envs=[budget.BENCH], seeds=[11], bench_trim="bench")
-    assert [c["trim"] for c in trimmed if c["kind"] == "adapt"] == [{"config": "bench"}] and adapt[
+    assert [c.trim for c in trimmed if c.kind == "adapt"] == [{"config": "bench"}] and adapt[
         0
-    ]["trim"] == {}
+    ].trim == {}
     with pytest.raises(
         ValueError, match=r"bench_trim must be one of \[.*'guarded'\], got 'coarse'"
     ):
@@ -303,29 +306,28 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
         and not (tmp_path / "cells").exists()
     )
     assert not [
-        c for c in budget.cells("full", only=["td3"]) if c["kind"] in ("adapt", "bench reference")
+        c for c in budget.cells("full", only=["td3"]) if c.kind in ("adapt", "bench reference")
     ]
-    on_bench = [c for c in budget.cells("default") if c["kind"] == "bench reference"]
-    assert sorted((c["algo"], c["bench_seed"]) for c in on_bench) == sorted(
-        (a, c["bench_seed"]) for a in ("spgd", "physics") for c in adapt
+    on_bench = [c for c in budget.cells("default") if c.kind == "bench reference"]
+    assert sorted((c.algo, c.bench_seed) for c in on_bench) == sorted(
+        (a, c.bench_seed) for a in ("spgd", "physics") for c in adapt
     )
     assert all(
-        c["env_config"]
-        == next(a["env_config"] for a in adapt if a["bench_seed"] == c["bench_seed"])
+        c.env_config == next(a.env_config for a in adapt if a.bench_seed == c.bench_seed)
         for c in on_bench
     )
-    by_algo = {
-        c["algo"]: c for c in budget.cells("default") if c["kind"] in ("learner", "reference")
-    }
+    by_algo = {c.algo: c for c in budget.cells("default") if c.kind in ("learner", "reference")}
     assert (
         budget.cost(by_algo["droq"]) > budget.cost(by_algo["spgd"]) > 0
         and budget.cost(adapt[0]) > 0
     )
-    assert "cost" not in by_algo["droq"]  # an estimate, not part of the cell's configuration
+    assert (
+        "cost" not in by_algo["droq"].to_dict()
+    )  # an estimate, not part of the cell's configuration
 
     def record(seed, before, after):
         return {
-            "cell": dict(adapt[0], seed=seed, bench_seed=seed + 1000),
+            "cell": dataclasses.replace(adapt[0], seed=seed, bench_seed=seed + 1000),
             "result": {
                 "before": before,
                 "scores": dict(zip(["1000", "2000", "5000"], after)),
@@ -335,10 +337,10 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
         }
 
     def reference(algo, bench_seed, score):
-        cell = next(c for c in on_bench if c["algo"] == algo and c["bench_seed"] == bench_seed)
+        cell = next(c for c in on_bench if c.algo == algo and c.bench_seed == bench_seed)
         return {
             "cell": cell,
-            "result": {"scores": {str(k): score for k in cell["checkpoints"]}, "train_s": 1.0},
+            "result": {"scores": {str(k): score for k in cell.checkpoints}, "train_s": 1.0},
         }
 
     records = [
@@ -373,9 +375,32 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
     assert "| worst | | 0.500 | 0.700 | 0.800 | 0.910 | 0.700 | 0.960 | 0.940 | 0.950 | | |" in text
 
 
+def test_budget_cells_are_frozen_records_of_their_stored_form():
+    """A cell is a frozen record; its stored form lists the fields in their order, the protocol (b) fields only on
+    protocol (b)'s cells, and reads back equal; a misspelt field, an unknown kind or a protocol (b) field on another
+    kind's cell fails where the record is built."""
+    cells = budget.cells("default")
+    assert {c.kind for c in cells} == {"learner", "reference", "adapt", "bench reference"}
+    for c in cells:
+        stored = c.to_dict()
+        assert budget.Cell.from_dict(stored) == c and isinstance(stored["checkpoints"], list)
+        assert list(stored) == [f.name for f in dataclasses.fields(c) if f.name in stored]
+        assert ("bench_seed" in stored) == (c.kind in ("adapt", "bench reference"))
+        assert ("pretrain_steps" in stored) == (c.kind == "adapt")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cells[0].seed = 1
+    stored = cells[0].to_dict()
+    with pytest.raises(TypeError, match="sead"):
+        budget.Cell.from_dict({**stored, "sead": 1})
+    with pytest.raises(ValueError, match="kind must be one of"):
+        budget.Cell.from_dict({**stored, "kind": "learned"})
+    with pytest.raises(ValueError, match="bench_seed"):
+        budget.Cell.from_dict({**stored, "bench_seed": 1011})
+
+
 def test_budget_quick_cell_end_to_end():
     """A reference cell of the quick preset: one evaluation, the same score at every checkpoint."""
-    cell = next(c for c in budget.cells("quick") if c["algo"] == "spgd")
+    cell = next(c for c in budget.cells("quick") if c.algo == "spgd")
     rec = budget.compute(cell)
     assert set(rec["scores"]) == {"600", "1200"} and len(set(rec["scores"].values())) == 1
     assert 0.5 < rec["scores"]["600"] <= 1.0
