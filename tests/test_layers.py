@@ -19,7 +19,7 @@ def module_name(path: Path) -> str:
 def import_graph() -> dict:
     """{module: {project modules it imports}}. ``from pkg import name`` counts as an import of
     ``pkg.name`` when that is a module, else of ``pkg``; a string that is a module's full name counts as
-    an import of it (made at run time)."""
+    an import of it (made at run time); an import under ``if TYPE_CHECKING:`` is none."""
     files = {module_name(p): p for layer in LAYERS for p in (REPO / layer).rglob("*.py")}
     graph = {}
     for name, path in files.items():
@@ -32,7 +32,16 @@ def import_graph() -> dict:
             and getattr(node.func, "attr", getattr(node.func, "id", "")) == "getLogger"
             for a in node.args
         }
+        typing_only = {  # imports under ``if TYPE_CHECKING:``: never made at run time
+            id(n)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING"
+            for stmt in node.body
+            for n in ast.walk(stmt)
+        }
         for node in ast.walk(tree):
+            if id(node) in typing_only:
+                continue
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.Constant) and isinstance(node.value, str):
