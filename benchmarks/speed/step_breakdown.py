@@ -2,13 +2,11 @@
 (``physics.measure``) and its random draws alone (``noise.draws``, one key per instance), each a jitted
 200-step ``lax.scan`` at the same batch, median of the repeats (compilation apart).
 
-    python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 --out results/breakdown.json
+    python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 \\
+        --out results/breakdown.json
 
 Per row: ns per instance-step of each part, and each part's share of the whole step (the rest is the
 environment's own bookkeeping: action, drift, reward, observation, auto-reset).
-
-``--against REV`` times another git commit's code beside this checkout's in one run, the two taking
-turns (``benchmarks.speed.side_by_side``): per part the medians of both and their ratio.
 """
 
 from __future__ import annotations
@@ -23,7 +21,6 @@ import jax.numpy as jnp
 
 import ops_jax
 from agents.io import write_json_atomic
-from benchmarks.speed import side_by_side
 from benchmarks.speed.throughput import SCAN_STEPS, measure
 from ops_jax import noise
 from ops_jax.cli.parser import ArgumentParser
@@ -110,9 +107,6 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--batch", type=int, nargs="+", default=[1024, 65536])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=Path("results/breakdown.json"))
-    ap.add_argument(
-        "--against", metavar="REV", help="also time this git commit's code, side by side"
-    )
     args = ap.parse_args(argv)
     for name, values in (
         ("--stages", args.stages),
@@ -124,8 +118,6 @@ def main(argv=None) -> list[dict]:
     out = dict(
         jax=jax.__version__, device=jax.devices()[0].device_kind, scan_steps=SCAN_STEPS, rows=[]
     )
-    if args.against:
-        return _side_by_side(args, out)
     print(
         f"{'model':7} {'N':>2} {'batch':>8} {'step ns':>9} {'physics ns':>10} {'draws ns':>9} {'physics':>8} {'draws':>6}"
     )
@@ -139,19 +131,6 @@ def main(argv=None) -> list[dict]:
                 f"{r['physics_share']:>8.0%} {r['draws_share']:>6.0%}",
                 flush=True,
             )
-    print(f"wrote {args.out}")
-    return out["rows"]
-
-
-def _side_by_side(args, out: dict) -> list[dict]:
-    """``main`` with ``--against``: one side-by-side row per stage count and batch."""
-    print(side_by_side.HEADER)
-    for n in args.stages:
-        for b in args.batch:
-            row = side_by_side.compare(args.against, n, args.model, b, args.repeats)
-            out["rows"].append(row)
-            write_json_atomic(args.out, out)
-            side_by_side.print_row(row)
     print(f"wrote {args.out}")
     return out["rows"]
 
