@@ -1,8 +1,8 @@
 """Controllers and learners for OPS: SPGD-PID, PPO and SAC (brax.training), TD3, DroQ, and a
 physics-informed controller, behind one ``train`` / ``evaluate`` / ``save`` / ``load`` API, each
-configured by its config type (declared beside its code, on the base ``agents.config.AlgoConfig``: presets
-"paper", "fast", ... overridable per field);
-``agents.controllers.trim``: an extremum-seeking trim around any of their policies."""
+configured by its config type (declared beside its code, on the base ``agents.config.AlgoConfig``:
+presets "paper", "fast", ... overridable per field); ``agents.controllers.trim``: an
+extremum-seeking trim around any of their policies."""
 
 from agents import algos  # noqa: F401  (registers the algorithms)
 from agents.api import (

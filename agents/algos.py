@@ -1,5 +1,6 @@
-"""The algorithms of ``agents``, one line each: the module that declares the algorithm's ``ALGO`` (its
-``agents.registry.Algo``) and config type beside its code. The order here is the order of ``agents.ALGOS``."""
+"""The algorithms of ``agents``, one line each: the module that declares the algorithm's ``ALGO``
+(its ``agents.registry.Algo``) and config type beside its code. The order here is the order of
+``agents.ALGOS``."""
 
 from agents.registry import register_module
 

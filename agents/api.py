@@ -1,26 +1,27 @@
 """The one interface of all controllers: ``train`` / ``evaluate`` / ``save`` / ``load``.
 
 A controller is a ``Policy``: ``init(key, obs) -> carry`` and
-``act(params, carry, obs, key, probe) -> (actions, carry)`` on a batch (obs (B, D), actions
-(B, N) in [-1, 1]). ``probe(offsets (B, N) wl, active=None) -> P / P_max (B,)`` is an extra detector reading
-at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,) bool, None: all,
-leaves it out where False (nothing moves, no frame passes, the result is NaN there). ``evaluate`` counts every
-reading made as a measurement (``measurements_per_step``: the observation's frame plus the probes made, the mean
-over steps and episodes). Learned policies ignore carry and probe. A policy that compares frames through its own
-last move (the physics-informed fit, the fit observer) has ``sent``: a wrapper that moves the lines otherwise (the
-trim) tells it the move it sent instead.
+``act(params, carry, obs, key, probe) -> (actions, carry)`` on a batch (obs (B, D), actions (B, N)
+in [-1, 1]). ``probe(offsets (B, N) wl, active=None) -> P / P_max (B,)`` is an extra detector
+reading at the current lengths plus ``offsets`` (a dither measurement, e.g. SPGD's); ``active`` (B,)
+bool, None: all, leaves it out where False (nothing moves, no frame passes, the result is NaN
+there). ``evaluate`` counts every reading made as a measurement (``measurements_per_step``: the
+observation's frame plus the probes made, the mean over steps and episodes). Learned policies ignore
+carry and probe. A policy that compares frames through its own last move (the physics-informed fit,
+the fit observer) has ``sent``: a wrapper that moves the lines otherwise (the trim) tells it the
+move it sent instead.
 
-Each algorithm module (``agents.controllers.spgd``, ``agents.learners.brax.ppo``, ...; registered in ``agents.registry``,
-its interface ``agents.registry.AlgoModule``) provides
+Each algorithm module (``agents.controllers.spgd``, ``agents.learners.brax.ppo``, ...; registered in
+``agents.registry``, its interface ``agents.registry.AlgoModule``) provides
 ``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
 (``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
 fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
 ``normalized_power``), ``make_policy(env_config, hyper) -> Policy`` and
 ``params_template(env_config, hyper)`` (a pytree of the parameters' structure, for ``load``);
-``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may depend only on
-``hyper`` and the static ``EnvConfig`` of ``env_config`` (what ``ops_jax.make(**env_config)[0].config`` holds): numbers
-from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
-serves a policy trained in any mode.
+``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may
+depend only on ``hyper`` and the static ``EnvConfig`` of ``env_config`` (what
+``ops_jax.make(**env_config)[0].config`` holds): numbers from ``EnvParams`` (mode, noise, action
+scale) belong in the params, so one compiled evaluation serves a policy trained in any mode.
 """
 
 from __future__ import annotations
@@ -54,8 +55,9 @@ CHECKPOINT_VERSION = 1
 class Policy(NamedTuple):
     init: Callable  # (key, obs (B, D)) -> carry
     act: Callable  # (params, carry, obs (B, D), key, probe) -> (actions (B, N), carry)
-    # (params, carry, actions (B, N)) -> carry: the move really sent where a wrapper (the trim) sent another than
-    # ``act``'s, for a policy that reads its own last move (the fit's); None: the policy keeps no record of it
+    # (params, carry, actions (B, N)) -> carry: the move really sent where a wrapper (the trim) sent
+    # another than ``act``'s, for a policy that reads its own last move (the fit's); None: the
+    # policy keeps no record of it
     sent: Callable | None = None
 
 
@@ -91,24 +93,26 @@ class TrainResult:
         return algo_module(self.algo).make_policy(self.env_config, self.hyper)
 
     def __repr__(self) -> str:
-        """The run in one line: algorithm, seed, env steps, the curve's last P/Pmax, wall time (no arrays)."""
+        """The run in one line: algorithm, seed, env steps, the curve's last P/Pmax, wall time (no
+        arrays)."""
         npow = np.asarray(self.curve.get("normalized_power", ()))
         last = f", last normalized_power={float(npow[-1]):.4g}" if npow.size else ""
         wall = {k: round(float(v), 2) for k, v in self.wall_time.items()}
         return (
             f"TrainResult(algo={self.algo!r}, seed={self.seed}, env_steps={self.env_steps}, "
-            f"curve={npow.size} points{last}, wall_time={wall}, config={self.hyper.get('config')!r})"
+            f"curve={npow.size} points{last}, wall_time={wall}, "
+            f"config={self.hyper.get('config')!r})"
         )
 
 
 class EvalResult(NamedTuple):
-    """``normalized_power``: P/Pmax (episodes, steps) after each control step; ``normalized_power_best``:
-    P/P_best, P_best the best P reachable with the configuration's static imperfections (P_max on the
-    ideal system: then the same array); ``summary``: final mean/std, steps to reach 0.9 (median over
-    episodes that reach it) and the fraction that do, measurements per control step, inference time per
-    control step (s, batched), ``final_mean_best``, ``final_std_best`` and ``mean_last10_best`` (of P/P_best;
-    P/Pmax's on the ideal system), ``score``: the ratio to report ("P/P_best" with imperfections, else
-    "P/Pmax")."""
+    """``normalized_power``: P/Pmax (episodes, steps) after each control step;
+    ``normalized_power_best``: P/P_best, P_best the best P reachable with the configuration's static
+    imperfections (P_max on the ideal system: then the same array); ``summary``: final mean/std,
+    steps to reach 0.9 (median over episodes that reach it) and the fraction that do, measurements
+    per control step, inference time per control step (s, batched), ``final_mean_best``,
+    ``final_std_best`` and ``mean_last10_best`` (of P/P_best; P/Pmax's on the ideal system),
+    ``score``: the ratio to report ("P/P_best" with imperfections, else "P/Pmax")."""
 
     normalized_power: np.ndarray
     terminated: np.ndarray
@@ -138,11 +142,12 @@ def train(
     progress: bool | None = None,
     **hyper,
 ) -> TrainResult:
-    """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
-    dict of ``ops_jax.make`` options, converted once: ``TrainResult.env_config`` is its dict form).
-    ``hyper``: ``config`` (a preset name or a config of ``agents.config``) and overrides of its
-    fields; ``progress_fn(step, metrics)`` is called after each evaluation. ``progress``: a progress bar on
-    stderr (``ops_jax.cli.progress.StepProgress``; None: when stderr is a terminal, False: none); a budget
+    """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an
+    ``ops_jax.EnvSpec`` or a dict of ``ops_jax.make`` options, converted once:
+    ``TrainResult.env_config`` is its dict form). ``hyper``: ``config`` (a preset name or a config
+    of ``agents.config``) and overrides of its fields; ``progress_fn(step, metrics)`` is called
+    after each evaluation. ``progress``: a progress bar on stderr
+    (``ops_jax.cli.progress.StepProgress``; None: when stderr is a terminal, False: none); a budget
     the warm-up takes most of is warned about first (``agents.learners.budgets.BudgetWarning``)."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
@@ -168,8 +173,8 @@ def train_seeds(
     **hyper,
 ) -> list[TrainResult]:
     """``train`` for each of ``seeds``: in one vmapped call where the algorithm supports it
-    (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``; one progress bar), else one
-    call per seed."""
+    (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``; one progress bar),
+    else one call per seed."""
     module = algo_module(algo)
     env_config = check_env_config(env_config)
     seeds = list(seeds)
@@ -243,13 +248,13 @@ def evaluate(
     drift_episode: int = 10,
 ) -> EvalResult:
     """Run ``episodes`` independent test episodes of ``steps`` control steps (default: the
-    configuration's max_steps) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a dict) in
-    one jitted scan, without auto-reset. Each episode starts as the ``drift_episode``-th reset of its
-    environment, so hard mode's drift is fully on (r in [-1, 1]);
-    a different ``seed`` gives a different drift realisation (the paper's testing environment).
-    The evaluation is deterministic: a repeated call computes the same numbers again (only the compiled
-    program is kept). A ``TrainResult`` evaluated on an environment whose observation or action layout
-    differs from its training environment's raises ValueError naming both layouts."""
+    configuration's max_steps) on the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a
+    dict) in one jitted scan, without auto-reset. Each episode starts as the ``drift_episode``-th
+    reset of its environment, so hard mode's drift is fully on (r in [-1, 1]); a different ``seed``
+    gives a different drift realisation (the paper's testing environment). The evaluation is
+    deterministic: a repeated call computes the same numbers again (only the compiled program is
+    kept). A ``TrainResult`` evaluated on an environment whose observation or action layout differs
+    from its training environment's raises ValueError naming both layouts."""
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env_config = check_env_config(env_config)
@@ -295,7 +300,8 @@ def evaluate(
 
 def summarize(npow: np.ndarray, **extra) -> dict:
     """Summary statistics of P/Pmax curves (episodes, steps); the lock figures over episodes
-    (``ops_jax.lock``: median lock step and RMS power noise after lock, ``None`` where none locks)."""
+    (``ops_jax.lock``: median lock step and RMS power noise after lock, ``None`` where none
+    locks)."""
     final = npow[:, -1]
     reached = npow >= 0.9
     first = np.where(reached.any(1), reached.argmax(1) + 1, -1)
@@ -315,7 +321,8 @@ def summarize(npow: np.ndarray, **extra) -> dict:
 
 def _source_ident(source, policy: Policy):
     """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
-    configuration (not its mode: see the module docstring) and hyperparameters, or a policy's identity."""
+    configuration (not its mode: see the module docstring) and hyperparameters, or a policy's
+    identity."""
     if isinstance(source, TrainResult):
         static = built(source.env_config)[0].config
         return (

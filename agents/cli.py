@@ -3,26 +3,29 @@
 Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
 
     python -m agents --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
-                           [--config fast|paper] [--episodes 50] [--eval-seed 1] [--set key=value ...]
+                           [--config fast|paper] [--episodes 50] [--eval-seed 1]
+                           [--set key=value ...]
                            [--logdir DIR] [--resume | --overwrite] [--checkpoint-every M]
 
 Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
 ``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training curve
-(``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio; needs the
-tensorboard extra). An ``--out`` that holds a run (any of ``RUN_FILES``) is refused (exit 2, before any work)
-unless ``--overwrite`` (its files deleted once the new training has started) or ``--resume`` (TD3 and DroQ: the
-run continued from its checkpoint to its ``--steps`` total, with the options it was started with; a run stopped
-after its training: its evaluation written). TD3 and DroQ write ``checkpoint/`` as they train, every
-``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``). It prints the testing score, P/P_best
-with imperfections, else P/Pmax, and the wall time in parts (compiling apart where the trainer times it). A
-progress bar (``ops_jax.cli.progress.StepProgress``) shows env steps, the latest evaluation P/Pmax, "compiling"
-until the first report and the remaining time from the rate after it. A budget that takes no gradient step is
-refused before any output, naming the ``--steps`` to type instead; one whose warm-up takes most of it is warned
-about before the work starts (``agents.learners.budgets``). Ctrl-C stops it with one line saying what was kept
-and exit status 130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load``
-reads it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other algorithms
-keep nothing of their training; after training, the checkpoint.
+the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training
+curve (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio;
+needs the tensorboard extra). An ``--out`` that holds a run (any of ``RUN_FILES``) is refused (exit
+2, before any work) unless ``--overwrite`` (its files deleted once the new training has started) or
+``--resume`` (TD3 and DroQ: the run continued from its checkpoint to its ``--steps`` total, with the
+options it was started with; a run stopped after its training: its evaluation written). TD3 and DroQ
+write ``checkpoint/`` as they train, every ``--checkpoint-every`` env steps
+(``agents.learners.offpolicy.checkpoint``). It prints the testing score, P/P_best with
+imperfections, else P/Pmax, and the wall time in parts (compiling apart where the trainer times it).
+A progress bar (``ops_jax.cli.progress.StepProgress``) shows env steps, the latest evaluation
+P/Pmax, "compiling" until the first report and the remaining time from the rate after it. A budget
+that takes no gradient step is refused before any output, naming the ``--steps`` to type instead;
+one whose warm-up takes most of it is warned about before the work starts
+(``agents.learners.budgets``). Ctrl-C stops it with one line saying what was kept and exit status
+130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load`` reads
+it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other
+algorithms keep nothing of their training; after training, the checkpoint.
 """
 
 from __future__ import annotations
@@ -82,16 +85,17 @@ def resumable() -> list[str]:
 
 
 def refusal(args, out: Path) -> str | None:
-    """Why the arguments cannot run on ``out`` as it is (a run there, and neither --resume nor --overwrite), or
-    cannot resume; None when they can. Reads nothing but the folder's names: before any work."""
+    """Why the arguments cannot run on ``out`` as it is (a run there, and neither --resume nor
+    --overwrite), or cannot resume; None when they can. Reads nothing but the folder's names: before
+    any work."""
     held, can = held_run(out), resumable()
     if args.resume and args.overwrite:
         return "give --resume (continue the run in --out) or --overwrite (replace it), not both"
     if args.algo not in can and (args.resume or args.checkpoint_every is not None):
         option = "--resume" if args.resume else "--checkpoint-every"
         return (
-            f"{option}: {args.algo} does not checkpoint while it trains, so it cannot continue a run "
-            f"mid-way ({' and '.join(can)} can); --overwrite trains it again"
+            f"{option}: {args.algo} does not checkpoint while it trains, so it cannot continue a "
+            f"run mid-way ({' and '.join(can)} can); --overwrite trains it again"
         )
     if args.resume and not held:
         return f"--resume: no run in {out} to continue; leave --resume out to start one"
@@ -104,8 +108,9 @@ def refusal(args, out: Path) -> str | None:
 
 
 def check_resume(args, out: Path, env_config: dict, config) -> bool:
-    """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with these settings
-    (False: train on), or the trained policy of one stopped before its evaluation was written (True: that is left)."""
+    """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with
+    these settings (False: train on), or the trained policy of one stopped before its evaluation was
+    written (True: that is left)."""
     if not args.resume:
         return False
     from agents.learners.offpolicy import checkpoint
@@ -126,8 +131,8 @@ def check_resume(args, out: Path, env_config: dict, config) -> bool:
             )
     except (OSError, KeyError, TypeError):
         raise ValueError(
-            f"--resume: the checkpoint in {out} holds no training state to continue; --overwrite trains "
-            "it again"
+            f"--resume: the checkpoint in {out} holds no training state to continue; --overwrite "
+            "trains it again"
         ) from None
     except ValueError as exc:
         raise ValueError(f"--resume: {exc}; give the options the run was started with") from None
@@ -144,8 +149,9 @@ def checkpointing(args, out: Path):
 
 
 def replacing(args, out: Path, progress_fn):
-    """``progress_fn``; with --overwrite, its first call first deletes the run in ``out``: once training has
-    started, every check passed (a refused budget or a Ctrl-C while starting keeps the old run)."""
+    """``progress_fn``; with --overwrite, its first call first deletes the run in ``out``: once
+    training has started, every check passed (a refused budget or a Ctrl-C while starting keeps the
+    old run)."""
     if not args.overwrite:
         return progress_fn
     cleared = []
@@ -162,7 +168,8 @@ def replacing(args, out: Path, progress_fn):
 
 
 def interrupted(argv, out: Path, at: str, checkpoints, stop) -> tuple[str, int]:
-    """The line and exit status of a training stopped by Ctrl-C or SIGTERM (``stop``): what was kept, how to go on."""
+    """The line and exit status of a training stopped by Ctrl-C or SIGTERM (``stop``): what was
+    kept, how to go on."""
     status = 128 + getattr(stop, "signum", signal.SIGINT)
     saved = None if checkpoints is None else checkpoints.saved_step
     if saved is None:
@@ -173,8 +180,8 @@ def interrupted(argv, out: Path, at: str, checkpoints, stop) -> tuple[str, int]:
     ]
     again = shlex.join(["python", "-m", "agents", *words, "--resume"])
     return (
-        f"stopped {at}; the run up to step {saved:,} is in {out / 'checkpoint'} (agents.load reads it); "
-        f"continue it with: {again}",
+        f"stopped {at}; the run up to step {saved:,} is in {out / 'checkpoint'} (agents.load "
+        f"reads it); continue it with: {again}",
         status,
     )
 
@@ -278,7 +285,8 @@ def main(argv=None) -> dict:
         config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
         if args.steps is not None and not hasattr(config, "total_steps"):
             raise ValueError(
-                f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it out"
+                f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it "
+                "out"
             )
         module.make_policy(env_config, config.to_hyper())
         trained = check_resume(args, out, env_config, config)  # True: only its evaluation is left
@@ -319,7 +327,8 @@ def main(argv=None) -> dict:
     except ValueError as exc:
         if bar.first is not None:  # a failure during training: its traceback
             raise
-        bar.close()  # the trainer's own checks of the budget against its config: one line, as the ones above
+        # the trainer's own checks of the budget against its config: one line, as the ones above
+        bar.close()
         message = (
             str(exc).replace("total_steps", "--steps", 1) if args.steps is not None else str(exc)
         )
@@ -337,14 +346,16 @@ def main(argv=None) -> dict:
 
 
 def finish_kept(args, out: Path, env_config: dict, result) -> dict:
-    """``finish``; a Ctrl-C there is one line saying what was kept (the trained policy: --resume evaluates it)."""
+    """``finish``; a Ctrl-C there is one line saying what was kept (the trained policy: --resume
+    evaluates it)."""
     try:
         return finish(args, out, env_config, result)
     except KeyboardInterrupt:
         kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
         exit_interrupted(
-            f"stopped after training; kept in {out}: {kept} (agents.load({str(out / 'checkpoint')!r}) "
-            "gives the trained policy; --resume writes its evaluation)"
+            f"stopped after training; kept in {out}: {kept} "
+            f"(agents.load({str(out / 'checkpoint')!r}) gives the trained policy; --resume writes "
+            "its evaluation)"
         )
 
 
@@ -376,16 +387,17 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
     also = f"; P/Pmax {s['final_mean']:.4f}" if best else ""
     print(
         f"{args.algo} {args.stages}-stage {args.mode} seed {args.seed}: testing {s['score']} "
-        f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps {s['mean_last10' + best]:.4f}"
-        f"{also}), steps to 0.9: {s['steps_to_0p9_median']} ({s['fraction_reached_0p9']:.0%} reach it); "
-        f"{wall_time_line(result.wall_time)}; written to {out}"
+        f"{s['final_mean' + best]:.4f} +- {s['final_std' + best]:.4f} (last 10 steps "
+        f"{s['mean_last10' + best]:.4f}{also}), steps to 0.9: {s['steps_to_0p9_median']} "
+        f"({s['fraction_reached_0p9']:.0%} reach it); {wall_time_line(result.wall_time)}; written "
+        f"to {out}"
     )
     return summary
 
 
 def wall_time_line(wall: dict) -> str:
-    """The wall time of a training in words (s): its parts, compiling among them where the trainer timed it
-    apart (the off-policy learners), else said to be inside them."""
+    """The wall time of a training in words (s): its parts, compiling among them where the trainer
+    timed it apart (the off-policy learners), else said to be inside them."""
     total = wall.get("total", float("nan"))
     parts = [k for k in ("compile", "simulation", "optimisation", "evaluation") if k in wall]
     said = [f"{k} {wall[k]:.1f} s" for k in parts]

@@ -1,17 +1,17 @@
-"""The base of every algorithm's hyperparameters: a frozen dataclass per algorithm, declared beside its code
-(``agents.controllers.spgd.SPGDConfig``, ``agents.learners.offpolicy.td3.TD3Config``, ...; all exported by
-``agents``), with named presets overridable per field, validated in one place.
+"""The base of every algorithm's hyperparameters: a frozen dataclass per algorithm, declared beside
+its code (``agents.controllers.spgd.SPGDConfig``, ``agents.learners.offpolicy.td3.TD3Config``, ...;
+all exported by ``agents``), with named presets overridable per field, validated in one place.
 
     PPOConfig.preset("fast", learning_rate=1e-3)   # a preset with one field changed
     TD3Config.make("paper")                        # make(config, **overrides): a preset or a config
     SPGDConfig.from_hyper(result.hyper)            # back from the stored dict (``to_hyper``)
 
-A value out of range raises ValueError naming the field and its accepted range (``ops_jax.ranges.Range``,
-the one range check of the package); an unknown field
-raises TypeError listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``,
-checkpoints): the fields (tuples as lists) and, for the learners, ``config``, the preset's name.
-The field checks shared by several algorithms (``flag``, ``widths``, ``choice``, ``optional`` and the ranges
-below) are here; the presets' tuning is described in each algorithm's module.
+A value out of range raises ValueError naming the field and its accepted range
+(``ops_jax.ranges.Range``, the one range check of the package); an unknown field raises TypeError
+listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``, checkpoints):
+the fields (tuples as lists) and, for the learners, ``config``, the preset's name. The field checks
+shared by several algorithms (``flag``, ``widths``, ``choice``, ``optional`` and the ranges below)
+are here; the presets' tuning is described in each algorithm's module.
 """
 
 from __future__ import annotations
@@ -61,14 +61,16 @@ def optional(check):
 
 
 def field(check, **default):
-    """A dataclass field validated by ``check(name, value) -> normalised value``. With ``default=value`` (fields
-    added after configurations were stored), the field is left out of the stored form at that value, so stored
-    configurations keep their form (and the sweep's cells their keys)."""
+    """A dataclass field validated by ``check(name, value) -> normalised value``. With
+    ``default=value`` (fields added after configurations were stored), the field is left out of the
+    stored form at that value, so stored configurations keep their form (and the sweep's cells their
+    keys)."""
     return dataclasses.field(metadata={"check": check}, **default)
 
 
 DITHER = Range(1e-6, 0.25, unit="wl")  # a dither's amplitude (SPGD, the trim)
-# the earlier frames the physics-informed fit compares with the latest, through the moves since (1: the frame before it)
+# the earlier frames the physics-informed fit compares with the latest, through the moves since (1:
+# the frame before it)
 HISTORY = Range(1, 16, integer=True)
 COUNT, COUNT0 = Range(1, integer=True), Range(0, integer=True)  # integers >= 1, >= 0
 POSITIVE, NONNEG, UNIT = (
@@ -100,8 +102,9 @@ class AlgoConfig:
         return 0.0
 
     def budget_layout(self) -> tuple[int, int, str] | None:
-        """(env steps before the first gradient step, env steps per training step, what the first ones
-        are) of a budget (``agents.learners.budgets``); None for a controller, which trains nothing."""
+        """(env steps before the first gradient step, env steps per training step, what the first
+        ones are) of a budget (``agents.learners.budgets``); None for a controller, which trains
+        nothing."""
         return None
 
     def trained_units(self, units: int) -> int:
@@ -134,7 +137,8 @@ class AlgoConfig:
 
     @classmethod
     def make(cls, config=None, **overrides):
-        """``config``: a preset name (None: the default preset) or a config of this type; plus overrides."""
+        """``config``: a preset name (None: the default preset) or a config of this type; plus
+        overrides."""
         if isinstance(config, cls):
             cls._check_names(overrides)
             return dataclasses.replace(config, **overrides)
@@ -142,7 +146,8 @@ class AlgoConfig:
 
     @classmethod
     def from_hyper(cls, hyper: dict | None):
-        """The config of a stored ``to_hyper()`` dict (or any ``{"config": name, field: value}``)."""
+        """The config of a stored ``to_hyper()`` dict (or any
+        ``{"config": name, field: value}``)."""
         hyper = dict(hyper or {})
         return cls.make(hyper.pop("config", None), **hyper)
 

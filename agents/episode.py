@@ -35,11 +35,13 @@ DRIFT_EPISODE = 10  # episodes start as this reset of their environment, as in a
 
 def get_policy(name: str, env_config: dict, seed: int = 0):
     """(Policy, params, env_config) for ``name``: "zero", "random", an algorithm of ``agents.ALGOS``
-    (trained with ``agents.train``) or a checkpoint folder (``agents.load``; its own env_config is used)."""
+    (trained with ``agents.train``) or a checkpoint folder (``agents.load``; its own env_config is
+    used)."""
     if name in ("zero", "random"):
         return builtin_policy(name, env_config["stages"]), None, env_config
     if name in base.ALGOS:
-        # A controller with nothing to learn is evaluated as its training; one episode, as nothing reads it here.
+        # A controller with nothing to learn is evaluated as its training; one episode, as nothing
+        # reads it here.
         curve = {} if registry.get(name).learner else {"curve_episodes": 1}
         result = base.train(name, env_config, seed=seed, progress=False, **curve)
         return result.policy(), result.params, env_config
@@ -74,8 +76,8 @@ def run_episode(
     seed: int = 0,
     episode: int = DRIFT_EPISODE,
 ) -> render.Episode:
-    """One episode of ``policy`` (probes allowed) through ``agents.evaluation.evaluator``: the offsets
-    after the reset and after every step, and their exact P / P_max (field model)."""
+    """One episode of ``policy`` (probes allowed) through ``agents.evaluation.evaluator``: the
+    offsets after the reset and after every step, and their exact P / P_max (field model)."""
     env_config = base.check_env_config(env_config)
     env, env_params = built(env_config)
     steps = int(env.config.max_steps if steps is None else steps)

@@ -1,6 +1,7 @@
-"""The evaluation's compiled programs: a policy's episodes in one jitted scan (``evaluator``), memoised
-per policy and static environment configuration (``cached_evaluator``), episodes and seeds split over the
-local devices (``split_over_devices``, ``episode_ids``). A policy is an ``agents.api.Policy``."""
+"""The evaluation's compiled programs: a policy's episodes in one jitted scan (``evaluator``),
+memoised per policy and static environment configuration (``cached_evaluator``), episodes and seeds
+split over the local devices (``split_over_devices``, ``episode_ids``). A policy is an
+``agents.api.Policy``."""
 
 from __future__ import annotations
 
@@ -36,9 +37,10 @@ _EVALUATORS_MAX = 64
 def cached_evaluator(ident, policy, env, steps: int, drift_episode: int):
     """``evaluator`` memoised, so repeated evaluations (seeds, testing environments, other modes
     with the same static configuration) reuse one compiled program. A ``TrainResult`` is keyed by
-    ``ident``, what its policy is built from (a ``TrainResult``'s algorithm, training configuration and
-    hyperparameters, or a policy's identity); the environment by its static ``EnvConfig`` (its parameters are arguments).
-    Returns ``(run, warmed)``: ``warmed`` holds the argument signatures already run once."""
+    ``ident``, what its policy is built from (a ``TrainResult``'s algorithm, training configuration
+    and hyperparameters, or a policy's identity); the environment by its static ``EnvConfig`` (its
+    parameters are arguments). Returns ``(run, warmed)``: ``warmed`` holds the argument signatures
+    already run once."""
     key = (ident, env.config, steps, drift_episode)
     if key not in _EVALUATORS:
         _EVALUATORS[key] = (
@@ -52,10 +54,11 @@ def cached_evaluator(ident, policy, env, steps: int, drift_episode: int):
 
 
 def evaluator(env, policy, steps: int, drift_episode: int, trajectory: bool = False):
-    """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning P/Pmax,
-    terminated flags and the readings made per step (the observation's frame and the probes left in; steps,
-    episodes), with ``trajectory`` also the delay offsets (steps + 1, episodes, N) wl after the reset and after each
-    step. The one rollout of a policy: ``evaluate`` and the episode renderer (``agents.episode``) use it."""
+    """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning
+    P/Pmax, terminated flags and the readings made per step (the observation's frame and the probes
+    left in; steps, episodes), with ``trajectory`` also the delay offsets (steps + 1, episodes, N)
+    wl after the reset and after each step. The one rollout of a policy: ``evaluate`` and the
+    episode renderer (``agents.episode``) use it."""
     probes = [0]  # probe calls so far in the step being traced (each probe's own key)
     axes_params = None
 

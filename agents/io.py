@@ -1,11 +1,13 @@
-"""Atomic file writes shared by the training command line, the checkpoints and the benchmarks. What they
-create gets the permissions of any new file or folder (0666 / 0777 less the umask), as its neighbours.
+"""Atomic file writes shared by the training command line, the checkpoints and the benchmarks. What
+they create gets the permissions of any new file or folder (0666 / 0777 less the umask), as its
+neighbours.
 
-Every JSON file the package writes is strict JSON (RFC 8259, readable by any tool): ``dumps_json`` writes a
-number that is not finite (NaN, +-inf) as ``null``, a dict's such number with a neighbouring ``<key>_reason``
-field saying why (the caller's reason for that key, else what the number was; a list holding such numbers
-gets one too), and refuses anything else JSON has no form for (``allow_nan=False``). ``read_json`` reads
-such a file back with those numbers as NaN (+-inf where the reason says so), the reason fields dropped."""
+Every JSON file the package writes is strict JSON (RFC 8259, readable by any tool): ``dumps_json``
+writes a number that is not finite (NaN, +-inf) as ``null``, a dict's such number with a
+neighbouring ``<key>_reason`` field saying why (the caller's reason for that key, else what the
+number was; a list holding such numbers gets one too), and refuses anything else JSON has no form
+for (``allow_nan=False``). ``read_json`` reads such a file back with those numbers as NaN (+-inf
+where the reason says so), the reason fields dropped."""
 
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ def _plain(x):
 
 def strict(data, reasons: dict | None = None):
     """``data`` as strict JSON values: numbers that are not finite as None, each a dict's value with
-    ``<key>_reason`` beside it (``reasons[key]`` where given, else ``_what``); lists' entries just None."""
+    ``<key>_reason`` beside it (``reasons[key]`` where given, else ``_what``); lists' entries just
+    None."""
     reasons = reasons or {}
     data = _plain(data)
     if isinstance(data, float):
@@ -89,8 +92,8 @@ def _unfinite(values: list) -> set:
 
 
 def _restored(data):
-    """``strict``'s inverse: each value with a ``<key>_reason`` beside it, its nulls as NaN (+-inf where the
-    reason says so), the reason dropped."""
+    """``strict``'s inverse: each value with a ``<key>_reason`` beside it, its nulls as NaN (+-inf
+    where the reason says so), the reason dropped."""
     if isinstance(data, list):
         return [_restored(v) for v in data]
     if not isinstance(data, dict):
@@ -116,7 +119,8 @@ def _nulls_as(value, number: float):
 
 
 def read_json(path: Path):
-    """A JSON file this package wrote (``write_json_atomic``), its non-finite numbers restored (``_restored``)."""
+    """A JSON file this package wrote (``write_json_atomic``), its non-finite numbers restored
+    (``_restored``)."""
     return _restored(json.loads(Path(path).read_text()))
 
 
@@ -126,12 +130,14 @@ def dumps_json(data, reasons: dict | None = None, indent: int | None = 1) -> str
 
 
 def write_json_atomic(path: Path, data, reasons: dict | None = None) -> None:
-    """Write ``data`` as strict JSON (``dumps_json``, indented) atomically (``write_bytes_atomic``)."""
+    """Write ``data`` as strict JSON (``dumps_json``, indented) atomically
+    (``write_bytes_atomic``)."""
     write_bytes_atomic(path, dumps_json(data, reasons).encode())
 
 
 def temp_dir(parent: Path, name: str) -> Path:
-    """A new empty folder in ``parent`` (created there), to fill and then rename to ``parent / name``."""
+    """A new empty folder in ``parent`` (created there), to fill and then rename to
+    ``parent / name``."""
     parent = Path(parent)
     parent.mkdir(parents=True, exist_ok=True)
     tmp = _temp_name(parent, name)
@@ -140,8 +146,9 @@ def temp_dir(parent: Path, name: str) -> Path:
 
 
 def replace_dir(tmp: Path, path: Path) -> None:
-    """Put the filled folder ``tmp`` in place of ``path``: ``path`` renamed to ``PATH.old``, ``tmp`` to ``path``,
-    then ``PATH.old`` removed; a crash on the way leaves one of the two whole (``kept_dir``)."""
+    """Put the filled folder ``tmp`` in place of ``path``: ``path`` renamed to ``PATH.old``, ``tmp``
+    to ``path``, then ``PATH.old`` removed; a crash on the way leaves one of the two whole
+    (``kept_dir``)."""
     path, old = Path(path), Path(f"{path}.old")
     if path.exists():
         shutil.rmtree(old, ignore_errors=True)

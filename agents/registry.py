@@ -1,13 +1,14 @@
-"""The registry of algorithms: one ``Algo`` entry each (name, module, config type, display name,
-the optional protocol members its module provides). ``agents.ALGOS`` and the command line's ``--algo`` choices
-read this registry, and so do the benchmarks (their own presets, budgets and cost models, in ``benchmarks/``, name
-the algorithms by their entries' names).
+"""The registry of algorithms: one ``Algo`` entry each (name, module, config type, display name, the
+optional protocol members its module provides). ``agents.ALGOS`` and the command line's ``--algo``
+choices read this registry, and so do the benchmarks (their own presets, budgets and cost models, in
+``benchmarks/``, name the algorithms by their entries' names).
 
-Each algorithm is one unit: its module declares its config type and its entry, ``ALGO``, beside its code
-(``agents.learners.offpolicy.td3``: ``TD3Config`` and ``ALGO = Algo("td3", __name__, TD3Config, "TD3", ...)``);
-``agents.algos`` (imported with the package) registers each with one line. This module names none of them, so
-the algorithms may use ``agents.api``, which looks them up here. A new algorithm is its module (meeting
-``AlgoModule``, with its ``ALGO``) plus one line in ``agents.algos``::
+Each algorithm is one unit: its module declares its config type and its entry, ``ALGO``, beside its
+code (``agents.learners.offpolicy.td3``: ``TD3Config`` and
+``ALGO = Algo("td3", __name__, TD3Config, "TD3", ...)``); ``agents.algos`` (imported with the
+package) registers each with one line. This module names none of them, so the algorithms may use
+``agents.api``, which looks them up here. A new algorithm is its module (meeting ``AlgoModule``,
+with its ``ALGO``) plus one line in ``agents.algos``::
 
     register_module("agents.mine")
 """
@@ -49,17 +50,19 @@ class SeedsModule(AlgoModule, Protocol):
 
 
 class OffPolicyModule(SeedsModule, Protocol):
-    """A ``SeedsModule`` of ``agents.learners.offpolicy.driver`` (``Algo.off_policy``): its one run passes every checkpoint."""
+    """A ``SeedsModule`` of ``agents.learners.offpolicy.driver`` (``Algo.off_policy``): its one run
+    passes every checkpoint."""
 
     LEARNER: Any  # agents.learners.offpolicy.driver.Learner
 
 
 @dataclasses.dataclass(frozen=True)
 class Algo:
-    """One algorithm: ``name`` (``agents.train``'s ``algo``), ``module`` (an ``AlgoModule``), ``config``
-    (its ``agents.config.AlgoConfig`` type), ``display`` (tables, figures), ``vmaps_seeds`` (the module is a
-    ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``), ``needs`` (a module its training imports,
-    imported by ``load``: where an extra is missing, the program stops there, before any work)."""
+    """One algorithm: ``name`` (``agents.train``'s ``algo``), ``module`` (an ``AlgoModule``),
+    ``config`` (its ``agents.config.AlgoConfig`` type), ``display`` (tables, figures),
+    ``vmaps_seeds`` (the module is a ``SeedsModule``), ``off_policy`` (an ``OffPolicyModule``),
+    ``needs`` (a module its training imports, imported by ``load``: where an extra is missing, the
+    program stops there, before any work)."""
 
     name: str
     module: str
@@ -75,13 +78,14 @@ class Algo:
         return "config" in {f.name for f in dataclasses.fields(self.config)}
 
     def settings(self, hyper: dict) -> dict:
-        """Every field of the config that ``hyper`` (a preset name under "config" and overrides) resolves to, in its
-        stored form: what a run with ``hyper`` trains with under the presets of this version."""
+        """Every field of the config that ``hyper`` (a preset name under "config" and overrides)
+        resolves to, in its stored form: what a run with ``hyper`` trains with under the presets of
+        this version."""
         return self.config.from_hyper(hyper).to_hyper()
 
     def members(self) -> tuple:
-        """The names its module must provide: ``AlgoModule``'s, and ``SeedsModule``'s / ``OffPolicyModule``'s where
-        declared."""
+        """The names its module must provide: ``AlgoModule``'s, and ``SeedsModule``'s /
+        ``OffPolicyModule``'s where declared."""
         return (
             "train",
             "make_policy",
@@ -98,7 +102,8 @@ class Algo:
         missing = [m for m in self.members() if not hasattr(module, m)]
         if missing:
             raise TypeError(
-                f"algo {self.name!r}: module {self.module} lacks {missing}, which its entry declares"
+                f"algo {self.name!r}: module {self.module} lacks {missing}, which its entry "
+                "declares"
             )
         return module
 
@@ -132,7 +137,8 @@ register, unregister, get = REGISTRY.register, REGISTRY.unregister, REGISTRY.ent
 
 
 def register_module(module: str) -> Algo:
-    """Import ``module`` and register the ``Algo`` it declares as ``ALGO`` (whose ``module`` must be it)."""
+    """Import ``module`` and register the ``Algo`` it declares as ``ALGO`` (whose ``module`` must be
+    it)."""
     entry = getattr(importlib.import_module(module), "ALGO", None)
     if not isinstance(entry, Algo) or entry.module != module:
         raise TypeError(

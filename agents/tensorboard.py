@@ -1,6 +1,6 @@
-"""TensorBoard scalars of a training curve: ``TensorBoardLogger(logdir)`` is a ``progress_fn`` that writes each
-evaluation's metrics as scalars against env steps (tensorboardX's event-file writer, no TensorFlow; needs
-``pip install -e ".[tensorboard]"``)::
+"""TensorBoard scalars of a training curve: ``TensorBoardLogger(logdir)`` is a ``progress_fn`` that
+writes each evaluation's metrics as scalars against env steps (tensorboardX's event-file writer, no
+TensorFlow; needs ``pip install -e ".[tensorboard]"``)::
 
     log = agents.tensorboard.TensorBoardLogger("runs/td3/tb")
     agents.train("td3", env, progress_fn=log); log.close()
@@ -8,11 +8,12 @@ evaluation's metrics as scalars against env steps (tensorboardX's event-file wri
     python -m agents --algo td3 --out runs/td3 --logdir runs/td3/tb
     tensorboard --logdir runs
 
-Tags: ``eval/normalized_power`` (evaluation P/Pmax; with imperfections the learners evaluate P/Pmax too),
-``eval/normalized_power_best`` where reported (P/P_best), ``loss/<name>`` for every metric whose name has
-"loss" (TD3 and DroQ: actor_loss, critic_loss; brax's PPO and SAC: their training losses),
-``train/update_ratio`` (gradient steps per env step, off-policy learners), ``train/reward`` (mean reward per
-step), ``time/elapsed_s`` (wall seconds since training started); the x axis (global step) is env steps.
+Tags: ``eval/normalized_power`` (evaluation P/Pmax; with imperfections the learners evaluate P/Pmax
+too), ``eval/normalized_power_best`` where reported (P/P_best), ``loss/<name>`` for every metric
+whose name has "loss" (TD3 and DroQ: actor_loss, critic_loss; brax's PPO and SAC: their training
+losses), ``train/update_ratio`` (gradient steps per env step, off-policy learners), ``train/reward``
+(mean reward per step), ``time/elapsed_s`` (wall seconds since training started); the x axis (global
+step) is env steps.
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ def tag(name: str) -> str:
 
 
 class TensorBoardLogger:
-    """A ``progress_fn(step, metrics)`` writing every finite numeric metric to ``logdir`` at global step
-    ``step`` (env steps), flushed at each call; ``then`` (optional) is called after with the same arguments."""
+    """A ``progress_fn(step, metrics)`` writing every finite numeric metric to ``logdir`` at global
+    step ``step`` (env steps), flushed at each call; ``then`` (optional) is called after with the
+    same arguments."""
 
     def __init__(self, logdir, then: Callable[[int, dict], None] | None = None):
         try:

@@ -25,7 +25,8 @@ def config_hash(config: dict) -> str:
 
 class CellStore:
     def __init__(self, folder: Path, log: Callable[[str], None] = print, meta: dict | None = None):
-        """``meta``: keys written beside ``config`` and ``result`` in each cell computed here (e.g. where)."""
+        """``meta``: keys written beside ``config`` and ``result`` in each cell computed here (e.g.
+        where)."""
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.log = log

@@ -25,8 +25,8 @@ def load_reference_timing() -> dict:
 
 
 def count_compiles() -> list:
-    """[XLA compile seconds, compiles] of this process from this call on, kept current by a listener on JAX's
-    monitoring events."""
+    """[XLA compile seconds, compiles] of this process from this call on, kept current by a listener
+    on JAX's monitoring events."""
     import jax
 
     counts = [0.0, 0]

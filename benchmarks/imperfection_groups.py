@@ -1,19 +1,20 @@
-"""Where a controller loses under the lab imperfections: P / P_best on each bench, then on the same bench with one
-group of imperfections taken away at a time (the same test seed).
+"""Where a controller loses under the lab imperfections: P / P_best on each bench, then on the same
+bench with one group of imperfections taken away at a time (the same test seed).
 
     python -m benchmarks.imperfection_groups --algo physics --set config=frames --scale 2 \\
         --unseen --benches 1011 1012 1013 1014 1015 --episodes 32 --out results/imperfection_groups
 
-A bench: 5-stage hard mode (phasor model), the lab preset at ``--scale`` times its magnitudes, frames only (no
-length readouts; ``--lengths`` to observe them); with ``--unseen`` each bench's per-stage errors are re-drawn from its
-seed as protocol (b)'s unseen benches (``benchmarks.budget.plan.unseen_bench``). The controller: ``--algo`` (one with
-nothing to learn: ``physics`` or ``spgd``) with ``--set`` overrides, or ``--policy DIR`` (an ``agents.save``
-folder). Score: the final step's P / P_best, mean over ``--episodes`` test episodes (``--eval-seed``), P_best of
-the bench as changed. ``--ceiling`` adds two columns for the bench as it is: "held", P / P_best with the lines
-held at the P_best offsets through the vibration and the pulses' noise (the most a controller that follows the
-drift exactly but not the vibration can hold), and "predicted", the same less the vibration's exact
-one-step prediction (``ops_jax.imperfections.held_power``). Prints the table (a column per group: the score without
-it) and writes ``imperfection_groups.json``.
+A bench: 5-stage hard mode (phasor model), the lab preset at ``--scale`` times its magnitudes,
+frames only (no length readouts; ``--lengths`` to observe them); with ``--unseen`` each bench's
+per-stage errors are re-drawn from its seed as protocol (b)'s unseen benches
+(``benchmarks.budget.plan.unseen_bench``). The controller: ``--algo`` (one with nothing to learn:
+``physics`` or ``spgd``) with ``--set`` overrides, or ``--policy DIR`` (an ``agents.save`` folder).
+Score: the final step's P / P_best, mean over ``--episodes`` test episodes (``--eval-seed``), P_best
+of the bench as changed. ``--ceiling`` adds two columns for the bench as it is: "held", P / P_best
+with the lines held at the P_best offsets through the vibration and the pulses' noise (the most a
+controller that follows the drift exactly but not the vibration can hold), and "predicted", the same
+less the vibration's exact one-step prediction (``ops_jax.imperfections.held_power``). Prints the
+table (a column per group: the score without it) and writes ``imperfection_groups.json``.
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ from agents.io import write_json_atomic
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
-# The lab preset's fields by what they model; taking a group away sets its fields to the ideal values
-# (``ops_jax.imperfections.Imperfections()``). "backlash" and "actuator gain" are parts of "actuators".
+# The lab preset's fields by what they model; taking a group away sets its fields to the ideal
+# values (``ops_jax.imperfections.Imperfections()``). "backlash" and "actuator gain" are parts of
+# "actuators".
 GROUPS = {
     "vibration": ("vib_rms", "resonance_rms"),
     "actuators": ("actuator_gain_error", "backlash_wl", "lag_steps", "dac_bits"),
@@ -45,8 +47,8 @@ GROUPS = {
 
 
 def bench(seed: int, scale: float, unseen: bool, lengths: bool, probe: str = "instant") -> dict:
-    """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0), its probes
-    measured as ``probe`` says (``ops_jax.env.PROBES``)."""
+    """The ``ops_jax.make`` options of bench ``seed``: the reality section's level ``scale`` (> 0),
+    its probes measured as ``probe`` says (``ops_jax.env.PROBES``)."""
     from benchmarks.budget.plan import unseen_bench
     from benchmarks.sweep.reality import BASE_ENV, level_env
 
@@ -64,8 +66,9 @@ def without(env_config: dict, group: str) -> dict:
 
 
 def score(args, env_config: dict) -> float:
-    """Final-step P / P_best of the controller on ``env_config``, mean over the test episodes: a stored policy
-    evaluated, or ``--algo`` built for this bench (its one evaluation, seed ``--eval-seed``, is the score)."""
+    """Final-step P / P_best of the controller on ``env_config``, mean over the test episodes: a
+    stored policy evaluated, or ``--algo`` built for this bench (its one evaluation, seed
+    ``--eval-seed``, is the score)."""
     import agents
     from agents.envs import best_ratio
 
@@ -111,8 +114,9 @@ def measure(args) -> list[dict]:
 
 
 def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
-    """P / P_best of lines held at the P_best offsets on bench ``env_config``: "held" through the vibration, and
-    "predicted" with the vibration's one-step prediction taken off (``ops_jax.imperfections.held_power``)."""
+    """P / P_best of lines held at the P_best offsets on bench ``env_config``: "held" through the
+    vibration, and "predicted" with the vibration's one-step prediction taken off
+    (``ops_jax.imperfections.held_power``)."""
     import jax
 
     import ops_jax
@@ -127,7 +131,8 @@ def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
 
 
 def columns(args) -> list:
-    """The table's score columns: the bench as it is, its ceilings (``--ceiling``), then without each group."""
+    """The table's score columns: the bench as it is, its ceilings (``--ceiling``), then without
+    each group."""
     return ["all", *(["held", "predicted"] if args.ceiling else []), *args.groups]
 
 
@@ -186,7 +191,8 @@ def parser() -> ArgumentParser:
         "--probe",
         choices=PROBES,
         default="instant",
-        help="how a probe is measured: instant (the default) or frame (a frame later, as on a bench)",
+        help="how a probe is measured: instant (the default) or frame (a frame later, as on a "
+        "bench)",
     )
     ap.add_argument(
         "--ceiling", action="store_true", help="add the held and predicted ceilings of each bench"

@@ -7,17 +7,17 @@ report the testing P/Pmax (mean +- std over seeds), wall time per run and test-t
 
 Each run: ``agents.train(algo, {"stages", "mode"}, seed=s, total_steps=--steps, config=--config)``,
 then ``agents.evaluate`` on the testing environment (seed 1000 + s, drift fully on in hard mode,
-``--episodes`` episodes of 200 steps, the exact "field" model). Per run it records the final
-P/Pmax (mean over episodes), the median test-time steps to reach 0.9 and the fraction of episodes
-that do, and the wall time (total, simulation, optimisation). Results go to ``<out>/learning.json``
+``--episodes`` episodes of 200 steps, the exact "field" model). Per run it records the final P/Pmax
+(mean over episodes), the median test-time steps to reach 0.9 and the fraction of episodes that do,
+and the wall time (total, simulation, optimisation). Results go to ``<out>/learning.json``
 (rewritten atomically after every run; a stored run with the same hyperparameters, as resolved now
 (so a changed default counts), and the same --episodes is reused, and said so, unless ``--fresh``;
-one with others is rerun)
-and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. TD3 and DroQ write that checkpoint as they train
-too, every ``--checkpoint-every`` env steps (``agents.learners.offpolicy.checkpoint``): a run stopped by Ctrl-C
-(one line, exit status 130, the finished runs kept) or a kill continues from it when the command is run again with
-the same settings (a checkpoint of other settings, or with ``--fresh``, is discarded, and said so). A run that
-fails is recorded with its error and printed; nothing is skipped silently.
+one with others is rerun) and checkpoints to ``<out>/checkpoints/<algo>_<mode>_s<seed>``. TD3 and
+DroQ write that checkpoint as they train too, every ``--checkpoint-every`` env steps
+(``agents.learners.offpolicy.checkpoint``): a run stopped by Ctrl-C (one line, exit status 130, the
+finished runs kept) or a kill continues from it when the command is run again with the same settings
+(a checkpoint of other settings, or with ``--fresh``, is discarded, and said so). A run that fails
+is recorded with its error and printed; nothing is skipped silently.
 """
 
 from __future__ import annotations
@@ -53,8 +53,9 @@ def expected_hyper(algo: str, steps, config) -> dict:
 def checkpointing(
     algo: str, env_config: dict, seed: int, steps, config, folder: Path, every, fresh
 ):
-    """``(Checkpoints in folder, a note)`` of a TD3 or DroQ run (a checkpoint there of other settings, or with
-    ``fresh``, removed; the note says so, or from which step the run continues), else ``(None, None)``."""
+    """``(Checkpoints in folder, a note)`` of a TD3 or DroQ run (a checkpoint there of other
+    settings, or with ``fresh``, removed; the note says so, or from which step the run continues),
+    else ``(None, None)``."""
     import shutil
 
     from agents import api as base, registry
@@ -87,7 +88,8 @@ def run_one(
     ckpt_dir: Path | None,
     checkpoints=None,
 ) -> dict:
-    """Train and evaluate one (algo, mode, seed), ``checkpoints`` (TD3, DroQ) as it trains; the run record."""
+    """Train and evaluate one (algo, mode, seed), ``checkpoints`` (TD3, DroQ) as it trains; the run
+    record."""
     import agents
     from agents import api as base
 
@@ -124,8 +126,9 @@ def run_one(
 
 
 def run_job(args, job: tuple, ckpt_dir: Path | None, write, kept: str) -> dict:
-    """The run record of ``job`` (algo, mode, seed) with ``main``'s arguments, its checkpoints (TD3, DroQ), lines
-    to ``write``; a Ctrl-C or SIGTERM is one line (``kept``: what the finished runs left) and exit status 130 (143)."""
+    """The run record of ``job`` (algo, mode, seed) with ``main``'s arguments, its checkpoints (TD3,
+    DroQ), lines to ``write``; a Ctrl-C or SIGTERM is one line (``kept``: what the finished runs
+    left) and exit status 130 (143)."""
     algo, mode, seed = job
     key, checkpoints = run_key(*job), None
     try:
@@ -196,13 +199,14 @@ def aggregate(runs: list[dict]) -> dict:
 
 def format_table(agg: dict) -> str:
     lines = [
-        f"{'algo':8s} {'mode':7s} {'seeds':>5s} {'testing P/Pmax':>18s} {'steps to 0.9':>12s} {'wall s/run':>10s}"
+        f"{'algo':8s} {'mode':7s} {'seeds':>5s} {'testing P/Pmax':>18s} {'steps to 0.9':>12s} "
+        f"{'wall s/run':>10s}"
     ]
     for row in agg.values():
         fail = f"  ({row['failed']} failed)" if row["failed"] else ""
         lines.append(
-            f"{row['algo']:8s} {row['mode']:7s} {row['seeds']:5d} "
-            f"{row['p_pmax_mean']:8.4f} +- {row['p_pmax_std']:6.4f} {row['steps_to_0p9_mean']:12.1f} "
+            f"{row['algo']:8s} {row['mode']:7s} {row['seeds']:5d} {row['p_pmax_mean']:8.4f} +- "
+            f"{row['p_pmax_std']:6.4f} {row['steps_to_0p9_mean']:12.1f} "
             f"{row['wall_time_s_mean']:10.1f}{fail}"
         )
     return "\n".join(lines)
@@ -282,7 +286,8 @@ def main(argv=None) -> dict:
         )
         if same:
             bar.write(
-                f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); --fresh reruns it"
+                f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); "
+                "--fresh reruns it"
             )
             continue
         if stored is not None:
@@ -334,5 +339,6 @@ if __name__ == "__main__":
     failed = sum(row["failed"] for row in main().values())
     if failed:  # the table and the file hold the others
         sys.exit(
-            f"python -m benchmarks.learning: {failed} run(s) failed; their errors are above and in learning.json"
+            f"python -m benchmarks.learning: {failed} run(s) failed; their errors are above and "
+            "in learning.json"
         )

@@ -1,4 +1,5 @@
-"""Whether the trim (``agents.controllers.trim``) loses: policies alone and trimmed, on the same test episodes.
+"""Whether the trim (``agents.controllers.trim``) loses: policies alone and trimmed, on the same
+test episodes.
 
     python -m benchmarks.trim_loss --seeds 0 1 2 3 4 5 6 7 --episodes 128 --out results/trim_loss
     python -m benchmarks.trim_loss --trims default guarded --envs "hard + lab" --seeds 4 5 6 7
@@ -9,16 +10,17 @@
     python -m benchmarks.trim_loss --trims default guarded bench --envs "hard + lab" \\
         --seeds 4 5 6 7 --probe frame
 
-``--algo`` at its ``--config`` preset (DroQ at its budget preset by default: 20,000 env steps, the seeds in one
-vmapped call; a controller with nothing to learn, e.g. ``physics``, once per seed) on each environment, each policy
-evaluated alone and with each of the trim's presets (``TrimConfig``) on the same test episodes
-(``agents.evaluate``'s ``--eval-seed``: the same starts and the same noise; the trim's dither has a key stream of
-its own). Per (environment, seed, trim): the mean final P / P_best of both, the episodes the trim loses by more
-than ``--margin`` of P / P_best and those it gains by more, and the worst paired difference. ``--offsets``: the
-same comparison for the policy alone with every action shifted by a constant (no trim), the floor of what any
-perturbation of that size loses or gains episode by episode. ``--probe frame``: the test episodes read the trim's
-probe a frame later, as a bench does (``ops_jax`` ``EnvConfig.probe``; training is the same). Prints the table and
-writes ``trim_loss.json``.
+``--algo`` at its ``--config`` preset (DroQ at its budget preset by default: 20,000 env steps, the
+seeds in one vmapped call; a controller with nothing to learn, e.g. ``physics``, once per seed) on
+each environment, each policy evaluated alone and with each of the trim's presets (``TrimConfig``)
+on the same test episodes (``agents.evaluate``'s ``--eval-seed``: the same starts and the same
+noise; the trim's dither has a key stream of its own). Per (environment, seed, trim): the mean final
+P / P_best of both, the episodes the trim loses by more than ``--margin`` of P / P_best and those it
+gains by more, and the worst paired difference. ``--offsets``: the same comparison for the policy
+alone with every action shifted by a constant (no trim), the floor of what any perturbation of that
+size loses or gains episode by episode. ``--probe frame``: the test episodes read the trim's probe a
+frame later, as a bench does (``ops_jax`` ``EnvConfig.probe``; training is the same). Prints the
+table and writes ``trim_loss.json``.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ DEFAULT_ENVS = ("hard", "hard + lab")
 
 
 def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
-    """The comparison of final P / P_best per episode, alone against trimmed (same episodes, same order)."""
+    """The comparison of final P / P_best per episode, alone against trimmed (same episodes, same
+    order)."""
     diff = trimmed - alone
     return {
         "alone": float(alone.mean()),
@@ -60,7 +63,8 @@ def paired(alone: np.ndarray, trimmed: np.ndarray, margin: float) -> dict:
 
 
 def shifted(result, offset: float):
-    """``(Policy, params)``: ``result``'s policy with every action shifted by ``offset`` (clipped to [-1, 1])."""
+    """``(Policy, params)``: ``result``'s policy with every action shifted by ``offset`` (clipped to
+    [-1, 1])."""
     import jax.numpy as jnp
 
     from agents.api import Policy
@@ -87,8 +91,9 @@ def measure(
     config: str = "budget",
     probe: str = "instant",
 ) -> list[dict]:
-    """Train ``algo`` (its ``config`` preset) on ``ENVS[env_name]`` for ``seeds``; one row per seed and trim preset,
-    then per seed and offset, the test episodes' probes read as ``probe`` says (``ops_jax.env.PROBES``)."""
+    """Train ``algo`` (its ``config`` preset) on ``ENVS[env_name]`` for ``seeds``; one row per seed
+    and trim preset, then per seed and offset, the test episodes' probes read as ``probe`` says
+    (``ops_jax.env.PROBES``)."""
     import agents
     from agents.controllers import trim
 
@@ -122,12 +127,13 @@ def measure(
 
 def table(rows: list, margin: float) -> str:
     head = (
-        f"| environment | seed | trim | alone | trimmed | episodes | lost by > {margin:g} | gained by > {margin:g} | "
-        "worst difference (alone -> trimmed) |\n" + "|---" * 9 + "|"
+        f"| environment | seed | trim | alone | trimmed | episodes | lost by > {margin:g} | "
+        f"gained by > {margin:g} | worst difference (alone -> trimmed) |\n" + "|---" * 9 + "|"
     )
     body = [
-        f"| {r['env']} | {r['seed']} | {r['trim']} | {r['alone']:.4f} | {r['trimmed']:.4f} | {r['episodes']} | "
-        f"{r['lost']} | {r['gained']} | {r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |"
+        f"| {r['env']} | {r['seed']} | {r['trim']} | {r['alone']:.4f} | {r['trimmed']:.4f} | "
+        f"{r['episodes']} | {r['lost']} | {r['gained']} | "
+        f"{r['worst']:+.3f} ({r['worst_alone']:.3f} -> {r['worst_trimmed']:.3f}) |"
         for r in rows
     ]
     return "\n".join([head, *body])
@@ -161,13 +167,15 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=[],
         metavar="A",
-        help="also the policy alone with every action shifted by A (action units, |A| < 1), no trim",
+        help="also the policy alone with every action shifted by A (action units, |A| "
+        "< 1), no trim",
     )
     ap.add_argument(
         "--probe",
         choices=PROBES,
         default="instant",
-        help="how the test episodes read a probe: instant (the default) or frame (a frame later, as on a bench)",
+        help="how the test episodes read a probe: instant (the default) or frame (a frame later, "
+        "as on a bench)",
     )
     ap.add_argument("--out", type=Path, default=Path("results/trim_loss"))
     return ap
@@ -187,8 +195,8 @@ def _parse(argv) -> argparse.Namespace:
         ap.error(f"--algo must be one of {sorted(REGISTRY)}, got {args.algo!r}")
     if args.config not in get(args.algo).config.PRESETS:
         ap.error(
-            f"--config must be one of {args.algo}'s presets {sorted(get(args.algo).config.PRESETS)}, "
-            f"got {args.config!r}"
+            f"--config must be one of {args.algo}'s presets "
+            f"{sorted(get(args.algo).config.PRESETS)}, got {args.config!r}"
         )
     return args
 

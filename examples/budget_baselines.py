@@ -114,8 +114,9 @@ def main(argv=None) -> dict:
         train_s=train_s,
     )
     print(
-        f"{args.algo}, {args.steps} steps on {ENV_KWARGS}, seed {args.seed}: final P/Pmax {finals.mean():.3f} "
-        f"+- {finals.std():.3f} over {args.episodes} episodes ({train_s:.0f} s of training)"
+        f"{args.algo}, {args.steps} steps on {ENV_KWARGS}, seed {args.seed}: final P/Pmax "
+        f"{finals.mean():.3f} +- {finals.std():.3f} over {args.episodes} episodes ({train_s:.0f} "
+        "s of training)"
     )
     return out
 

@@ -35,7 +35,8 @@ ENV_KWARGS = dict(stages=3, mode="easy", model="phasor", max_steps=50)
 
 
 def make_envs(mode: str, num_envs: int, **env_kwargs):
-    """``gymnasium.make_vec`` in ``mode`` ("vector_entry_point", "sync" or "async"), with episode statistics."""
+    """``gymnasium.make_vec`` in ``mode`` ("vector_entry_point", "sync" or "async"), with episode
+    statistics."""
     vector_kwargs = {"context": "forkserver"} if mode == "async" else {}
     envs = gymnasium.make_vec(
         "ops_jax/OPS-v0",
@@ -48,7 +49,8 @@ def make_envs(mode: str, num_envs: int, **env_kwargs):
 
 
 class LinearGaussianAgent:
-    """Action mean W obs + b (clipped to [-1, 1] by the caller), std exp(log_std); value v . [obs, 1]."""
+    """Action mean W obs + b (clipped to [-1, 1] by the caller), std exp(log_std); value v . [obs,
+    1]."""
 
     def __init__(self, obs_dim: int, act_dim: int, rng: np.random.Generator):
         self.w = 0.01 * rng.standard_normal((act_dim, obs_dim))
@@ -64,7 +66,8 @@ class LinearGaussianAgent:
         return obs @ self.v[:-1] + self.v[-1]
 
     def update(self, obs, actions, advantages, returns, lr: float):
-        """One policy-gradient step on mean(A log pi(a|s)); the value baseline refit by ridge regression."""
+        """One policy-gradient step on mean(A log pi(a|s)); the value baseline refit by ridge
+        regression."""
         std = np.exp(self.log_std)
         z = (actions - (obs @ self.w.T + self.b)) / std  # (T, A)
         a = advantages[:, None]
@@ -154,8 +157,9 @@ def train(
         history.append(row)
         if log is not None and returns:
             log(
-                f"iteration {iteration:3d}: {len(returns):4d} episodes, return {row['episodic_return']:8.3f}, "
-                f"final P/Pmax {row['final_normalized_power']:.3f}, {row['env_steps_per_s']:,.0f} env-steps/s"
+                f"iteration {iteration:3d}: {len(returns):4d} episodes, return "
+                f"{row['episodic_return']:8.3f}, final P/Pmax "
+                f"{row['final_normalized_power']:.3f}, {row['env_steps_per_s']:,.0f} env-steps/s"
             )
     envs.close()
     return history

@@ -1,14 +1,16 @@
-"""The gymnax adapter of ops-jax under gymnax 1.x's own wrappers, each jitted and vmapped where it is functional.
+"""The gymnax adapter of ops-jax under gymnax 1.x's own wrappers, each jitted and vmapped where it
+is functional.
 
     pip install -e ".[gymnax]"
     python examples/gymnax_wrappers.py [--num-envs 64] [--steps 100] [--seed 0]
 
-Functional wrappers (``jax.jit(jax.vmap(...))`` over ``--num-envs`` instances, ``--steps`` steps in one
-``lax.scan``): ``LogWrapper`` (episode returns), ``FlattenObservationWrapper``, ``GymnaxToDmEnvWrapper``
-(dm_env ``TimeStep``), ``LegacyStepAPIWrapper`` (the five-value step of gymnax 0.0.x). Object wrappers:
-``GymnaxToGymWrapper`` (a Gymnasium env) and ``GymnaxToVectorGymWrapper`` (a Gymnasium vector env). Also
-``GymnaxToBraxWrapper`` where brax is installed. ``StickyActionWrapper`` needs a discrete action space and
-does not fit OPS. The policy is random in [-1, 1]^N: the point is the plumbing.
+Functional wrappers (``jax.jit(jax.vmap(...))`` over ``--num-envs`` instances, ``--steps`` steps in
+one ``lax.scan``): ``LogWrapper`` (episode returns), ``FlattenObservationWrapper``,
+``GymnaxToDmEnvWrapper`` (dm_env ``TimeStep``), ``LegacyStepAPIWrapper`` (the five-value step of
+gymnax 0.0.x). Object wrappers: ``GymnaxToGymWrapper`` (a Gymnasium env) and
+``GymnaxToVectorGymWrapper`` (a Gymnasium vector env). Also ``GymnaxToBraxWrapper`` where brax is
+installed. ``StickyActionWrapper`` needs a discrete action space and does not fit OPS. The policy is
+random in [-1, 1]^N: the point is the plumbing.
 """
 
 from __future__ import annotations
@@ -42,9 +44,9 @@ def _gymnax():
 def scan_steps(
     env, params, num_envs: int, steps: int, seed: int, unpack, carry=lambda reset_out: reset_out[1]
 ):
-    """Run ``steps`` random-action steps of ``num_envs`` instances of a functional env in one jitted scan;
-    ``unpack(step_out) -> (carry, dict)``, ``carry(reset_out)`` the first carry; returns the dicts stacked
-    (steps, num_envs, ...)."""
+    """Run ``steps`` random-action steps of ``num_envs`` instances of a functional env in one jitted
+    scan; ``unpack(step_out) -> (carry, dict)``, ``carry(reset_out)`` the first carry; returns the
+    dicts stacked (steps, num_envs, ...)."""
     reset, step = env.reset, env.step
     n = env.action_space(params).shape[0]
 
@@ -70,8 +72,9 @@ def scan_steps(
 
 
 def run(num_envs: int = 64, steps: int = 100, seed: int = 0, **env_kwargs) -> dict:
-    """Every wrapper that fits a continuous-action env, on ``gymnax_env.make(**ENV_KWARGS, **env_kwargs)``;
-    returns per wrapper what it reports (episode returns, shapes, done flags)."""
+    """Every wrapper that fits a continuous-action env, on
+    ``gymnax_env.make(**ENV_KWARGS, **env_kwargs)``; returns per wrapper what it reports (episode
+    returns, shapes, done flags)."""
     wrappers, gymnax_env = _gymnax()
     env, params = gymnax_env.make(**{**ENV_KWARGS, **env_kwargs})
     results = {}

@@ -1,13 +1,13 @@
-"""A purejaxrl-style PPO (``ppo_continuous_action.py``'s structure) on the gymnax adapter of ops-jax: the whole
-training run, environment steps included, is one jitted function of a PRNG key.
+"""A purejaxrl-style PPO (``ppo_continuous_action.py``'s structure) on the gymnax adapter of
+ops-jax: the whole training run, environment steps included, is one jitted function of a PRNG key.
 
     pip install -e ".[gymnax,agents]"   # gymnax >= 1.0; flax and optax: network, optimiser
     python examples/purejaxrl_ppo.py [--timesteps 200000] [--num-envs 32] [--seed 0]
 
-Written against gymnax's API only: ``env.reset`` / ``env.step`` (six values) vmapped over ``--num-envs``,
-gymnax's ``LogWrapper`` for episode returns, ``env.action_space(params)`` for the action bounds. As in
-purejaxrl, ``done = terminated or truncated`` cuts the GAE (no bootstrap at truncation). The budget is tiny
-next to the paper's; it shows the plumbing, not a tuned result.
+Written against gymnax's API only: ``env.reset`` / ``env.step`` (six values) vmapped over
+``--num-envs``, gymnax's ``LogWrapper`` for episode returns, ``env.action_space(params)`` for the
+action bounds. As in purejaxrl, ``done = terminated or truncated`` cuts the GAE (no bootstrap at
+truncation). The budget is tiny next to the paper's; it shows the plumbing, not a tuned result.
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ def _libraries():
         from ops_jax.adapters import gymnax as gymnax_env
     except ImportError as e:
         sys.exit(
-            f'examples/purejaxrl_ppo.py needs gymnax >= 1.0, flax and optax ({e}): pip install -e ".[gymnax,agents]"'
+            f"examples/purejaxrl_ppo.py needs gymnax >= 1.0, flax and optax ({e}): pip install -e "
+            '".[gymnax,agents]"'
         )
     if not gymnax_env.SIX_VALUE_STEP:
         sys.exit('examples/purejaxrl_ppo.py needs gymnax >= 1.0: pip install -e ".[gymnax,agents]"')
@@ -72,7 +73,8 @@ def gaussian_log_prob(x, mean, log_std):
 
 
 def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
-    """purejaxrl's ``make_train``: returns ``train(key) -> (runner state, metrics)``, jittable, and the config."""
+    """purejaxrl's ``make_train``: returns ``train(key) -> (runner state, metrics)``, jittable, and
+    the config."""
     nn, optax, LogWrapper, gymnax_env = _libraries()
     c = {**CONFIG, **(config or {})}
     c["num_updates"] = max(1, timesteps // (c["num_envs"] * c["num_steps"]))
@@ -204,7 +206,8 @@ def make_train(timesteps: int, config: dict | None = None, **env_kwargs):
 def train(
     timesteps: int = 200_000, seed: int = 0, config: dict | None = None, **env_kwargs
 ) -> dict:
-    """Run ``make_train`` jitted; returns per update the env steps, mean episode return, final P/Pmax, loss."""
+    """Run ``make_train`` jitted; returns per update the env steps, mean episode return, final
+    P/Pmax, loss."""
     fn, c = make_train(timesteps, config, **env_kwargs)
     start = time.perf_counter()
     _, metrics = jax.block_until_ready(jax.jit(fn)(jax.random.key(seed)))

@@ -1,16 +1,17 @@
-"""rejax's PPO and SAC on the gymnax adapter of ops-jax, unchanged: ``rejax.get_algo(name).create(env=env,
-env_params=env_params, ...)`` and one jitted ``algo.train(key)``.
+"""rejax's PPO and SAC on the gymnax adapter of ops-jax, unchanged:
+``rejax.get_algo(name).create(env=env, env_params=env_params, ...)`` and one jitted
+``algo.train(key)``.
 
-rejax 0.1.3 unpacks gymnax 0.0.x's five-value step, so it runs with gymnax 0.0.9 (rejax's own trainers stop
-on gymnax 1.x's six-value step); the adapter steps five values there.
+rejax 0.1.3 unpacks gymnax 0.0.x's five-value step, so it runs with gymnax 0.0.9 (rejax's own
+trainers stop on gymnax 1.x's six-value step); the adapter steps five values there.
 
     # a venv of its own: gymnax 0.0.x, not the [gymnax] extra
     pip install -e . "gymnax==0.0.9" "rejax==0.1.3"
     python examples/rejax_train.py [--algo ppo|sac] [--timesteps 20000] [--seed 0]
 
-Each evaluation (every ``--eval-freq`` env steps) runs ``--eval-envs`` test episodes with the deterministic
-policy and reports the mean return and the final P/Pmax. The budgets are tiny next to the paper's; they show
-the plumbing, not a tuned result.
+Each evaluation (every ``--eval-freq`` env steps) runs ``--eval-envs`` test episodes with the
+deterministic policy and reports the mean return and the final P/Pmax. The budgets are tiny next to
+the paper's; they show the plumbing, not a tuned result.
 """
 
 from __future__ import annotations
@@ -55,15 +56,16 @@ def _rejax():
         )
     if gymnax_env.SIX_VALUE_STEP:
         sys.exit(
-            "examples/rejax_train.py needs gymnax 0.0.x (rejax 0.1.3 unpacks five values per step): "
+            "examples/rejax_train.py needs gymnax 0.0.x (rejax 0.1.3 unpacks five values per "
+            "step): "
             'pip install "gymnax==0.0.9" "rejax==0.1.3"'
         )
     return rejax, gymnax_env
 
 
 def eval_callback(num_envs: int, max_steps: int):
-    """A rejax ``eval_callback``: (mean return, mean final P/Pmax) of ``num_envs`` test episodes, each
-    ``max_steps`` steps from a reset (the adapter truncates there)."""
+    """A rejax ``eval_callback``: (mean return, mean final P/Pmax) of ``num_envs`` test episodes,
+    each ``max_steps`` steps from a reset (the adapter truncates there)."""
 
     def callback(algo, ts, rng):
         act = algo.make_act(ts)
@@ -97,8 +99,9 @@ def train(
     config: dict | None = None,
     **env_kwargs,
 ) -> dict:
-    """Train rejax's ``algo`` (``config``: rejax keywords over ``CONFIGS[algo]``) on the adapter; returns the
-    evaluations (env steps, return, final P/Pmax) and the wall time (s, compilation included)."""
+    """Train rejax's ``algo`` (``config``: rejax keywords over ``CONFIGS[algo]``) on the adapter;
+    returns the evaluations (env steps, return, final P/Pmax) and the wall time (s, compilation
+    included)."""
     rejax, gymnax_env = _rejax()
     kwargs = {**ENV_KWARGS, **env_kwargs}
     env, env_params = gymnax_env.make(**kwargs)

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import os
 
-# torch's thread pool, sized to every core, competes with JAX's for the same cores: one thread keeps the
-# small networks fast on a laptop. Read when torch loads, so set before anything imports it.
+# torch's thread pool, sized to every core, competes with JAX's for the same cores: one thread keeps
+# the small networks fast on a laptop. Read when torch loads, so set before anything imports it.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
@@ -93,7 +93,8 @@ def main(argv=None):
     idle = final_power(test_env, lambda obs: np.zeros(n, np.float32), args.episodes, 10_000)
     print(f"TD3, {args.steps} steps on {ENV_KWARGS} ({train_s:.0f} s)")
     print(
-        f"final P/Pmax  TD3: {td3.mean():.3f} +- {td3.std():.3f}   no control: {idle.mean():.3f} +- {idle.std():.3f}"
+        f"final P/Pmax  TD3: {td3.mean():.3f} +- {td3.std():.3f}   no control: {idle.mean():.3f} "
+        f"+- {idle.std():.3f}"
     )
     return td3
 

@@ -1,12 +1,13 @@
 """ops-jax: a JAX-vectorised simulator of optical pulse stacking (OPS) for control and RL.
 
-``import ops_jax`` pulls in jax, numpy and Gymnasium (it registers the "ops_jax/OPS-v0" environments);
-the Brax adapter, the agents and rendering import their own dependencies when used.
+``import ops_jax`` pulls in jax, numpy and Gymnasium (it registers the "ops_jax/OPS-v0"
+environments); the Brax adapter, the agents and rendering import their own dependencies when used.
 """
 
 from ops_jax.cli import extras
 
-extras.install_excepthook()  # first: a Ctrl-C or a missing extra while the rest imports is one line too
+# first: a Ctrl-C or a missing extra while the rest imports is one line too
+extras.install_excepthook()
 
 from ops_jax import noise, physics  # noqa: E402
 from ops_jax.env import (  # noqa: E402
@@ -40,7 +41,8 @@ __all__ = [
 
 
 def _register_gymnasium() -> None:
-    """Register "ops_jax/OPS-v0" with Gymnasium (a light dependency; brax/matplotlib not imported)."""
+    """Register "ops_jax/OPS-v0" with Gymnasium (a light dependency; brax/matplotlib not
+    imported)."""
     from ops_jax.adapters.gymnasium.env import register
 
     register()

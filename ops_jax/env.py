@@ -96,9 +96,9 @@ class EnvParams:
     obs_noise: std of the observation noise. window: termination bound |x_i| > window.
     lab: the lab imperfections (``imperfections.Imperfections``), used when ``imperfect``.
 
-    Each range excludes values that leave no meaningful task: actions without effect (action_scale 0),
-    a window nothing fits in (and window > init_spread), phases randomised every step (offsets repeat
-    every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more information),
+    Each range excludes values that leave no meaningful task: actions without effect (action_scale
+    0), a window nothing fits in (and window > init_spread), phases randomised every step (offsets
+    repeat every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more information),
     observations drowned in noise (entries live in about [-1, 1]).
     """
 
@@ -122,11 +122,11 @@ class EnvParams:
 @dataclasses.dataclass(frozen=True)
 class EnvState:
     """deltas: offsets (N,) wl. mu_episode: per-episode free-running mean (N,) wl. knots: the
-    current drift segment's start and end knots (2, N). t: step in episode (frames, probes included, with
-    ``probe="frame"``). episode: resets so far. p_init: P at the first reset (reference reward). frames:
-    stacked observations. probed: the probe offsets (N,) wl the lines hold since the last step (zero
-    but between a "frame" probe and the next step). lab: the imperfections' state
-    (``imperfections.LabState``; () when the config is ideal)."""
+    current drift segment's start and end knots (2, N). t: step in episode (frames, probes included,
+    with ``probe="frame"``). episode: resets so far. p_init: P at the first reset (reference
+    reward). frames: stacked observations. probed: the probe offsets (N,) wl the lines hold since
+    the last step (zero but between a "frame" probe and the next step). lab: the imperfections'
+    state (``imperfections.LabState``; () when the config is ideal)."""
 
     deltas: jax.Array
     mu_episode: jax.Array
@@ -201,7 +201,8 @@ class OPSEnv:
         return physics.measure(deltas, stages=c.stages, model=c.model, detector=c.detector)
 
     def _sense(self, deltas, lab):
-        """(true measurement, detected measurement, length readout (N,) wl) at offsets ``deltas``."""
+        """(true measurement, detected measurement, length readout (N,) wl) at offsets
+        ``deltas``."""
         if not self.config.imperfect:
             m = self._measure(deltas)
             return m, m, deltas
@@ -221,7 +222,8 @@ class OPSEnv:
         return frame.astype(jnp.float32) + params.obs_noise * z
 
     def reward(self, power, p_init):
-        """The reward at detected power ``power`` (units of ``p_max``; ``p_init``: P at the first reset, "reference")."""
+        """The reward at detected power ``power`` (units of ``p_max``; ``p_init``: P at the first
+        reset, "reference")."""
         if self.config.reward == "paper":
             return -((power - self.p_max) ** 2) / (self.p_orig - self.p_max) ** 2
         if self.config.reward == "linear":
@@ -282,8 +284,9 @@ class OPSEnv:
             )
 
     def _tick(self, key, state: EnvState, move, params: EnvParams):
-        """One frame: free run, the lines moved by ``move`` (N,) wl through the actuators, the drift's
-        clock advanced, the detector read. Returns (state, true measurement, detected measurement, frame)."""
+        """One frame: free run, the lines moved by ``move`` (N,) wl through the actuators, the
+        drift's clock advanced, the detector read. Returns (state, true measurement, detected
+        measurement, frame)."""
         c = self.config
         d = noise.draws(
             key,
@@ -311,8 +314,8 @@ class OPSEnv:
         )
 
     def step_env(self, key, state: EnvState, action, params: EnvParams):
-        """One control period without auto-reset: free run, action, measurement. After a "frame" probe
-        the move also takes the lines back from the probed offsets."""
+        """One control period without auto-reset: free run, action, measurement. After a "frame"
+        probe the move also takes the lines back from the probed offsets."""
         c = self.config
         action = jnp.asarray(action, jnp.float32)
         finite = jnp.isfinite(action)
@@ -352,8 +355,9 @@ class OPSEnv:
         return dataclasses.replace(axes, lab=imperfections.batch_axes(params.lab))
 
     def auto_reset(self, done, key, state: EnvState, fallback, params: EnvParams):
-        """``next_episode(key, state, params)`` where ``done``, else ``fallback`` (obs, state). Under
-        ``jax.vmap`` (nested too) the reset is computed only on calls where some instance is done."""
+        """``next_episode(key, state, params)`` where ``done``, else ``fallback`` (obs, state).
+        Under ``jax.vmap`` (nested too) the reset is computed only on calls where some instance is
+        done."""
         return _auto_reset_ad(self, done, key, state, fallback, params)
 
     def step(self, key, state: EnvState, action, params: EnvParams):
@@ -372,16 +376,17 @@ class OPSEnv:
         return new_obs, new_state, reward, terminated, truncated, info
 
     def probe(self, state: EnvState, offsets, params: EnvParams):
-        """P / P_max read at the current lengths plus ``offsets`` (N,) wl in the same instant, nothing moved."""
+        """P / P_max read at the current lengths plus ``offsets`` (N,) wl in the same instant,
+        nothing moved."""
         del params
         return self._sense(state.deltas + offsets, state.lab)[1].power / self.p_max
 
     def probe_step(self, key, state: EnvState, offsets, params: EnvParams):
-        """A dither probe (e.g. SPGD's): (P / P_max read with the lines at ``offsets`` (N,) wl from where the
-        last step left them, the state after it). ``EnvConfig.probe`` "instant": ``probe``, the state
-        unchanged; "frame": the lines move there through the actuators and one frame passes (free run,
-        vibration, drift, the episode's clock), as a bench measures it; the next step's move starts there.
-        Agents count each call as a measurement."""
+        """A dither probe (e.g. SPGD's): (P / P_max read with the lines at ``offsets`` (N,) wl from
+        where the last step left them, the state after it). ``EnvConfig.probe`` "instant":
+        ``probe``, the state unchanged; "frame": the lines move there through the actuators and one
+        frame passes (free run, vibration, drift, the episode's clock), as a bench measures it; the
+        next step's move starts there. Agents count each call as a measurement."""
         if self.config.probe == "instant":
             return self.probe(state, offsets, params), state
         move = jnp.asarray(offsets, jnp.float32) - state.probed
@@ -395,7 +400,8 @@ class OPSEnv:
         return jax.vmap(self.reset, in_axes=(0, self._params_axes(params)))(keys, params)
 
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
-        """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched (B,)."""
+        """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched
+        (B,)."""
         return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(
             keys, states, actions, params
         )
@@ -403,7 +409,8 @@ class OPSEnv:
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
-    """``_auto_reset`` whose derivatives (reverse mode included) go through a per-instance select."""
+    """``_auto_reset`` whose derivatives (reverse mode included) go through a per-instance
+    select."""
     return _auto_reset(env, ())(done, key, state, fallback, params)
 
 
@@ -418,8 +425,9 @@ def _auto_reset_jvp(env, primals, tangents):
 
 
 def _auto_reset(env: OPSEnv, levels: tuple):
-    """``env.auto_reset`` on arguments with ``len(levels)`` leading batch axes; ``levels[j]`` (outermost
-    first) says per argument leaf whether it carries axis j. The reset runs when any instance is done."""
+    """``env.auto_reset`` on arguments with ``len(levels)`` leading batch axes; ``levels[j]``
+    (outermost first) says per argument leaf whether it carries axis j. The reset runs when any
+    instance is done."""
 
     @custom_vmap
     def auto_reset(done, key, state, fallback, params):
@@ -459,7 +467,8 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
     (medium values unless overridden). ``overrides`` may set any ``EnvConfig`` or ``EnvParams``
     field, e.g. ``make(5, "easy", model="phasor", obs_noise=0.0)``. Lab imperfections:
     ``imperfections="lab"`` (or "none"), ``imperfection_scale`` (x the preset's errors) and any
-    ``imperfections.Imperfections`` field; setting any turns ``imperfect`` on and fills in p_best."""
+    ``imperfections.Imperfections`` field; setting any turns ``imperfect`` on and fills in
+    p_best."""
     config, params = configure(stages, mode, **overrides)
     env = OPSEnv(config)
     p_best = imperfections.best_power(config, params.lab) if config.imperfect else env.p_max
@@ -470,8 +479,9 @@ def make(stages: int = 5, mode: str = "hard", **overrides):
 
 
 def configure(stages: int = 5, mode: str = "hard", **overrides):
-    """The validated ``(EnvConfig, EnvParams)`` of ``make(stages, mode, **overrides)`` (raises what ``make``
-    raises), without building the environment or searching P_best (``params.lab.p_best`` unset)."""
+    """The validated ``(EnvConfig, EnvParams)`` of ``make(stages, mode, **overrides)`` (raises what
+    ``make`` raises), without building the environment or searching P_best (``params.lab.p_best``
+    unset)."""
     physics._check_choice("mode", mode, MODES)
     physics.check_stages(stages)
     cfg_fields = {f.name for f in dataclasses.fields(EnvConfig)}

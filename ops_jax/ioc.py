@@ -1,4 +1,5 @@
-"""The simulator served as an EPICS Channel Access IOC (caproto): one OPS instance in wall-clock time.
+"""The simulator served as an EPICS Channel Access IOC (caproto): one OPS instance in wall-clock
+time.
 
     python -m ops_jax.ioc --prefix OPS: --stages 5 --mode hard --imperfections lab --rate 100
 
@@ -20,24 +21,26 @@ PVs (prefix first; lengths in wavelengths, wl):
 - ``LINE{i}:LEN``: the length readout: the line's offset from the optimum as its calibrated sensor
   reports it (the environment's observed length); not served with ``--observe-lengths False``.
 - ``DET:POWER``: the detector reading in units of P_max; ``SCOPE:TRACE``: the 2^N - 1 oscilloscope
-  samples in units of the ideal pulse peak (both as the detector reads them, with observation noise).
+  samples in units of the ideal pulse peak (both as the detector reads them, with observation
+  noise).
 - ``EVAL:P_PMAX``, ``EVAL:P_PBEST``: the true P / P_max and P / P_best, for evaluation only.
 - ``TICK`` (published last in a tick: a new value means a complete new frame), ``STATUS``,
   ``OVERRUNS``, ``RATE`` (Hz; 0 in lockstep), ``ADVANCE`` (lockstep only).
-- ``RESET``: a non-zero write starts again: setpoints to 0, the lines' offsets from the optimum drawn afresh
-  as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the tick count goes on.
+- ``RESET``: a non-zero write starts again: setpoints to 0, the lines' offsets from the optimum
+  drawn afresh as at start-up (the k-th reset's key folded by k, the same ``--drift-episode``); the
+  tick count goes on.
 
 Every PV of a tick carries the tick's start as its time stamp: the moment its setpoints were read,
-so a frame stamped after a setpoint write shows that write once the write has reached the IOC. ``--tick-log FILE``
-appends one JSON line per tick, ``{"tick": t, "stamp": s, "setpoints": [...]}`` (the time stamp, time.time() s, and
-the setpoints the tick applied, wl): what a client's frames can be checked against.
-Every 1,000 ticks the IOC prints one line of their host time (the simulator step, then the PV writes:
-median and 99th percentile, ms) and the overruns so far.
+so a frame stamped after a setpoint write shows that write once the write has reached the IOC.
+``--tick-log FILE`` appends one JSON line per tick, ``{"tick": t, "stamp": s, "setpoints": [...]}``
+(the time stamp, time.time() s, and the setpoints the tick applied, wl): what a client's frames can
+be checked against. Every 1,000 ticks the IOC prints one line of their host time (the simulator
+step, then the PV writes: median and 99th percentile, ms) and the overruns so far.
 
 Random draws follow ``agents.evaluate``'s episode 0 for ``--seed``: ``reset`` as the
-``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded by t.
-The IOC listens on 127.0.0.1 unless ``--interface`` is given; port and search settings follow the
-standard ``EPICS_CA_*`` environment variables.
+``--drift-episode``-th episode (hard mode's drift fully on by default), step t with the key folded
+by t. The IOC listens on 127.0.0.1 unless ``--interface`` is given; port and search settings follow
+the standard ``EPICS_CA_*`` environment variables.
 """
 
 from __future__ import annotations
@@ -116,9 +119,9 @@ def make_options(args: argparse.Namespace) -> dict:
 
 
 class Bench:
-    """One simulated instance: the jitted single-instance step and its wall-clock state (host side). The
-    state is kept as one float32 vector and a tick's outputs come back as another (``gym_codec``): one
-    argument in and one copy out per tick instead of one per leaf."""
+    """One simulated instance: the jitted single-instance step and its wall-clock state (host side).
+    The state is kept as one float32 vector and a tick's outputs come back as another
+    (``gym_codec``): one argument in and one copy out per tick instead of one per leaf."""
 
     def __init__(
         self, stages: int, mode: str, options: dict, seed: int = 0, drift_episode: int = 10
@@ -143,8 +146,8 @@ class Bench:
         jax.block_until_ready(self._step(self._packed, np.zeros(self.n, np.float32), 1))
 
     def reset(self) -> dict:
-        """Start again: the lines drawn afresh as at start-up (the k-th reset folds its key by k), the
-        setpoints applied back to 0; the tick count goes on. Returns the new PV values."""
+        """Start again: the lines drawn afresh as at start-up (the k-th reset folds its key by k),
+        the setpoints applied back to 0; the tick count goes on. Returns the new PV values."""
         self.resets += 1
         obs, state = self._reset(jax.random.fold_in(self._k_reset, self.resets))
         self._packed = self._pack(state)
@@ -164,7 +167,8 @@ class Bench:
         return float(power / self.env.p_max), float(power / (best if best > 0 else self.env.p_max))
 
     def _advance(self, packed, action, t):
-        """(packed state, [frame, position (N,) wl, P / P_max, P / P_best, outside]) after step ``t``."""
+        """(packed state, [frame, position (N,) wl, P / P_max, P / P_best, outside]) after step
+        ``t``."""
         k_env = jax.random.split(jax.random.fold_in(self._k_run, t - 1))[1]
         state = self._codec.unflatten(packed)
         obs, state, _, terminated, _, info = self.env.step_env(
@@ -208,8 +212,8 @@ class Bench:
 
 
 def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool, tick_log=None):
-    """The caproto ``PVGroup`` instance serving ``bench``; ``tick_log``: a text file each tick appends its line to
-    (``--tick-log``; None: none)."""
+    """The caproto ``PVGroup`` instance serving ``bench``; ``tick_log``: a text file each tick
+    appends its line to (``--tick-log``; None: none)."""
     from caproto import ChannelType
     from caproto.server import pvproperty
 
@@ -261,7 +265,8 @@ class _BenchGroupBase:
     """Tick logic shared by the generated PV group (mixed into a caproto ``PVGroup``)."""
 
     async def publish(self, values: dict, stamp: float | None = None):
-        """Write one tick's values, each stamped ``stamp`` (the tick's start, time.time() s; now if None)."""
+        """Write one tick's values, each stamped ``stamp`` (the tick's start, time.time() s; now if
+        None)."""
         at = {} if stamp is None else {"timestamp": stamp}
         for i in range(1, self.bench.n + 1):
             await getattr(self, f"rbv{i}").write(values["position"][i - 1], **at)
@@ -277,7 +282,8 @@ class _BenchGroupBase:
         await self.tick.write(self.bench.t, **at)  # last: a new tick means a complete frame
 
     async def step(self):
-        """One tick: the setpoints as they are now, one simulator step, its frame stamped with this moment."""
+        """One tick: the setpoints as they are now, one simulator step, its frame stamped with this
+        moment."""
         stamp, t0 = time.time(), time.perf_counter()
         setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
         if self.tick_log is not None:
@@ -296,12 +302,13 @@ class _BenchGroupBase:
             self.report_ticks()
 
     def report_ticks(self):
-        """One line on the last ``TICK_REPORT`` ticks' host time: the simulator step, then the PV writes (ms)."""
+        """One line on the last ``TICK_REPORT`` ticks' host time: the simulator step, then the PV
+        writes (ms)."""
         step, write = np.percentile(np.asarray(self.tick_ms), [50, 99], axis=0).T
         print(
-            f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 / p99 "
-            f"{step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} ms, overruns "
-            f"{self.overruns.value}",
+            f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 "
+            f"/ p99 {step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} "
+            f"ms, overruns {self.overruns.value}",
             flush=True,
         )
         self.tick_ms = []
@@ -322,8 +329,8 @@ class _BenchGroupBase:
     async def start(self, async_lib):
         await self.publish(self.bench.frame)
         print(
-            f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} lines, "
-            f"{'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}",
+            f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} "
+            f"lines, {'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}",
             flush=True,
         )
         if not self.lockstep:
@@ -337,7 +344,8 @@ async def _advance(group, instance, value):
 
 
 async def _reset(group, instance, value):
-    """Setpoints to 0, then the bench's ``reset`` (a tick in between moves towards 0), its frame published."""
+    """Setpoints to 0, then the bench's ``reset`` (a tick in between moves towards 0), its frame
+    published."""
     if value:
         for i in range(1, group.bench.n + 1):
             await getattr(group, f"sp{i}").write(0.0)
@@ -364,18 +372,19 @@ BATCH_WINDOW_ENV = "CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC"
 
 
 def batch_window(rate: float) -> float:
-    """The longest caproto holds a batch of monitor updates while more keep coming (s): a tenth of the tick
-    period, at most caproto's default 10 ms, unless ``CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC`` sets it. With a
-    window as long as the period every update finds the next one coming, and caproto, taking the server
-    for overloaded, lets the batches grow to 1 s of latency."""
+    """The longest caproto holds a batch of monitor updates while more keep coming (s): a tenth of
+    the tick period, at most caproto's default 10 ms, unless
+    ``CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC`` sets it. With a window as long as the period every
+    update finds the next one coming, and caproto, taking the server for overloaded, lets the
+    batches grow to 1 s of latency."""
     if os.environ.get(BATCH_WINDOW_ENV):
         return float(os.environ[BATCH_WINDOW_ENV])
     return min(0.01, 0.1 / rate)
 
 
 async def _tcp_socket(addr: str, port: int) -> socket.socket:
-    """The server's listening socket, made with the TCP protocol number so that asyncio sets TCP_NODELAY
-    on every accepted connection."""
+    """The server's listening socket, made with the TCP protocol number so that asyncio sets
+    TCP_NODELAY on every accepted connection."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.setblocking(False)
@@ -384,9 +393,10 @@ async def _tcp_socket(addr: str, port: int) -> socket.socket:
 
 
 async def _drained_get(circuit, timeout=None):
-    """A circuit's next queued monitor update; None at once when none is queued (``timeout`` given), so that a
-    batch goes out as soon as the queue is drained; with ``timeout`` None, waits for one. caproto's own waits up
-    to ``timeout`` (the batch window) for more after the last update of a tick, delaying every frame by it."""
+    """A circuit's next queued monitor update; None at once when none is queued (``timeout`` given),
+    so that a batch goes out as soon as the queue is drained; with ``timeout`` None, waits for one.
+    caproto's own waits up to ``timeout`` (the batch window) for more after the last update of a
+    tick, delaying every frame by it."""
     queue = circuit.subscription_queue
     try:
         return queue.get_nowait()
@@ -395,8 +405,8 @@ async def _drained_get(circuit, timeout=None):
 
 
 def ephemeral_ports() -> tuple[int, int]:
-    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be read (other
-    systems: their own, e.g. macOS 49152-65535)."""
+    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be
+    read (other systems: their own, e.g. macOS 49152-65535)."""
     try:
         with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
             first, last = map(int, f.read().split())
@@ -406,24 +416,26 @@ def ephemeral_ports() -> tuple[int, int]:
 
 
 def port_warning(port: int) -> str | None:
-    """A line for a Channel Access port inside the kernel's range for auto-bound ports (None: outside it):
-    caproto binds the IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a
-    client socket the kernel auto-binds to the same port takes the IOC's search replies for itself, and that
-    client's search times out."""
+    """A line for a Channel Access port inside the kernel's range for auto-bound ports (None:
+    outside it): caproto binds the IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its
+    client sockets, so a client socket the kernel auto-binds to the same port takes the IOC's search
+    replies for itself, and that client's search times out."""
     first, last = ephemeral_ports()
     if first <= port <= last:
         return (
-            f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports ({first}-{last}); "
-            f"a client given the same port misses the IOC's search replies: set EPICS_CA_SERVER_PORT below {first}"
+            f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports "
+            f"({first}-{last}); a client given the same port misses the IOC's search replies: set "
+            f"EPICS_CA_SERVER_PORT below {first}"
         )
     return None
 
 
 def tune_server(rate: float) -> None:
-    """caproto's server set for a tick-paced IOC: monitor batches sent once the queue is drained (``_drained_get``)
-    and within ``batch_window(rate)`` under load, and replies sent without Nagle's delay. caproto binds with
-    protocol 0, so asyncio leaves Nagle's algorithm on; small replies then wait for the client's delayed
-    acknowledgement (~40 ms a write round trip while monitors flow, where 1.3 ms is the wire's)."""
+    """caproto's server set for a tick-paced IOC: monitor batches sent once the queue is drained
+    (``_drained_get``) and within ``batch_window(rate)`` under load, and replies sent without
+    Nagle's delay. caproto binds with protocol 0, so asyncio leaves Nagle's algorithm on; small
+    replies then wait for the client's delayed acknowledgement (~40 ms a write round trip while
+    monitors flow, where 1.3 ms is the wire's)."""
     import caproto.asyncio.server
     import caproto.server.common
 
@@ -435,7 +447,8 @@ def tune_server(rate: float) -> None:
 
 
 def main(argv=None) -> None:
-    """Serve the IOC until Ctrl-C (or SIGINT): then one line, exit status 130, while starting as well."""
+    """Serve the IOC until Ctrl-C (or SIGINT): then one line, exit status 130, while starting as
+    well."""
     keep_ctrl_c()
     ap = parser()
     args = ap.parse_args(argv)
@@ -452,7 +465,8 @@ def main(argv=None) -> None:
 
 
 def _start(ap, args):
-    """The PV group of the IOC ``args`` describe: its simulator built and compiled, the server tuned."""
+    """The PV group of the IOC ``args`` describe: its simulator built and compiled, the server
+    tuned."""
     runtime.start_single_threaded()  # a tick is one small call
     try:
         bench = Bench(

@@ -1,29 +1,33 @@
-"""A controller scored as optics papers score a lock: time to lock, RMS power noise after lock, and the
-spectrum of what is left.
+"""A controller scored as optics papers score a lock: time to lock, RMS power noise after lock, and
+the spectrum of what is left.
 
-    figures = lock_figures(trace, rate_hz=100.0)   # trace: P / P_max (or P / P_best), shape (..., steps)
+    # trace: P / P_max (or P / P_best), shape (..., steps)
+    figures = lock_figures(trace, rate_hz=100.0)
 
-``trace[..., k]`` is the power after control step ``k + 1`` (as ``agents.evaluate`` records it). Per trace:
+``trace[..., k]`` is the power after control step ``k + 1`` (as ``agents.evaluate`` records it). Per
+trace:
 
 - **held level**: the median of the trace's last half (its locked level, if it locks).
-- **lock step**: the control steps made when P enters, for good, the band ``|P - held| <= band x held``
-  (``band`` relative, default 2 %): ``k + 1`` for the first index ``k`` from which every later reading is in
-  the band. The lock must last at least ``hold`` of the trace (default 10 %, at least 2 readings); a trace
-  whose last excursion out of the band comes later, or whose held level is not positive, never locked: its
-  figures are NaN (``None`` with a reason in ``to_json`` and ``episode_summary``). A trace that starts in the
-  band locks at step 1. Seconds to lock: the lock step over ``rate_hz`` (control steps per second).
+- **lock step**: the control steps made when P enters, for good, the band
+  ``|P - held| <= band x held`` (``band`` relative, default 2 %): ``k + 1`` for the first index
+  ``k`` from which every later reading is in the band. The lock must last at least ``hold`` of the
+  trace (default 10 %, at least 2 readings); a trace whose last excursion out of the band comes
+  later, or whose held level is not positive, never locked: its figures are NaN (``None`` with a
+  reason in ``to_json`` and ``episode_summary``). A trace that starts in the band locks at step 1.
+  Seconds to lock: the lock step over ``rate_hz`` (control steps per second).
 - **RMS after lock**: std / mean of P from the lock on (the readings in the band; population std).
-- **PSD after lock**: the one-sided power spectral density of P's relative fluctuation ``P / mean - 1``
-  from the lock on, by Welch's method: Hann windows of ``segment`` readings, 50 % overlap, each segment's
-  mean removed, periodograms averaged. Units 1/Hz at frequencies in Hz with ``rate_hz``, else per cycle per
-  step at cycles per step; its integral over frequency is the relative variance (the RMS squared, less what
-  the segments' means held). ``segment`` default: the largest power of two <= 256 that every locked trace's
-  post-lock readings fill; a trace with fewer post-lock readings than ``segment`` has a NaN spectrum.
+- **PSD after lock**: the one-sided power spectral density of P's relative fluctuation
+  ``P / mean - 1`` from the lock on, by Welch's method: Hann windows of ``segment`` readings, 50 %
+  overlap, each segment's mean removed, periodograms averaged. Units 1/Hz at frequencies in Hz with
+  ``rate_hz``, else per cycle per step at cycles per step; its integral over frequency is the
+  relative variance (the RMS squared, less what the segments' means held). ``segment`` default: the
+  largest power of two <= 256 that every locked trace's post-lock readings fill; a trace with fewer
+  post-lock readings than ``segment`` has a NaN spectrum.
 
 ``episode_summary(traces)`` gives the figures over episodes (the medians of those that locked), as
-``agents.evaluate``'s summary reports them; ``trace_json(trace, rate_hz)`` one run's, as ``agents.bench``'s
-summary.json holds them. The figures do not change when the trace is scaled (P / P_max and P / P_best give the same ones).
-Numpy only.
+``agents.evaluate``'s summary reports them; ``trace_json(trace, rate_hz)`` one run's, as
+``agents.bench``'s summary.json holds them. The figures do not change when the trace is scaled (P /
+P_max and P / P_best give the same ones). Numpy only.
 """
 
 from __future__ import annotations
@@ -42,10 +46,11 @@ MIN_STEPS = 4  # shortest trace scored (readings)
 
 @dataclasses.dataclass(frozen=True)
 class LockFigures:
-    """The lock figures of traces (..., steps): per trace (shape ``(...)``) ``held_level`` (the trace's unit),
-    ``lock_step`` (control steps, NaN: never locked), ``lock_s`` (s; None without a rate), ``rms_after_lock``
-    (relative, NaN: never locked) and ``psd`` (..., F) at ``frequency`` (F,) (1/Hz at Hz, or per cycle per step
-    at cycles per step without a rate); the settings ``band``, ``hold``, ``segment`` and ``rate_hz``."""
+    """The lock figures of traces (..., steps): per trace (shape ``(...)``) ``held_level`` (the
+    trace's unit), ``lock_step`` (control steps, NaN: never locked), ``lock_s`` (s; None without a
+    rate), ``rms_after_lock`` (relative, NaN: never locked) and ``psd`` (..., F) at ``frequency``
+    (F,) (1/Hz at Hz, or per cycle per step at cycles per step without a rate); the settings
+    ``band``, ``hold``, ``segment`` and ``rate_hz``."""
 
     band: float
     hold: float
@@ -71,8 +76,9 @@ class LockFigures:
         )
 
     def to_json(self) -> dict:
-        """The figures as JSON-able values (per trace, nested lists for a batch): a never-locked trace's lock
-        step, seconds and RMS are ``None`` and its ``lock_reason`` says why (``None`` where it locked)."""
+        """The figures as JSON-able values (per trace, nested lists for a batch): a never-locked
+        trace's lock step, seconds and RMS are ``None`` and its ``lock_reason`` says why (``None``
+        where it locked)."""
         locked = self.locked
         return dict(
             lock_band=self.band,
@@ -84,8 +90,8 @@ class LockFigures:
         )
 
     def episode_summary(self) -> dict:
-        """Over the traces (episodes): the median lock step and RMS after lock of those that locked (``None``
-        with ``lock_reason`` where none did), the fraction that locked and the band."""
+        """Over the traces (episodes): the median lock step and RMS after lock of those that locked
+        (``None`` with ``lock_reason`` where none did), the fraction that locked and the band."""
         locked = self.locked
         some = bool(locked.any())
         return dict(
@@ -105,8 +111,8 @@ def _too_short(traces: np.ndarray) -> str | None:
 
 
 def episode_summary(traces, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOLD) -> dict:
-    """``LockFigures.episode_summary`` of ``traces`` (episodes, steps); traces of fewer than ``MIN_STEPS``
-    readings are too short to score: ``None`` figures, and ``lock_reason`` says so."""
+    """``LockFigures.episode_summary`` of ``traces`` (episodes, steps); traces of fewer than
+    ``MIN_STEPS`` readings are too short to score: ``None`` figures, and ``lock_reason`` says so."""
     traces = np.asarray(traces)
     short = _too_short(traces)
     if short is None:
@@ -116,8 +122,8 @@ def episode_summary(traces, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOL
 
 
 def trace_json(trace, rate_hz=None, *, band=DEFAULT_BAND, hold=DEFAULT_HOLD) -> dict:
-    """``LockFigures.to_json`` of one ``trace`` (steps,) (a run's); one of fewer than ``MIN_STEPS`` readings is
-    too short to score: ``None`` figures, and ``lock_reason`` says so."""
+    """``LockFigures.to_json`` of one ``trace`` (steps,) (a run's); one of fewer than ``MIN_STEPS``
+    readings is too short to score: ``None`` figures, and ``lock_reason`` says so."""
     trace = np.asarray(trace)
     short = _too_short(trace)
     if short is None:
@@ -141,8 +147,9 @@ def lock_figures(
     hold: float = DEFAULT_HOLD,
     segment: int | None = None,
 ) -> LockFigures:
-    """The ``LockFigures`` of ``trace`` (..., steps) of P per control step at ``rate_hz`` control steps per
-    second (None: per step); see the module docstring. Non-finite readings count as out of the band."""
+    """The ``LockFigures`` of ``trace`` (..., steps) of P per control step at ``rate_hz`` control
+    steps per second (None: per step); see the module docstring. Non-finite readings count as out of
+    the band."""
     trace = _checked(trace, rate_hz, band, hold, segment)
     steps = trace.shape[-1]
     with warnings.catch_warnings():  # an all-NaN last half: NaN, never locked
@@ -203,14 +210,16 @@ def _checked(trace, rate_hz, band, hold, segment) -> np.ndarray:
         or not MIN_STEPS <= segment <= trace.shape[-1]
     ):
         raise ValueError(
-            f"segment must be an integer in [{MIN_STEPS}, steps = {trace.shape[-1]}] or None, got {segment!r}"
+            f"segment must be an integer in [{MIN_STEPS}, steps = {trace.shape[-1]}] or None, got "
+            f"{segment!r}"
         )
     return trace
 
 
 def _lock_index(trace: np.ndarray, held, band: float, least: int) -> np.ndarray:
-    """Per trace, the first index from which every reading is in the band around ``held``; ``steps`` where
-    that run is shorter than ``least`` readings or ``held`` is not a positive number (never locked)."""
+    """Per trace, the first index from which every reading is in the band around ``held``; ``steps``
+    where that run is shorter than ``least`` readings or ``held`` is not a positive number (never
+    locked)."""
     steps = trace.shape[-1]
     held = np.asarray(held)[..., None]
     with np.errstate(invalid="ignore"):
@@ -223,8 +232,8 @@ def _lock_index(trace: np.ndarray, held, band: float, least: int) -> np.ndarray:
 
 
 def _welch(x: np.ndarray, segment: int, fs: float) -> np.ndarray:
-    """One-sided Welch PSD of ``x`` (Hann, 50 % overlap, segment means removed; x's unit squared per Hz of
-    ``fs``); NaN where ``x`` is shorter than ``segment``."""
+    """One-sided Welch PSD of ``x`` (Hann, 50 % overlap, segment means removed; x's unit squared per
+    Hz of ``fs``); NaN where ``x`` is shorter than ``segment``."""
     if x.size < segment:
         return np.full(segment // 2 + 1, np.nan)
     step = segment - segment // 2  # overlap: half a segment, rounded down
@@ -238,8 +247,8 @@ def _welch(x: np.ndarray, segment: int, fs: float) -> np.ndarray:
 
 
 def draw_psd(ax, figures: LockFigures, label: str | None = None) -> None:
-    """Plot the median PSD after lock of ``figures``' locked traces on the matplotlib axes ``ax`` (log-log;
-    no matplotlib import here), or say on it that nothing locked."""
+    """Plot the median PSD after lock of ``figures``' locked traces on the matplotlib axes ``ax``
+    (log-log; no matplotlib import here), or say on it that nothing locked."""
     unit = "Hz" if figures.rate_hz is not None else "cycles / step"
     ax.set(xlabel=f"frequency ({unit})", ylabel=f"PSD of P / mean - 1 (per {unit})")
     rows = figures.psd[figures.locked] if figures.psd.ndim > 1 else figures.psd[None]

@@ -92,7 +92,8 @@ def initial_offsets(z, init_loc, spread):
 
 def episode_drift(u, episode, cap, ramp):
     """The reference's hard-mode drift factor r ~ Uniform(-s, s), s = min(cap, episode * ramp),
-    where ``episode`` counts the resets before this one (0 at the first: no drift); ``u`` U[-1, 1)."""
+    where ``episode`` counts the resets before this one (0 at the first: no drift); ``u`` U[-1,
+    1)."""
     return jnp.minimum(cap, episode * ramp) * u
 
 

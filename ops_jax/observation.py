@@ -1,15 +1,16 @@
-"""The layout of an observation (``OPSEnv.layout``): where each reading sits in a frame and its scale.
+"""The layout of an observation (``OPSEnv.layout``): where each reading sits in a frame and its
+scale.
 
 A frame is, each entry mapped affinely to about [-1, 1]:
 
 - ``2 P / P_max - 1``: the stacked energy (index 0);
 - ``2 I_m / I_peak - 1``: the 2^N - 1 oscilloscope samples (I_peak: peak of the ideal pulse);
-- ``x_i / window``: the N length readouts (wl; ``window`` the termination bound), unless ``lengths`` is
-  False (the environment's ``observe_lengths=False``: the detector's frames only);
+- ``x_i / window``: the N length readouts (wl; ``window`` the termination bound), unless ``lengths``
+  is False (the environment's ``observe_lengths=False``: the detector's frames only);
 - ``mu_i / 5e-4 wl``: the N entries of the noise state, with ``noise`` (``include_noise=True``).
 
-An observation is ``frame_stack`` frames, oldest first. Every reader of an observation (the environment,
-the controllers, the IOC, the bench runner) reads it through this record.
+An observation is ``frame_stack`` frames, oldest first. Every reader of an observation (the
+environment, the controllers, the IOC, the bench runner) reads it through this record.
 """
 
 from __future__ import annotations
@@ -68,8 +69,9 @@ class ObservationLayout:
     def describe(self) -> str:
         """The layout in words, e.g. for an error message."""
         return (
-            f"stages={self.stages}, frame_stack={self.frame_stack}, observe_lengths={self.lengths}, "
-            f"include_noise={self.noise} ({self.size} entries, {self.stages} actions)"
+            f"stages={self.stages}, frame_stack={self.frame_stack}, "
+            f"observe_lengths={self.lengths}, include_noise={self.noise} ({self.size} entries, "
+            f"{self.stages} actions)"
         )
 
     # -- reading -----------------------------------------------------------------------------------
@@ -91,17 +93,17 @@ class ObservationLayout:
         return self.latest(obs)[..., : self.detector_size]
 
     def length_readouts(self, obs, window):
-        """The newest frame's length readouts (..., N) in wl; ``window`` (wl) their scale. ValueError
-        without them."""
+        """The newest frame's length readouts (..., N) in wl; ``window`` (wl) their scale.
+        ValueError without them."""
         if not self.lengths:
             raise ValueError("the observation has no length readouts (observe_lengths=False)")
         return self.latest(obs)[..., self.lengths_slice] * window
 
     # -- writing -----------------------------------------------------------------------------------
     def encode(self, power, samples, lengths=None, window=None, noise_state=None, xp=jnp):
-        """One frame (frame_size,) from P / P_max, the samples / I_peak (2^N - 1,), the length readouts
-        (N,) wl with their scale ``window`` (wl; both needed with ``lengths``) and the noise state (N,) wl
-        (needed with ``noise``); ``xp``: ``jax.numpy`` or ``numpy``."""
+        """One frame (frame_size,) from P / P_max, the samples / I_peak (2^N - 1,), the length
+        readouts (N,) wl with their scale ``window`` (wl; both needed with ``lengths``) and the
+        noise state (N,) wl (needed with ``noise``); ``xp``: ``jax.numpy`` or ``numpy``."""
         parts = [xp.reshape(2 * xp.asarray(power) - 1, (1,)), 2 * xp.asarray(samples) - 1]
         if self.lengths:
             if lengths is None or window is None:
@@ -117,13 +119,14 @@ class ObservationLayout:
         if frame.shape != (self.frame_size,):
             raise ValueError(
                 f"a frame of this environment has {self.frame_size} entries ({self.describe()}), "
-                f"got {frame.shape[0]}: {2**self.stages - 1} samples expected, got {np.shape(samples)}"
+                f"got {frame.shape[0]}: {2**self.stages - 1} samples expected, got "
+                f"{np.shape(samples)}"
             )
         return frame
 
     def decode(self, frame, window) -> dict:
-        """A frame's readings (float64): ``power`` P / P_max, ``trace`` the samples / I_peak, ``length``
-        the readouts (wl; None without them)."""
+        """A frame's readings (float64): ``power`` P / P_max, ``trace`` the samples / I_peak,
+        ``length`` the readouts (wl; None without them)."""
         f = np.asarray(frame, np.float64)
         return {
             "power": (f[0] + 1) / 2,

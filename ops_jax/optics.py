@@ -1,14 +1,15 @@
 """Stacking with imperfect optics, in both physics models (field: exact; phasor: fast).
 
-Each stage i is the ideal one (physics.md section 3) with two changes (docs/imperfections.md derives both):
+Each stage i is the ideal one (physics.md section 3) with two changes (docs/imperfections.md derives
+both):
 - a leaky PBS (``leak_i``, intensity fraction 1/ER sent to the wrong port on every pass): the light
-  passes the PBS twice, at the split and at the recombination, each pass a unitary split whose unused
-  output port is lost. The intended path keeps amplitude 1 - leak, the path that leaks on both passes
-  amplitude leak: P = (1 - leak) p + leak delay(p), S = (1 - leak) delay(s) + leak s. The stage map
-  has norm <= 1, so no configuration creates energy.
-- wave plate rotation ``rot_i`` (rad; 45 degrees ideal, 45 + 2 eps for a half-wave plate set eps off,
-  followed by the turning mirror's reflection): p' = cos(rot) P + sin(rot) S, s' = -sin(rot) P + cos(rot) S;
-  the next stage splits sin^2(rot):cos^2(rot).
+  passes the PBS twice, at the split and at the recombination, each pass a unitary split whose
+  unused output port is lost. The intended path keeps amplitude 1 - leak, the path that leaks on
+  both passes amplitude leak: P = (1 - leak) p + leak delay(p), S = (1 - leak) delay(s) + leak s.
+  The stage map has norm <= 1, so no configuration creates energy.
+- wave plate rotation ``rot_i`` (rad; 45 degrees ideal, 45 + 2 eps for a half-wave plate set eps
+  off, followed by the turning mirror's reflection): p' = cos(rot) P + sin(rot) S, s' = -sin(rot)
+  P + cos(rot) S; the next stage splits sin^2(rot):cos^2(rot).
 The 2^N input pulses carry complex weights ``pulses`` (re, im) (..., 2^N) (1 for identical pulses).
 The stage map is still linear and the same for every train entry, so the entries are summed first
 as in ``physics``. The phasor model drops the light that stage 1's leakage puts half a period
@@ -68,8 +69,9 @@ def _split_recombine_rotate(p, S_del, P_del, s, a, l, c, sn):
 
 
 def _per_stage(rot, leak):
-    """(cos, sin, a, l) per stage, stage axis first: a = 1 - leak (split and recombined as intended),
-    l = leak (sent to the wrong arm and recombined from it: two leaks, amplitudes sqrt(leak) each)."""
+    """(cos, sin, a, l) per stage, stage axis first: a = 1 - leak (split and recombined as
+    intended), l = leak (sent to the wrong arm and recombined from it: two leaks, amplitudes
+    sqrt(leak) each)."""
     a, l = 1 - leak, leak
     return tuple(jnp.moveaxis(v, -1, 0) for v in (jnp.cos(rot), jnp.sin(rot), a, l))
 
@@ -148,7 +150,8 @@ def measure(
 ):
     """Detect the stacked output of imperfect optics: offsets ``deltas_wl`` (..., N) wl, wave plate
     rotations ``rot`` (..., N) rad, PBS leakage ``leak`` (..., N), input pulse weights ``pulses``
-    (re, im) each (..., 2^N). With rot = pi/4, leak = 0 and unit pulses this is ``physics.measure``."""
+    (re, im) each (..., 2^N). With rot = pi/4, leak = 0 and unit pulses this is
+    ``physics.measure``."""
     x = jnp.asarray(deltas_wl)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(float))
@@ -173,9 +176,9 @@ PHASOR_ERROR = (
 
 
 def phasor_error_bound(leak_1, pulses=None, *, stages: int, detector: str = "total"):
-    """The documented bound on |P_phasor - P_field| (P units) for stage 1's leakage ``leak_1`` and the
-    input pulse weights ``pulses`` (re, im) (..., 2^N) (None: identical pulses), whose mean energy
-    E / E_ideal scales P_max by its square."""
+    """The documented bound on |P_phasor - P_field| (P units) for stage 1's leakage ``leak_1`` and
+    the input pulse weights ``pulses`` (re, im) (..., 2^N) (None: identical pulses), whose mean
+    energy E / E_ideal scales P_max by its square."""
     energy = 1.0 if pulses is None else jnp.mean(pulses[0] ** 2 + pulses[1] ** 2, axis=-1)
     return (
         (PHASOR_ERROR[0] + PHASOR_ERROR[1] * leak_1) * physics.p_max(stages, detector) * energy**2

@@ -39,9 +39,9 @@ DETECTORS = ("total", "polariser")
 
 
 class Measurement(NamedTuple):
-    """What the detector sees. ``power``: P (reference units), shape (...);
-    ``samples``: the 2^N - 1 oscilloscope samples of I(t) (W), shape (..., 2^N - 1);
-    ``intensity``: full I(t) on the time grid, shape (..., 40 * 2^N) (field model only, else None)."""
+    """What the detector sees. ``power``: P (reference units), shape (...); ``samples``: the 2^N - 1
+    oscilloscope samples of I(t) (W), shape (..., 2^N - 1); ``intensity``: full I(t) on the time
+    grid, shape (..., 40 * 2^N) (field model only, else None)."""
 
     power: jax.Array
     samples: jax.Array

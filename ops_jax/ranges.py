@@ -15,10 +15,11 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class Range:
-    """Numbers in [lo, hi] (``lo_open`` / ``hi_open``: an open end; an infinite ``hi`` is open unless
-    ``inf_ok``, which accepts +inf itself), whole numbers when ``integer``; ``unit`` for messages.
-    Array leaves: ``shape`` "stage" (one value per stage, (N,), a scalar broadcast) or "resonance"
-    (one per resonance); ``scaled``: an error magnitude multiplied by ``imperfection_scale``."""
+    """Numbers in [lo, hi] (``lo_open`` / ``hi_open``: an open end; an infinite ``hi`` is open
+    unless ``inf_ok``, which accepts +inf itself), whole numbers when ``integer``; ``unit`` for
+    messages. Array leaves: ``shape`` "stage" (one value per stage, (N,), a scalar broadcast) or
+    "resonance" (one per resonance); ``scaled``: an error magnitude multiplied by
+    ``imperfection_scale``."""
 
     lo: float
     hi: float = math.inf
@@ -57,8 +58,8 @@ class Range:
         )
 
     def __call__(self, name: str, v):
-        """A Python scalar option: the accepted value as int / float, else ValueError naming ``name``
-        (booleans and, for an integer range, non-integer types are refused)."""
+        """A Python scalar option: the accepted value as int / float, else ValueError naming
+        ``name`` (booleans and, for an integer range, non-integer types are refused)."""
         kinds = (int, np.integer) if self.integer else (int, float, np.integer, np.floating)
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, kinds) or not self.contains(v):
             raise ValueError(f"{name} must be {self}, got {v!r}")

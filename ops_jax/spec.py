@@ -1,15 +1,16 @@
-"""``EnvSpec``: a frozen, hashable record of the ``ops_jax.make`` options, validated when it is built.
+"""``EnvSpec``: a frozen, hashable record of the ``ops_jax.make`` options, validated when it is
+built.
 
     spec = ops_jax.EnvSpec(stages=5, mode="hard", model="phasor")  # or EnvSpec.from_options({...})
     env, params = spec.make()  # ops_jax.make(**spec.as_dict())
     spec.key  # stable: the same options, the same key
 
-Its fields are ``stages``, ``mode`` (``make``'s defaults) and every option of ``ops_jax.env.option_names()``
-(the one declaration: the ``EnvConfig`` and ``EnvParams`` fields and the imperfection options), each None
-unless given: an option not given takes ``make``'s default (the mode's, for the mode-dependent ones).
-Sequences and arrays are held as tuples, numpy scalars as Python numbers. ``as_dict()`` is the given
-options as the keyword dict of ``make`` (``stages`` and ``mode`` always): the form stored in checkpoints
-and in the sweep's cell configurations.
+Its fields are ``stages``, ``mode`` (``make``'s defaults) and every option of
+``ops_jax.env.option_names()`` (the one declaration: the ``EnvConfig`` and ``EnvParams`` fields and
+the imperfection options), each None unless given: an option not given takes ``make``'s default (the
+mode's, for the mode-dependent ones). Sequences and arrays are held as tuples, numpy scalars as
+Python numbers. ``as_dict()`` is the given options as the keyword dict of ``make`` (``stages`` and
+``mode`` always): the form stored in checkpoints and in the sweep's cell configurations.
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ from ops_jax import env as _env
 
 
 def _frozen(name: str, value):
-    """``value`` as a hashable, JSON-ready value (tuples for sequences and arrays, Python numbers)."""
+    """``value`` as a hashable, JSON-ready value (tuples for sequences and arrays, Python
+    numbers)."""
     if isinstance(value, (np.ndarray, list, tuple)):
         return tuple(
             _frozen(name, v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)
@@ -36,7 +38,8 @@ def _frozen(name: str, value):
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     raise TypeError(
-        f"{name} must be a number, a string, a bool or a sequence of numbers, got {type(value).__name__}"
+        f"{name} must be a number, a string, a bool or a sequence of numbers, got "
+        f"{type(value).__name__}"
     )
 
 
@@ -80,8 +83,9 @@ def make(self):
 
 
 def from_options(cls, options) -> "EnvSpec":
-    """The spec of an ``ops_jax.make`` keyword dict (an ``EnvSpec`` is returned as it is). TypeError for
-    anything else or an unknown option, ValueError for a value out of range, each naming the option."""
+    """The spec of an ``ops_jax.make`` keyword dict (an ``EnvSpec`` is returned as it is). TypeError
+    for anything else or an unknown option, ValueError for a value out of range, each naming the
+    option."""
     if isinstance(options, cls):
         return options
     if not isinstance(options, dict):
@@ -92,7 +96,8 @@ def from_options(cls, options) -> "EnvSpec":
     unknown = set(options) - {f.name for f in dataclasses.fields(cls)}
     if unknown:
         raise TypeError(
-            f"unknown option(s) {sorted(unknown)}; accepted: stages, mode, {sorted(_env.option_names())}"
+            f"unknown option(s) {sorted(unknown)}; accepted: stages, mode, "
+            f"{sorted(_env.option_names())}"
         )
     return cls(**options)
 

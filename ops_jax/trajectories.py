@@ -1,5 +1,5 @@
-"""A policy run over a batch of OPS environments in one jitted scan (``rollout``), with the trajectories
-and the completed episodes' summaries (``Rollout``)."""
+"""A policy run over a batch of OPS environments in one jitted scan (``rollout``), with the
+trajectories and the completed episodes' summaries (``Rollout``)."""
 
 from __future__ import annotations
 

@@ -15,11 +15,12 @@ REFERENCE_DIR = Path(__file__).resolve().parents[1] / "benchmarks" / "reference"
 
 
 def _compile_unoptimised():
-    """This process compiles at XLA's backend optimisation level 0 (as ``benchmarks.sweep --quick``): the suite's
-    time is mostly compilation. The level is read once, when the backend starts (here); XLA_FLAGS is then
-    restored, so that the processes the tests start (the bench, the IOC, the sweep) run the optimised build;
-    a test that compares this process's numbers with a started process's bit for bit uses ``this_build``.
-    Returns the XLA_FLAGS of this process."""
+    """This process compiles at XLA's backend optimisation level 0 (as
+    ``benchmarks.sweep --quick``): the suite's time is mostly compilation. The level is read once,
+    when the backend starts (here); XLA_FLAGS is then restored, so that the processes the tests
+    start (the bench, the IOC, the sweep) run the optimised build; a test that compares this
+    process's numbers with a started process's bit for bit uses ``this_build``. Returns the
+    XLA_FLAGS of this process."""
     flags = os.environ.get("XLA_FLAGS")
     if "xla_backend_optimization_level" in (flags or ""):
         return flags
@@ -38,12 +39,13 @@ XLA_FLAGS_HERE = _compile_unoptimised()
 
 
 def _share_compilations():
-    """One persistent XLA cache for the run, a temporary folder (not the user's ``~/.cache/ops-jax``) made by the
-    first pytest process and inherited by xdist's workers and by every process the tests start (IOCs, bench
-    runners, learners, snippets, sweeps): a program one of them compiled, another loads. Programs that compile in
-    under 0.5 s are not kept. Only where the filelock package is installed: the cache's size limit turns its file
-    lock on, and several processes write to it. ``compiles`` counts a program loaded from it as a compilation.
-    Returns the folder this process made and removes at the end (None: none, inherited, or set outside)."""
+    """One persistent XLA cache for the run, a temporary folder (not the user's
+    ``~/.cache/ops-jax``) made by the first pytest process and inherited by xdist's workers and by
+    every process the tests start (IOCs, bench runners, learners, snippets, sweeps): a program one
+    of them compiled, another loads. Programs that compile in under 0.5 s are not kept. Only where
+    the filelock package is installed: the cache's size limit turns its file lock on, and several
+    processes write to it. ``compiles`` counts a program loaded from it as a compilation. Returns
+    the folder this process made and removes at the end (None: none, inherited, or set outside)."""
     if "JAX_COMPILATION_CACHE_DIR" in os.environ or not importlib.util.find_spec("filelock"):
         return None  # inherited or set outside (jax read it when imported), or no file lock
     folder = Path(tempfile.mkdtemp(prefix="ops-jax-tests-xla-"))
@@ -71,8 +73,9 @@ def pytest_unconfigure(config):
 
 @pytest.fixture
 def this_build(monkeypatch):
-    """XLA_FLAGS set to this process's while the test runs: the processes it starts compile the same build (to
-    compare with it bit for bit, or to compile faster where a process's speed does not matter)."""
+    """XLA_FLAGS set to this process's while the test runs: the processes it starts compile the same
+    build (to compare with it bit for bit, or to compile faster where a process's speed does not
+    matter)."""
     monkeypatch.setenv("XLA_FLAGS", XLA_FLAGS_HERE)
 
 
@@ -105,15 +108,17 @@ def _count_compiles():
 
 @pytest.fixture
 def compiles():
-    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``, programs loaded from the
-    persistent cache included (``jax.monitoring``'s events): a check that nothing is traced or compiled again."""
+    """``with compiles() as n:`` counts the XLA compilations inside the block in ``n[0]``, programs
+    loaded from the persistent cache included (``jax.monitoring``'s events): a check that nothing is
+    traced or compiled again."""
     return _count_compiles
 
 
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
-    """Drop each test module's compiled programs when it ends: one process compiles hundreds of XLA programs
-    over the suite, and their code mappings would otherwise add up to the kernel's per-process map limit."""
+    """Drop each test module's compiled programs when it ends: one process compiles hundreds of XLA
+    programs over the suite, and their code mappings would otherwise add up to the kernel's
+    per-process map limit."""
     yield
     jax.clear_caches()
     gc.collect()

@@ -7,7 +7,8 @@ from agents.api import Policy
 
 
 def learned_and_idle(result, env_config: dict, episodes: int, seed: int = 1) -> tuple[dict, float]:
-    """(the evaluation summary of ``result`` on ``env_config``, the final P/Pmax there of zero actions)."""
+    """(the evaluation summary of ``result`` on ``env_config``, the final P/Pmax there of zero
+    actions)."""
     n = env_config["stages"]
     zero = Policy(
         lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], n)), c)

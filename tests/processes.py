@@ -44,8 +44,9 @@ def stop_groups(procs, grace_s: float = 5.0) -> None:
 
 
 def default_sigint() -> None:
-    """A ``preexec_fn``: SIGINT at its default disposition and unblocked in the child, as a shell starts a
-    program, whatever this test process holds (an ignored or blocked SIGINT survives exec)."""
+    """A ``preexec_fn``: SIGINT at its default disposition and unblocked in the child, as a shell
+    starts a program, whatever this test process holds (an ignored or blocked SIGINT survives
+    exec)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -1,6 +1,7 @@
 """The packages import only downwards (ops_jax <- agents <- benchmarks) and no project modules
-import each other in a cycle, counting every import statement (function-local ones included) and every
-module named in a string (an import made at run time, e.g. ``importlib.import_module("agents.learners.offpolicy.td3")``)."""
+import each other in a cycle, counting every import statement (function-local ones included) and
+every module named in a string (an import made at run time, e.g.
+``importlib.import_module("agents.learners.offpolicy.td3")``)."""
 
 import ast
 import importlib
@@ -18,8 +19,8 @@ def module_name(path: Path) -> str:
 
 def import_graph() -> dict:
     """{module: {project modules it imports}}. ``from pkg import name`` counts as an import of
-    ``pkg.name`` when that is a module, else of ``pkg``; a string that is a module's full name counts as
-    an import of it (made at run time); an import under ``if TYPE_CHECKING:`` is none."""
+    ``pkg.name`` when that is a module, else of ``pkg``; a string that is a module's full name
+    counts as an import of it (made at run time); an import under ``if TYPE_CHECKING:`` is none."""
     files = {module_name(p): p for layer in LAYERS for p in (REPO / layer).rglob("*.py")}
     graph = {}
     for name, path in files.items():
@@ -122,9 +123,9 @@ def test_no_import_cycles():
 
 
 def test_every_module_imports_and_hides_no_function_of_its_package():
-    """Every module of the three packages imports (none refuses, none fails for want of a neighbour), and no
-    package exports a name that is also one of its modules (``agents.train`` is the function; the training
-    command line is ``python -m agents``)."""
+    """Every module of the three packages imports (none refuses, none fails for want of a
+    neighbour), and no package exports a name that is also one of its modules (``agents.train`` is
+    the function; the training command line is ``python -m agents``)."""
     import agents
 
     assert agents.train is agents.api.train
@@ -144,10 +145,10 @@ def test_every_module_imports_and_hides_no_function_of_its_package():
 
 
 def test_agents_names_no_preset_of_the_benchmarks():
-    """The benchmarks' presets live in benchmarks/ (benchmarks/sweep/presets.py, benchmarks/budget/presets.py):
-    no source under agents/ quotes the name of a sweep or lab-budget preset that is not also an algorithm's own
-    preset name, holds a dict keyed by two or more of the sweep's preset names (an algorithm's part in them), or
-    names their former registry fields."""
+    """The benchmarks' presets live in benchmarks/ (benchmarks/sweep/presets.py,
+    benchmarks/budget/presets.py): no source under agents/ quotes the name of a sweep or lab-budget
+    preset that is not also an algorithm's own preset name, holds a dict keyed by two or more of the
+    sweep's preset names (an algorithm's part in them), or names their former registry fields."""
     import re
 
     from agents.registry import REGISTRY

@@ -1,1 +1,2 @@
-"""A controller on a lab's control stack: ophyd devices over EPICS, a Bluesky run (``python -m agents.bench``)."""
+"""A controller on a lab's control stack: ophyd devices over EPICS, a Bluesky run
+(``python -m agents.bench``)."""

@@ -1,13 +1,14 @@
 """What a run on a bench chooses by itself, and what the runner's first line says of it.
 
-On a bench whose mapping has no length readout for some line: the physics-informed controller runs its ``frames``
-configuration (``--set config=frames``: the detector's frames alone) and a learner from scratch its ``bench`` preset
-(``--set config=bench``, where it has one: DroQ's correction to the physics-informed fit's move). Where the mapping
-declares the optics' period (``period_wl``; the simulated bench's 0.5 wl) and leaves ``safety.wrap_wl`` unset, the
-lines wrap at that period (``agents.bench.mapping``), unless the controller reads the length readouts (which jump by
-the period at a wrap) or the soft range is under three periods. An explicit ``--set config=...`` (for the
-physics-informed controller also ``use_lengths`` or ``lengths_only``), ``--wrap WL`` (0: no wrap) or
-``safety.wrap_wl`` wins.
+On a bench whose mapping has no length readout for some line: the physics-informed controller runs
+its ``frames`` configuration (``--set config=frames``: the detector's frames alone) and a learner
+from scratch its ``bench`` preset (``--set config=bench``, where it has one: DroQ's correction to
+the physics-informed fit's move). Where the mapping declares the optics' period (``period_wl``; the
+simulated bench's 0.5 wl) and leaves ``safety.wrap_wl`` unset, the lines wrap at that period
+(``agents.bench.mapping``), unless the controller reads the length readouts (which jump by the
+period at a wrap) or the soft range is under three periods. An explicit ``--set config=...`` (for
+the physics-informed controller also ``use_lengths`` or ``lengths_only``), ``--wrap WL`` (0: no
+wrap) or ``safety.wrap_wl`` wins.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ def _why(missing: list, lines: int) -> str:
 
 
 def choose_settings(args, mapping: dict) -> tuple[list, str | None]:
-    """(the ``--set`` items with the configuration chosen added, what was chosen and why, or None)."""
+    """(the ``--set`` items with the configuration chosen added, what was chosen and why, or
+    None)."""
     items, missing = list(args.set or []), missing_lengths(mapping)
     hyper = parse_set(items)
     if not missing:
@@ -45,8 +47,8 @@ def choose_settings(args, mapping: dict) -> tuple[list, str | None]:
         presets = off_policy_learner(args.learn).config_type.PRESETS
         if "bench" in presets:
             return [*items, "config=bench"], (
-                f"{args.learn} with its bench preset (config=bench: a correction to the physics-informed "
-                f"fit's move), as {why}"
+                f"{args.learn} with its bench preset (config=bench: a correction to the "
+                f"physics-informed fit's move), as {why}"
             )
         preset = "budget" if "budget" in presets else "default"
         return items, f"{args.learn} with its {preset} preset ({args.learn} has no bench preset)"
@@ -54,13 +56,15 @@ def choose_settings(args, mapping: dict) -> tuple[list, str | None]:
 
 
 def _observes_lengths(env_config: dict) -> bool:
-    """Whether the observation of ``env_config`` (``ops_jax.make`` options) holds the length readouts."""
+    """Whether the observation of ``env_config`` (``ops_jax.make`` options) holds the length
+    readouts."""
     return configure(**EnvSpec.from_options(env_config).as_dict())[0].observe_lengths
 
 
 def run_reads_lengths(args, mapping: dict, items: list, checkpoint) -> bool:
-    """Whether the run's controller or learner (``--set`` ``items``; ``checkpoint``: the one resumed) reads the length
-    readouts, before it is built (as ``agents.bench.loop.check_lengths`` tells)."""
+    """Whether the run's controller or learner (``--set`` ``items``; ``checkpoint``: the one
+    resumed) reads the length readouts, before it is built (as ``agents.bench.loop.check_lengths``
+    tells)."""
     env_options, stages = parse_set(args.env), len(mapping["lines"])
     if args.learn:
         start = checkpoint or args.from_
@@ -77,9 +81,9 @@ def run_reads_lengths(args, mapping: dict, items: list, checkpoint) -> bool:
 
 
 def choose_wrap(mapping: dict, reads: str | None) -> tuple[float | None, str | None]:
-    """(the wrap (wl, None: none) of a checked ``mapping`` whose ``safety.wrap_wl`` has the ``--wrap`` in it, for a
-    run whose controller ``reads`` the length readouts (its name; None: it does not); what was chosen and why, or
-    None where it was given)."""
+    """(the wrap (wl, None: none) of a checked ``mapping`` whose ``safety.wrap_wl`` has the
+    ``--wrap`` in it, for a run whose controller ``reads`` the length readouts (its name; None: it
+    does not); what was chosen and why, or None where it was given)."""
     given, period = mapping["safety"]["wrap_wl"], mapping["period_wl"]
     if given is not None:
         return (given or None), None
@@ -87,20 +91,21 @@ def choose_wrap(mapping: dict, reads: str | None) -> tuple[float | None, str | N
         return None, None
     if reads:
         return None, (
-            f"no wrap at the optics' period ({period:g} wl): {reads} reads the length readouts, which "
-            "jump by the period at a wrap"
+            f"no wrap at the optics' period ({period:g} wl): {reads} reads the length readouts, "
+            "which jump by the period at a wrap"
         )
     span = min(high - low for low, high in mapping["safety"]["soft_range_wl"])
     if period > span / 3:
         return None, f"no wrap: the soft range ({span:g} wl) is under three periods ({period:g} wl)"
     return period, (
-        f"lines wrapped at the optics' period, {period:g} wl (the mapping's period_wl; --wrap 0: none)"
+        f"lines wrapped at the optics' period, {period:g} wl (the mapping's period_wl; --wrap 0: "
+        "none)"
     )
 
 
 def choose(args, mapping: dict, checkpoint=None) -> tuple[list, dict, str | None]:
-    """(the ``--set`` items, the checked ``mapping`` with its wrap resolved, the line that says what was chosen and
-    why, or None where nothing was)."""
+    """(the ``--set`` items, the checked ``mapping`` with its wrap resolved, the line that says what
+    was chosen and why, or None where nothing was)."""
     items, setting = choose_settings(args, mapping)
     name = f"--learn {args.learn}" if args.learn else args.controller
     reads = run_reads_lengths(args, mapping, items, checkpoint)

@@ -1,4 +1,5 @@
-"""ophyd devices of an OPS bench (``agents.bench`` drives them), built from its mapping (``agents.bench.mapping``)."""
+"""ophyd devices of an OPS bench (``agents.bench`` drives them), built from its mapping
+(``agents.bench.mapping``)."""
 
 from __future__ import annotations
 
@@ -34,12 +35,13 @@ def monitored(sig):
 
 
 class RawMonitor:
-    """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each value lands on
-    the signal as that monitor would leave it (``monitored``, ``.timestamp``), then ``hook(value=, timestamp=)``
-    runs, in caproto's receiving thread as the value is read off the socket (``hook`` must not block). ophyd's
-    dispatcher thread, its per-value metadata handling and caproto's hand-off of each value to its callback
-    thread, most of a Python client's time per frame, are skipped; alarm fields are not followed. Numeric PVs
-    only; create after ``connect``, once per signal."""
+    """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each
+    value lands on the signal as that monitor would leave it (``monitored``, ``.timestamp``), then
+    ``hook(value=, timestamp=)`` runs, in caproto's receiving thread as the value is read off the
+    socket (``hook`` must not block). ophyd's dispatcher thread, its per-value metadata handling and
+    caproto's hand-off of each value to its callback thread, most of a Python client's time per
+    frame, are skipped; alarm fields are not followed. Numeric PVs only; create after ``connect``,
+    once per signal."""
 
     def __init__(self, sig):
         read_pv = sig._read_pv
@@ -60,8 +62,8 @@ class RawMonitor:
 
     @staticmethod
     def serves(sig) -> bool:
-        """Whether caproto serves ``sig``'s monitor and its PV is numeric (not another control layer, not a fake
-        signal, not a string)."""
+        """Whether caproto serves ``sig``'s monitor and its PV is numeric (not another control
+        layer, not a fake signal, not a string)."""
         read_pv = getattr(sig, "_read_pv", None)
         pv = getattr(read_pv, "_caproto_pv", None)
         channel = getattr(pv, "channel", None)
@@ -93,10 +95,11 @@ class RawMonitor:
 
 
 class RawWriter:
-    """Setpoints written through caproto's client directly, every line's in one message per circuit: ophyd's
-    ``put`` (value checks, connection wait, its own callbacks) and one send per PV are skipped. Floating-point
-    PVs served by caproto only (``serves``); nothing waits for the IOC's confirmation, as with ``put``. The
-    ophyd signals' setpoint caches are not updated (``Lines`` keeps the setpoints sent)."""
+    """Setpoints written through caproto's client directly, every line's in one message per circuit:
+    ophyd's ``put`` (value checks, connection wait, its own callbacks) and one send per PV are
+    skipped. Floating-point PVs served by caproto only (``serves``); nothing waits for the IOC's
+    confirmation, as with ``put``. The ophyd signals' setpoint caches are not updated (``Lines``
+    keeps the setpoints sent)."""
 
     def __init__(self, sigs):
         self.pvs = [sig._write_pv._caproto_pv for sig in sigs]
@@ -115,7 +118,8 @@ class RawWriter:
         return channel.native_data_type in (ChannelType.FLOAT, ChannelType.DOUBLE)
 
     def write(self, values) -> None:
-        """Write ``values`` (one per PV, the PVs' units); a PV not connected stops the run (``SafetyStop``)."""
+        """Write ``values`` (one per PV, the PVs' units); a PV not connected stops the run
+        (``SafetyStop``)."""
         circuits: dict = {}
         for pv, name, value in zip(self.pvs, self.names, values):
             channel, manager = pv.channel, pv.circuit_manager
@@ -176,8 +180,8 @@ class Detector(Device):
         super().__init__(prefix, **kwargs)
 
     def arm(self, raw: RawMonitor | None = None):
-        """Start following the counter (after connection; through ``raw`` when given); the frame there now
-        counts as new."""
+        """Start following the counter (after connection; through ``raw`` when given); the frame
+        there now counts as new."""
         self._latest, self._used, self._stamp = self.tick.get(), None, self.tick.timestamp
         self.tick_time = time.perf_counter()
         if raw is not None:
@@ -205,8 +209,9 @@ class Detector(Device):
             self._used = self._latest
 
     def after(self, stamp: float):
-        """Frames stamped before ``stamp`` (time.time(), s) no longer count: the next ``trigger`` waits
-        for one acquired at or after it (a frame that shows a move written before ``stamp``)."""
+        """Frames stamped before ``stamp`` (time.time(), s) no longer count: the next ``trigger``
+        waits for one acquired at or after it (a frame that shows a move written before
+        ``stamp``)."""
         with self._lock:
             self._used, self._not_before = self._latest, stamp
 
@@ -224,8 +229,9 @@ class Detector(Device):
         return status
 
     def wait(self, timeout: float) -> bool:
-        """Block until a usable frame has arrived and count it as used (``trigger`` without a status, for
-        a loop in its own thread); False after ``timeout`` s without one; raises the failure of ``fail``."""
+        """Block until a usable frame has arrived and count it as used (``trigger`` without a
+        status, for a loop in its own thread); False after ``timeout`` s without one; raises the
+        failure of ``fail``."""
         deadline = time.monotonic() + timeout
         with self._lock:
             while not self._usable():
@@ -266,9 +272,10 @@ class SafetyStop(RuntimeError):
 
 class Lines(Device):
     """The delay lines moved together: ``set(targets)`` (wl, one per line) clips each move to
-    ``max_step_wl``, takes a line that would come within ``wrap_wl`` of a soft limit one ``wrap_wl`` back
-    (when given), clips the result to the soft range, then writes every setpoint without waiting; clipped
-    moves and wraps are counted, clipped moves logged. After ``lock()`` (the watchdog) nothing is written."""
+    ``max_step_wl``, takes a line that would come within ``wrap_wl`` of a soft limit one ``wrap_wl``
+    back (when given), clips the result to the soft range, then writes every setpoint without
+    waiting; clipped moves and wraps are counted, clipped moves logged. After ``lock()`` (the
+    watchdog) nothing is written."""
 
     clipped = Cpt(Signal, value=0, kind="normal")
     wraps = Cpt(Signal, value=0, kind="normal")
@@ -305,8 +312,8 @@ class Lines(Device):
         return self._sent.copy()
 
     def wrap(self, positions) -> np.ndarray:
-        """The shift (wl, one per line) that takes ``positions`` within ``wrap_wl`` of a soft limit one
-        ``wrap_wl`` back towards the middle (zeros without ``wrap_wl``)."""
+        """The shift (wl, one per line) that takes ``positions`` within ``wrap_wl`` of a soft limit
+        one ``wrap_wl`` back towards the middle (zeros without ``wrap_wl``)."""
         if self.wrap_wl is None:
             return np.zeros(len(self._lines))
         low, high = self.soft_range[:, 0], self.soft_range[:, 1]
@@ -315,7 +322,8 @@ class Lines(Device):
         )
 
     def safe(self, targets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(targets within the limits (wl), which lines were clipped, the wrap shift (wl, 0 where not wrapped))."""
+        """(targets within the limits (wl), which lines were clipped, the wrap shift (wl, 0 where
+        not wrapped))."""
         targets = np.asarray(targets, float)
         here = self.position
         step = np.clip(targets - here, -self.max_step_wl, self.max_step_wl)
@@ -357,7 +365,8 @@ class Lines(Device):
 
 
 def _device_class(mapping: dict):
-    """The bench's ``Device`` subclass: lines ``line1..lineN`` (+ ``length1..``), ``detector``, ``evaluation``."""
+    """The bench's ``Device`` subclass: lines ``line1..lineN`` (+ ``length1..``), ``detector``,
+    ``evaluation``."""
     comps = {}
     for i, line in enumerate(mapping["lines"], 1):
         comps[f"line{i}"] = Cpt(DelayLine, "", sp_pv=line["setpoint"], rbv_pv=line["readback"])
@@ -381,9 +390,9 @@ def _device_class(mapping: dict):
 
 
 def make_bench(mapping: dict, device_class=None, name: str = "bench"):
-    """``(bench device, Lines)`` for a validated mapping. ``device_class(mapping) -> class`` may wrap
-    the device class (``ophyd.sim.make_fake_device`` in tests). The first bench of a process sets
-    ophyd's Channel Access timeouts to the mapping's ``connect_s``."""
+    """``(bench device, Lines)`` for a validated mapping. ``device_class(mapping) -> class`` may
+    wrap the device class (``ophyd.sim.make_fake_device`` in tests). The first bench of a process
+    sets ophyd's Channel Access timeouts to the mapping's ``connect_s``."""
     from ophyd.signal import EpicsSignalBase
 
     try:
@@ -422,9 +431,10 @@ def signals(bench) -> dict:
 
 
 def arm(bench, lines: Lines | None = None) -> None:
-    """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto serves them
-    (ophyd's monitors elsewhere), the detector's frame counter from now on (``Detector.arm``); ``lines`` (its
-    ``Lines``) write through ``RawWriter`` where caproto serves every setpoint (ophyd's ``put`` elsewhere)."""
+    """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto
+    serves them (ophyd's monitors elsewhere), the detector's frame counter from now on
+    (``Detector.arm``); ``lines`` (its ``Lines``) write through ``RawWriter`` where caproto serves
+    every setpoint (ophyd's ``put`` elsewhere)."""
     if not hasattr(bench, "raw_monitors"):  # once: a second call keeps the first's monitors
         bench.raw_monitors = {
             w.item.name: RawMonitor(w.item)
@@ -438,7 +448,8 @@ def arm(bench, lines: Lines | None = None) -> None:
 
 
 def connect(bench, timeout: float) -> None:
-    """Wait for every PV; a ``MappingError`` names the ones that did not answer within ``timeout`` s."""
+    """Wait for every PV; a ``MappingError`` names the ones that did not answer within ``timeout``
+    s."""
     sigs = signals(bench)
     deadline = time.monotonic() + timeout
     for sig in sigs.values():
@@ -486,9 +497,9 @@ def disconnect(bench) -> None:
 
 
 def _closing_socket_hook(previous):
-    """A ``threading.excepthook`` that drops the network error a caproto thread may raise while its socket
-    is being closed under it (its search-retry thread sends between the close and its join); others go on
-    to ``previous``."""
+    """A ``threading.excepthook`` that drops the network error a caproto thread may raise while its
+    socket is being closed under it (its search-retry thread sends between the close and its join);
+    others go on to ``previous``."""
 
     def hook(args) -> None:
         if isinstance(args.exc_value, OSError) and _raised_in_caproto(

@@ -1,6 +1,6 @@
-"""A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect_pages`` hands back its
-events as event pages, ``next_page`` says when one is due, ``complete`` finishes when the loop ends (fails with
-the loop's exception)."""
+"""A control loop as a Bluesky flyer: ``kickoff`` starts it in its own thread, ``collect_pages``
+hands back its events as event pages, ``next_page`` says when one is due, ``complete`` finishes when
+the loop ends (fails with the loop's exception)."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from ophyd.status import Status
 
 
 class LoopFlyer:
-    """Runs ``start()`` then ``step() -> (data, timestamps)`` until ``done()`` in a thread of its own; each
-    step is one event of the stream ``stream`` described by ``data_keys``. Nothing of the loop goes through
-    the RunEngine: it sees the events only when it collects them. A page is due after the step that ends
-    ``page_s`` s since the last one, and when the loop ends."""
+    """Runs ``start()`` then ``step() -> (data, timestamps)`` until ``done()`` in a thread of its
+    own; each step is one event of the stream ``stream`` described by ``data_keys``. Nothing of the
+    loop goes through the RunEngine: it sees the events only when it collects them. A page is due
+    after the step that ends ``page_s`` s since the last one, and when the loop ends."""
 
     def __init__(
         self,
@@ -77,8 +77,9 @@ class LoopFlyer:
             pass
 
     def next_page(self):
-        """An awaitable (in the RunEngine's event loop) done when a page is due: collected then, the page's work
-        falls in the loop's wait for its next frame rather than in the middle of a step."""
+        """An awaitable (in the RunEngine's event loop) done when a page is due: collected then, the
+        page's work falls in the loop's wait for its next frame rather than in the middle of a
+        step."""
         return asyncio.wrap_future(self._page)
 
     def complete(self) -> Status:
@@ -93,7 +94,8 @@ class LoopFlyer:
         return {self.stream: self._data_keys}
 
     def collect_pages(self):
-        """The events recorded since the last call as one partial event page (none if there are none)."""
+        """The events recorded since the last call as one partial event page (none if there are
+        none)."""
         events = [self._events.popleft() for _ in range(len(self._events))]
         if events:
             yield {
@@ -103,8 +105,8 @@ class LoopFlyer:
 
 
 def fly(flyer):
-    """Plan stub: kick ``flyer`` off and collect its events whenever a page is due until it completes; if it
-    fails, collect what it recorded, then re-raise (bluesky's ``FailedStatus``)."""
+    """Plan stub: kick ``flyer`` off and collect its events whenever a page is due until it
+    completes; if it fails, collect what it recorded, then re-raise (bluesky's ``FailedStatus``)."""
     import bluesky.plan_stubs as bps
     from bluesky.utils import FailedStatus, short_uid
 
@@ -115,7 +117,8 @@ def fly(flyer):
         done = False
         while not done:
             yield from bps.wait_for([flyer.next_page])
-            done = complete.done  # read before collecting: a loop that ends meanwhile leaves its last steps for once more
+            # read before collecting: a loop that ends meanwhile leaves its last steps for once more
+            done = complete.done
             yield from bps.collect(flyer, return_payload=False)
         yield from bps.wait(group=group)
     except FailedStatus:
@@ -124,17 +127,18 @@ def fly(flyer):
 
 
 def _plain(value):
-    """``value`` as built-in Python types (numpy arrays and scalars by their ``tolist``): a page that needs no
-    ``sanitize_doc`` before JSON."""
+    """``value`` as built-in Python types (numpy arrays and scalars by their ``tolist``): a page
+    that needs no ``sanitize_doc`` before JSON."""
     return value.tolist() if hasattr(value, "tolist") else value
 
 
 @contextlib.contextmanager
 def lean_page_checks():
-    """Within: event_model checks an event page's shape (its lists, their lengths, the types of its uids, sequence
-    numbers and times) instead of walking its JSON schema (about 0.15 ms per event on a 2-core host, most of the
-    RunEngine's work per control step). The pages ``LoopFlyer`` hands back have one fixed shape; event_model's own
-    checks that their keys match the descriptor's still run."""
+    """Within: event_model checks an event page's shape (its lists, their lengths, the types of its
+    uids, sequence numbers and times) instead of walking its JSON schema (about 0.15 ms per event on
+    a 2-core host, most of the RunEngine's work per control step). The pages ``LoopFlyer`` hands
+    back have one fixed shape; event_model's own checks that their keys match the descriptor's still
+    run."""
     from event_model import DocumentNames, schema_validators
 
     full = schema_validators[DocumentNames.event_page]
@@ -146,7 +150,8 @@ def lean_page_checks():
 
 
 class _PageShape:
-    """``validate(page)``: raises event_model's validation error on a page whose lists do not line up."""
+    """``validate(page)``: raises event_model's validation error on a page whose lists do not line
+    up."""
 
     def validate(self, page: dict) -> None:
         from event_model import EventModelValidationError

@@ -1,25 +1,28 @@
-"""Learning on a bench: an off-policy learner of ``agents.learners.offpolicy.driver`` (DroQ, TD3) acting in the control loop of
-``agents.bench`` and learning from the bench's own transitions.
+"""Learning on a bench: an off-policy learner of ``agents.learners.offpolicy.driver`` (DroQ, TD3)
+acting in the control loop of ``agents.bench`` and learning from the bench's own transitions.
 
     python -m agents.bench --prefix OPS: --learn droq [--from DIR] --steps 20000 --out DIR \\
         [--resume]
 
-The actor (the loop's thread, ``Learning.act``) hands each step's observation (``Loop.observe``: the simulator's
-layout) with the previous observation and action to the learner, and sends the exploration action of the newest
-actor network it was handed. The learner (a thread of its own) stores the transitions in the replay buffer, their
-reward the configuration's (``OPSEnv.reward``) at the detector's reading, and takes gradient steps one at a time
-as the wall clock allows, at most the preset's ratio (``utd_ratio``) per env step after the warm-up; every
-``PUBLISH_STEPS`` env steps it hands the actor a copy of the actor network (a swap under a lock).
+The actor (the loop's thread, ``Learning.act``) hands each step's observation (``Loop.observe``: the
+simulator's layout) with the previous observation and action to the learner, and sends the
+exploration action of the newest actor network it was handed. The learner (a thread of its own)
+stores the transitions in the replay buffer, their reward the configuration's (``OPSEnv.reward``) at
+the detector's reading, and takes gradient steps one at a time as the wall clock allows, at most the
+preset's ratio (``utd_ratio``) per env step after the warm-up; every ``PUBLISH_STEPS`` env steps it
+hands the actor a copy of the actor network (a swap under a lock).
 
-A free-running bench has no reset and no terminal state: the task is continuing, every transition's discount 1
-(every target bootstrapped). The warm-up is ``learning_starts`` transitions of uniform random actions, the
-observation statistics then frozen from them; from ``--from`` (a policy of ``agents.save``) it is the policy's own
-exploration and its statistics are kept, as ``agents.learners.offpolicy.driver`` continues a run.
+A free-running bench has no reset and no terminal state: the task is continuing, every transition's
+discount 1 (every target bootstrapped). The warm-up is ``learning_starts`` transitions of uniform
+random actions, the observation statistics then frozen from them; from ``--from`` (a policy of
+``agents.save``) it is the policy's own exploration and its statistics are kept, as
+``agents.learners.offpolicy.driver`` continues a run.
 
-``DIR/checkpoint``, written every ``--checkpoint-every`` env steps and at the end (``agents.io.replace_dir``): an
-``agents.save`` folder of the current policy (``--controller DIR/checkpoint`` runs it), ``learner.msgpack`` (networks,
-targets, optimiser states, replay buffer, gradient step count, PRNG key) and ``learner.json`` (``Counts``).
-``--resume`` continues from it; the actor's draws are keyed by the run's seed and env step.
+``DIR/checkpoint``, written every ``--checkpoint-every`` env steps and at the end
+(``agents.io.replace_dir``): an ``agents.save`` folder of the current policy
+(``--controller DIR/checkpoint`` runs it), ``learner.msgpack`` (networks, targets, optimiser states,
+replay buffer, gradient step count, PRNG key) and ``learner.json`` (``Counts``). ``--resume``
+continues from it; the actor's draws are keyed by the run's seed and env step.
 """
 
 from __future__ import annotations
@@ -61,9 +64,10 @@ log = logging.getLogger("agents.bench")
 
 @dataclasses.dataclass
 class Counts:
-    """A run's counts, total over its sessions: env steps (actions sent), gradient steps, env steps after the
-    warm-up, transitions stored, sessions; ``p_init`` the first frame's power (units of P_max's, -1 before it),
-    ``seconds`` of learning; ``curve``: env step and mean P / P_max read between checkpoints."""
+    """A run's counts, total over its sessions: env steps (actions sent), gradient steps, env steps
+    after the warm-up, transitions stored, sessions; ``p_init`` the first frame's power (units of
+    P_max's, -1 before it), ``seconds`` of learning; ``curve``: env step and mean P / P_max read
+    between checkpoints."""
 
     env_steps: int = 0
     learn_steps: int = 0
@@ -86,13 +90,15 @@ def off_policy_learner(name: str) -> offpolicy.Learner:
 
 
 def check_args(args) -> Path | None:
-    """The learning arguments checked (ValueError, one line naming the parameter); the checkpoint to resume."""
+    """The learning arguments checked (ValueError, one line naming the parameter); the checkpoint to
+    resume."""
     off_policy_learner(args.learn)
     if args.controller or args.trim is not None:
         raise ValueError("--learn replaces --controller and --trim: give --learn alone")
     if args.steps < 1:
         raise ValueError(
-            f"--steps must be >= 1 with --learn (env steps in all, resumes included), got {args.steps}"
+            "--steps must be >= 1 with --learn (env steps in all, resumes included), got "
+            f"{args.steps}"
         )
     if not args.catch_up_s >= 0:
         raise ValueError(f"--catch-up-s must be >= 0 s, got {args.catch_up_s}")
@@ -104,7 +110,8 @@ def check_args(args) -> Path | None:
     if args.resume:
         if args.from_ or args.set or args.env:
             raise ValueError(
-                "--resume continues the run in --out with its own settings: drop --from, --set and --env"
+                "--resume continues the run in --out with its own settings: drop --from, --set "
+                "and --env"
             )
         if checkpoint is None or not (checkpoint / "learner.json").exists():
             raise ValueError(
@@ -120,8 +127,8 @@ def check_args(args) -> Path | None:
             )
     elif checkpoint is not None:
         raise ValueError(
-            f"--out {args.out} holds a learning run's checkpoint: continue it with --resume, or give "
-            "another --out"
+            f"--out {args.out} holds a learning run's checkpoint: continue it with --resume, or "
+            "give another --out"
         )
     return checkpoint if args.resume else None
 
@@ -135,7 +142,8 @@ def default_stages(args, checkpoint: Path | None) -> int:
 def _settings(
     args, learner, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict
 ):
-    """(env_config, stored hyperparameters, seed, start: the ``--from`` or resumed TrainResult or None)."""
+    """(env_config, stored hyperparameters, seed, start: the ``--from`` or resumed TrainResult or
+    None)."""
     stages, lengths = len(mapping["lines"]), all("length" in line for line in mapping["lines"])
     start = base.load(checkpoint or args.from_) if (checkpoint or args.from_) else None
     if start is None:
@@ -156,7 +164,8 @@ def _settings(
 
 
 def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict):
-    """(Learning, env_config, action scale (wl per unit), window (wl)) of the arguments on the bench of ``mapping``."""
+    """(Learning, env_config, action scale (wl per unit), window (wl)) of the arguments on the bench
+    of ``mapping``."""
     learner = off_policy_learner(args.learn)
     env_config, h, seed, start = _settings(args, learner, mapping, checkpoint, env_options, hyper)
     env_config = base.check_env_config(env_config)
@@ -164,7 +173,8 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
     stages = len(mapping["lines"])
     if env.num_actions != stages:
         raise ValueError(
-            f"--learn: the policy's env_config drives {env.num_actions} lines, the bench has {stages}"
+            f"--learn: the policy's env_config drives {env.num_actions} lines, the bench has "
+            f"{stages}"
         )
     if env.config.include_noise:
         raise ValueError(
@@ -183,8 +193,9 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
         learning.start_from(start, args.from_)
     if learning.counts.transitions + args.steps - learning.counts.env_steps <= h["learning_starts"]:
         print(
-            f"agents.bench.runner: warning: --steps {args.steps} ends within the learner's warm-up (learning_starts="
-            f"{h['learning_starts']} transitions of random actions): it takes no gradient step",
+            f"agents.bench.runner: warning: --steps {args.steps} ends within the learner's "
+            f"warm-up (learning_starts={h['learning_starts']} transitions of random actions): it "
+            "takes no gradient step",
             file=sys.stderr,
         )
     learning.compile()
@@ -192,8 +203,8 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
 
 
 def mend_documents(path: Path) -> None:
-    """End the last line of ``path`` (documents.jsonl) before a resumed run appends: a whole document a kill left
-    without its newline gets it, a half-written one is cut."""
+    """End the last line of ``path`` (documents.jsonl) before a resumed run appends: a whole
+    document a kill left without its newline gets it, a half-written one is cut."""
     if path.exists() and (size := path.stat().st_size):
         with open(path, "rb+") as f:
             f.seek(max(0, size - (1 << 20)))
@@ -209,7 +220,8 @@ def mend_documents(path: Path) -> None:
 
 
 def _acting(ts):
-    """What the exploration reads of a training state: the actor's parameters and the observation statistics."""
+    """What the exploration reads of a training state: the actor's parameters and the observation
+    statistics."""
     return ts._replace(
         actor=ts.actor.replace(opt_state=None),
         **{f: None for f in ts._fields if f not in ("actor", "obs_norm")},
@@ -217,8 +229,9 @@ def _acting(ts):
 
 
 class Learning:
-    """A learner on a bench: the controller protocol of ``agents.bench.loop.Agent`` for the loop's thread
-    (``start``, ``act``; no probes), the learning thread (``begin``, ``finish``), checkpoints and the summary."""
+    """A learner on a bench: the controller protocol of ``agents.bench.loop.Agent`` for the loop's
+    thread (``start``, ``act``; no probes), the learning thread (``begin``, ``finish``), checkpoints
+    and the summary."""
 
     probes = 0
 
@@ -253,7 +266,8 @@ class Learning:
         self.thread, self.error, self.on_error, self.bar = None, None, None, None
         self.ending, self.prev, self.t, self.power_sum, self.seen = False, None, 0, [0.0, 0], None
         self.catch_up_s, self.in_loop_steps = 0.0, 0
-        self.ratio_rec: list = []  # (perf_counter time, this invocation's gradient steps, its env steps after the warm-up)
+        # (perf_counter time, this invocation's gradient steps, its env steps after the warm-up)
+        self.ratio_rec: list = []
 
     # -- the run's state -------------------------------------------------------------------------
     @property
@@ -262,7 +276,8 @@ class Learning:
         return self.counts.transitions >= self.h["learning_starts"]
 
     def start_from(self, result: base.TrainResult, path: str) -> None:
-        """Start from the policy saved at ``path``: its actor (targets too) and observation statistics, kept."""
+        """Start from the policy saved at ``path``: its actor (targets too) and observation
+        statistics, kept."""
         self.from_policy = str(path)
         actor = result.params["actor"]
         if [x.shape for x in jax.tree.leaves(actor)] != [
@@ -331,7 +346,8 @@ class Learning:
             ob, raw = self.observer, jax.ShapeDtypeStruct((1, d_raw), jnp.float32)
 
             def act_observed(carry, frame, t, snap, random):
-                """(the observation with the fit's entries, the learner's action, the move sent, the carry)."""
+                """(the observation with the fit's entries, the learner's action, the move sent, the
+                carry)."""
                 seen, carry = ob.observe(
                     None, carry, frame[None], jax.random.fold_in(self.k_observe, t)
                 )
@@ -365,14 +381,16 @@ class Learning:
 
     # -- the actor (the loop's thread) -----------------------------------------------------------
     def start(self, obs) -> None:
-        """An invocation's first frame: no transition before it (and the observer's fit without history)."""
+        """An invocation's first frame: no transition before it (and the observer's fit without
+        history)."""
         self.prev, self.t = None, self.counts.env_steps
         if self.observer is not None:
             self.seen = self._init_seen(np.asarray(obs, np.float32)[None])
 
     def act(self, obs, results) -> np.ndarray:
-        """The move sent (N,) in [-1, 1] at ``obs``: the exploration action (with the fit-residual observer, added to
-        the fit's own move); the step (with the learner's action) handed to the learner."""
+        """The move sent (N,) in [-1, 1] at ``obs``: the exploration action (with the fit-residual
+        observer, added to the fit's own move); the step (with the learner's action) handed to the
+        learner."""
         del results
         obs = np.asarray(obs, np.float32)
         with self.lock:
@@ -388,9 +406,9 @@ class Learning:
         return np.asarray(sent, np.float64)
 
     def tell(self, action) -> bool:
-        """The move (N,) really sent where the bench's limits cut this step's: the step stored with it where the
-        learner's action is the move (no observer, or ``fit``; ``fit-residual`` keeps its correction), and the
-        fit told it (``Policy.sent``)."""
+        """The move (N,) really sent where the bench's limits cut this step's: the step stored with
+        it where the learner's action is the move (no observer, or ``fit``; ``fit-residual`` keeps
+        its correction), and the fit told it (``Policy.sent``)."""
         done = np.asarray(action, np.float32)
         if self.observer is None or self.h["observer"] == "fit":
             self.prev = (self.prev[0], done)
@@ -400,7 +418,8 @@ class Learning:
 
     # -- the learner (its own thread) ------------------------------------------------------------
     def begin(self, steps: int, on_error) -> None:
-        """Start the learning thread for an invocation of ``steps`` env steps; ``on_error(exc)`` if it fails."""
+        """Start the learning thread for an invocation of ``steps`` env steps; ``on_error(exc)`` if
+        it fails."""
         self.on_error, self.t0, self.session0 = (
             on_error,
             time.perf_counter(),
@@ -412,9 +431,9 @@ class Learning:
         self.thread.start()
 
     def end(self, catch_up_s: float = 0.0) -> None:
-        """The loop has stopped: the thread stores what the loop handed over; then, for at most ``catch_up_s``
-        seconds, takes the gradient steps the learner fell behind the ratio (``catch_up_steps``); writes the last
-        checkpoint and ends (``finish`` waits for it)."""
+        """The loop has stopped: the thread stores what the loop handed over; then, for at most
+        ``catch_up_s`` seconds, takes the gradient steps the learner fell behind the ratio
+        (``catch_up_steps``); writes the last checkpoint and ends (``finish`` waits for it)."""
         self.catch_up_s = catch_up_s
         self.ending = True
         self.wake.set()
@@ -454,7 +473,8 @@ class Learning:
         return getattr(self.counts, name) - getattr(self.session0, name)
 
     def update_ratio(self, learn_steps: int | None = None) -> float:
-        """This invocation's gradient steps (``learn_steps``, default all so far) per env step after the warm-up."""
+        """This invocation's gradient steps (``learn_steps``, default all so far) per env step after
+        the warm-up."""
         steps = self._session("learning_env_steps")
         learn_steps = self._session("learn_steps") if learn_steps is None else learn_steps
         return learn_steps / steps if steps else 0.0
@@ -465,7 +485,8 @@ class Learning:
         )
 
     def _take(self, obs, prev) -> None:
-        """One env step: its transition stored, the warm-up ended, the actor handed its network, a checkpoint."""
+        """One env step: its transition stored, the warm-up ended, the actor handed its network, a
+        checkpoint."""
         c = self.counts
         if c.p_init < 0:
             c.p_init = (
@@ -558,8 +579,8 @@ class Learning:
         }
 
     def ratio_series(self, t0: float | None, window: int = 10):
-        """(seconds since ``t0`` (perf_counter), gradient steps per env step over the last ``window`` hand-overs, NaN
-        in the warm-up) for the plot, or None."""
+        """(seconds since ``t0`` (perf_counter), gradient steps per env step over the last
+        ``window`` hand-overs, NaN in the warm-up) for the plot, or None."""
         if t0 is None or len(self.ratio_rec) <= window:
             return None
         t, learn, env = np.asarray(self.ratio_rec, float).T
@@ -573,7 +594,8 @@ class Learning:
         return t[window:] - t0, ratio
 
     def report(self) -> dict:
-        """The summary's learning entries: totals over the run's sessions and this invocation's update ratio."""
+        """The summary's learning entries: totals over the run's sessions and this invocation's
+        update ratio."""
         c = self.counts
         return {
             "learner": self.learner.name,

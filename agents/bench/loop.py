@@ -1,4 +1,5 @@
-"""The controller and the control loop that ``agents.bench`` runs on a bench, and the Bluesky plan around it."""
+"""The controller and the control loop that ``agents.bench`` runs on a bench, and the Bluesky plan
+around it."""
 
 from __future__ import annotations
 
@@ -51,8 +52,8 @@ class Agent:
         self._sent = (
             None if policy.sent is None else jax.jit(lambda p, c, a: policy.sent(p, c, a[None]))
         )
-        # compile before the run (results discarded: the policy is pure); twice, the second time with the
-        # carry as act returns it (its dtypes may differ from init's)
+        # compile before the run (results discarded: the policy is pure); twice, the second time
+        # with the carry as act returns it (its dtypes may differ from init's)
         carry = self._init(self._k_init, obs)
         for _ in range(2):
             _, carry, _ = self._run(
@@ -86,8 +87,8 @@ class Agent:
         return action, carry, (offsets, active)
 
     def _step(self, params, carry, obs, t, results):
-        """Step ``t``'s (action (N,), carry, (probe offsets (K, N), probes made (K,))) from obs (D,) and probe
-        results (K,)."""
+        """Step ``t``'s (action (N,), carry, (probe offsets (K, N), probes made (K,))) from obs (D,)
+        and probe results (K,)."""
         key = jax.random.split(jax.random.fold_in(self._k_run, t))[0]
         action, carry, (offsets, active) = self._act(
             params, carry, obs[None], key, results[:, None], []
@@ -108,7 +109,8 @@ class Agent:
         )
 
     def offsets(self, obs, results, i: int) -> np.ndarray | None:
-        """Probe i's offsets (N,) wl, given the results of probes 0..i-1; None where the controller leaves it out."""
+        """Probe i's offsets (N,) wl, given the results of probes 0..i-1; None where the controller
+        leaves it out."""
         offsets, active = self._call(obs, results)[2]
         return np.asarray(offsets[i], np.float64) if bool(active[i]) else None
 
@@ -119,8 +121,9 @@ class Agent:
         return np.asarray(action, np.float64)
 
     def tell(self, action) -> bool:
-        """Tell a controller that reads its own last move (``Policy.sent``) the action (N,) really sent, where
-        the bench's safety limits cut the one it asked for; False for one that does not read it."""
+        """Tell a controller that reads its own last move (``Policy.sent``) the action (N,) really
+        sent, where the bench's safety limits cut the one it asked for; False for one that does not
+        read it."""
         if self._sent is None:
             return False
         self.carry = self._sent(self.params, self.carry, np.asarray(action, np.float32))
@@ -135,9 +138,10 @@ def load_controller(
     seed: int,
     trim_hyper: dict | None = None,
 ):
-    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a saved folder
-    on the bench of ``mapping``; with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``: the default), wrapped in
-    the trim (``agents.controllers.trim``). A controller that reads length readouts the mapping lacks fails (``MappingError``)."""
+    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a
+    saved folder on the bench of ``mapping``; with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``:
+    the default), wrapped in the trim (``agents.controllers.trim``). A controller that reads length
+    readouts the mapping lacks fails (``MappingError``)."""
     stages = len(mapping["lines"])
     if spec in ("spgd", "physics"):
         env_config = {"stages": stages, **env_options}
@@ -173,15 +177,15 @@ def load_controller(
 
 
 def observes_lengths(env) -> bool:
-    """Whether ``env``'s observation frame holds the length readouts (power, 2^N - 1 scope samples, then N
-    lengths; frames-only observations stop after the samples)."""
+    """Whether ``env``'s observation frame holds the length readouts (power, 2^N - 1 scope samples,
+    then N lengths; frames-only observations stop after the samples)."""
     return env.layout.lengths
 
 
 def reads_lengths(algo: str, hyper: dict | None) -> bool:
-    """Whether a controller of ``algo`` with settings ``hyper`` uses the length readouts: SPGD never,
-    the physics-informed controller with ``use_lengths`` (or ``lengths_only``), a learned policy always
-    (every input of its networks)."""
+    """Whether a controller of ``algo`` with settings ``hyper`` uses the length readouts: SPGD
+    never, the physics-informed controller with ``use_lengths`` (or ``lengths_only``), a learned
+    policy always (every input of its networks)."""
     if algo == "spgd":
         return False
     if algo == "physics":
@@ -191,13 +195,14 @@ def reads_lengths(algo: str, hyper: dict | None) -> bool:
 
 
 def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
-    """A controller that uses length readouts on a bench that lacks some, or that wraps its lines (a readout
-    jumps by the period), fails here, naming the entries."""
+    """A controller that uses length readouts on a bench that lacks some, or that wraps its lines (a
+    readout jumps by the period), fails here, naming the entries."""
     if reads and observes_lengths(env) and mapping["safety"]["wrap_wl"] is not None:
         raise MappingError(
             f"the controller {controller} reads the length readouts, which jump by a period when "
-            "a line wraps (safety.wrap_wl, --wrap); run it without wrapping, or run a controller that "
-            "does not read them (spgd, physics with use_lengths=False, a policy trained without them)"
+            "a line wraps (safety.wrap_wl, --wrap); run it without wrapping, or run a controller "
+            "that does not read them (spgd, physics with use_lengths=False, a policy trained "
+            "without them)"
         )
     missing = missing_lengths(mapping)
     if reads and observes_lengths(env) and missing:
@@ -235,8 +240,8 @@ class Loop:
 
     # -- watchdog --------------------------------------------------------------------------------
     def trip(self, reason: str):
-        """Stop at once: no further move; the frame being waited for fails with ``reason`` (logged as the
-        watchdog's, unless it is the user's ``USER_STOP``)."""
+        """Stop at once: no further move; the frame being waited for fails with ``reason`` (logged
+        as the watchdog's, unless it is the user's ``USER_STOP``)."""
         if self.stop_reason is None:
             self.stop_reason, self.stopped_at = reason, time.time()
             if reason != USER_STOP:
@@ -303,8 +308,8 @@ class Loop:
         return np.concatenate(self.frames)
 
     def moved(self):
-        """Setpoints were written: the next frame used must show them (in lockstep: the next tick; else
-        a frame acquired ``settle_s`` after now)."""
+        """Setpoints were written: the next frame used must show them (in lockstep: the next tick;
+        else a frame acquired ``settle_s`` after now)."""
         if self.mapping["advance"]:
             self.det.use()
         else:
@@ -316,8 +321,8 @@ class Loop:
         return float(value) / self.mapping["detector"]["power_full_scale"]
 
     def readings(self) -> tuple[dict, dict]:
-        """The event's readings of the frame just used (the bench's hinted and normal signals): values and
-        IOC time stamps."""
+        """The event's readings of the frame just used (the bench's hinted and normal signals):
+        values and IOC time stamps."""
         return {k: monitored(sig) for k, sig in self.reads}, {
             k: sig.timestamp for k, sig in self.reads
         }
@@ -341,7 +346,8 @@ class Loop:
         self.t0, self.cpu0 = time.perf_counter(), time.process_time()
 
     def step(self) -> tuple[dict, dict]:
-        """One control step (wait for a frame, read, probe, act, write); the event's data and time stamps."""
+        """One control step (wait for a frame, read, probe, act, write); the event's data and time
+        stamps."""
         started = time.perf_counter()
         self.frame()
         t_frame = self.det.tick_time
@@ -385,17 +391,18 @@ class Loop:
         return data, stamps
 
     def cut(self, action: np.ndarray, done: np.ndarray):
-        """Where the safety limits cut the step's ``action``: counted, and the controller told the action
-        ``done`` (N,), the move sent less its wrap (a whole period: the same optics)."""
+        """Where the safety limits cut the step's ``action``: counted, and the controller told the
+        action ``done`` (N,), the move sent less its wrap (a whole period: the same optics)."""
         if not np.allclose(done, action, rtol=0, atol=1e-9):
             self.actions_cut += 1
             self.agent.tell(done)
 
     def pace(self, started: float):
-        """Sleep to the rate cap's next deadline, a period after the last (the first: a period after the step
-        ``started``). Deadlines are one period apart whatever each step took: a late wake-up does not shift the
-        next, so a cap equal to the bench's frame rate does not drift into skipping frames. After a step that
-        started more than a period past its deadline they start again from that step."""
+        """Sleep to the rate cap's next deadline, a period after the last (the first: a period after
+        the step ``started``). Deadlines are one period apart whatever each step took: a late
+        wake-up does not shift the next, so a cap equal to the bench's frame rate does not drift
+        into skipping frames. After a step that started more than a period past its deadline they
+        start again from that step."""
         late = self.deadline is None or started - self.deadline > self.period
         self.deadline = (started if late else self.deadline) + self.period
         now = time.perf_counter()
@@ -403,7 +410,8 @@ class Loop:
             time.sleep(wait)
 
     def flyer(self, page_s: float = FLUSH_S) -> LoopFlyer:
-        """The loop as a Bluesky flyer: one event per step in the stream ``primary``, a page due every ``page_s``."""
+        """The loop as a Bluesky flyer: one event per step in the stream ``primary``, a page due
+        every ``page_s``."""
         control = Control(name="control")
         control.put(np.zeros(self.n), np.zeros(self.n), np.zeros(self.agent.probes), 0.0)
         keys = {**self.bench.describe(), **control.describe()}
@@ -433,9 +441,10 @@ class Loop:
 
 
 def control_plan(loop: Loop, md: dict, flush_s: float = FLUSH_S):
-    """The Bluesky plan: the control loop as a flyer (``agents.bench.flyer``) in its own thread, its events
-    (one per control step: the bench's readings, the action, the setpoints sent, the probe readings and the
-    step's latency) collected in pages, one due every ``flush_s`` s; ends by time, by the user or by the watchdog."""
+    """The Bluesky plan: the control loop as a flyer (``agents.bench.flyer``) in its own thread, its
+    events (one per control step: the bench's readings, the action, the setpoints sent, the probe
+    readings and the step's latency) collected in pages, one due every ``flush_s`` s; ends by time,
+    by the user or by the watchdog."""
     import bluesky.preprocessors as bpp
     from bluesky.utils import FailedStatus
 

@@ -1,31 +1,34 @@
-"""The mapping file that names an OPS bench's PVs, units and limits (``agents.bench`` reads it; ``agents.bench.devices``
-builds the bench's ophyd devices from it).
+"""The mapping file that names an OPS bench's PVs, units and limits (``agents.bench`` reads it;
+``agents.bench.devices`` builds the bench's ophyd devices from it).
 
 The mapping (JSON) says which PV holds what and in which units; every key but ``lines`` and
 ``detector`` has a default. Positions in the PVs' own units (``units_per_wl`` of them per
 wavelength); the safety limits in wavelengths::
 
-    {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV", "length": "OPS:LINE1:LEN"}, ...],
+    {"lines": [{"setpoint": "OPS:LINE1:SP", "readback": "OPS:LINE1:RBV",
+                "length": "OPS:LINE1:LEN"}, ...],
      "detector": {"power": "OPS:DET:POWER", "trace": "OPS:SCOPE:TRACE", "tick": "OPS:TICK",
                   "power_full_scale": 1.0, "trace_peak": 1.0, "settle_s": 0.002},
      "evaluation": {"p_pmax": "OPS:EVAL:P_PMAX", "p_pbest": "OPS:EVAL:P_PBEST"},
      "advance": null, "units_per_wl": 1.0, "period_wl": 0.5,
-     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0, "wrap_wl": null}}
+     "safety": {"max_step_wl": 0.3, "soft_range_wl": [-3.0, 3.0], "stale_s": 0.5, "connect_s": 5.0,
+                "wrap_wl": null}}
 
 ``length`` (a line's offset from the optimum as a calibrated sensor reads it) may be omitted: the
-controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``: the
-scope reading of the ideal pulse peak; ``settle_s``: from a setpoint write until a frame acquired
-later shows it (the write's transit and the actuator's settling; frames are told apart by their time
-stamps, the acquisition's start). ``evaluation`` PVs (optional) are recorded, never shown to a
-controller. ``advance`` (optional): a PV whose write advances a lockstep simulator by one tick.
-``soft_range_wl`` is one [low, high] for every line or a list of one per line. ``period_wl`` (optional): the
-period of the optics in a line's position (wl / 2 for a folded delay line). ``wrap_wl``: with it a move that would
-come within ``wrap_wl`` of a soft limit is taken ``wrap_wl`` back towards the middle (a fringe jump when it is the
-period: the optics see the same state), so a controller can follow a drift for as long as it lasts. Such a move may
-exceed ``max_step_wl`` by ``wrap_wl``: map it only where that is safe, and only for controllers that do not read the
-length readouts (a readout jumps by the period). ``wrap_wl`` null (the default) leaves the choice to the runner
-(``agents.bench.defaults``: the period, where the controller allows it), 0 turns the wrap off. Keys that start with
-``_`` are notes, ignored (``agents.bench.template`` writes them).
+controller then sees 0 there. ``power_full_scale``: the detector reading at P_max; ``trace_peak``:
+the scope reading of the ideal pulse peak; ``settle_s``: from a setpoint write until a frame
+acquired later shows it (the write's transit and the actuator's settling; frames are told apart by
+their time stamps, the acquisition's start). ``evaluation`` PVs (optional) are recorded, never shown
+to a controller. ``advance`` (optional): a PV whose write advances a lockstep simulator by one tick.
+``soft_range_wl`` is one [low, high] for every line or a list of one per line. ``period_wl``
+(optional): the period of the optics in a line's position (wl / 2 for a folded delay line).
+``wrap_wl``: with it a move that would come within ``wrap_wl`` of a soft limit is taken ``wrap_wl``
+back towards the middle (a fringe jump when it is the period: the optics see the same state), so a
+controller can follow a drift for as long as it lasts. Such a move may exceed ``max_step_wl`` by
+``wrap_wl``: map it only where that is safe, and only for controllers that do not read the length
+readouts (a readout jumps by the period). ``wrap_wl`` null (the default) leaves the choice to the
+runner (``agents.bench.defaults``: the period, where the controller allows it), 0 turns the wrap
+off. Keys that start with ``_`` are notes, ignored (``agents.bench.template`` writes them).
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-# The simulated bench's optics repeat when a line moves by half a wavelength: a delay of x wl turns the phase of
-# its pulses by 4 pi x (ops_jax.physics, a folded delay line's round trip)
+# The simulated bench's optics repeat when a line moves by half a wavelength: a delay of x wl turns
+# the phase of its pulses by 4 pi x (ops_jax.physics, a folded delay line's round trip)
 SIM_PERIOD_WL = 0.5
 
 SETTLE_S = 0.002  # default detector.settle_s (s): a write's transit to a local IOC, with margin
@@ -92,7 +95,8 @@ def _check_keys(where: str, table, allowed: set, required=()) -> None:
     unknown = sorted(set(dict(_fields(table))) - allowed)
     if unknown:
         raise MappingError(
-            f"mapping: unknown key(s) {unknown} in {where or 'the top level'}; accepted: {sorted(allowed)}"
+            f"mapping: unknown key(s) {unknown} in {where or 'the top level'}; accepted: "
+            f"{sorted(allowed)}"
         )
     missing = [k for k in required if k not in table]
     if missing:
@@ -118,8 +122,8 @@ def _number(
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if not (number and (low <= value if low_included else low < value) and value <= high):
         raise MappingError(
-            f"mapping: {where} must be a number in {'[' if low_included else '('}{low:g}, {high:g}], "
-            f"got {value!r}"
+            f"mapping: {where} must be a number in {'[' if low_included else '('}{low:g}, "
+            f"{high:g}], got {value!r}"
         )
     return float(value)
 

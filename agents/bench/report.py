@@ -1,6 +1,6 @@
-"""What a run on the bench shows as it goes and when it ends: a controller's progress line (``progress``, the one a
-learner's run shows: a bar on a terminal, a plain line every 30 s elsewhere) and the run's summary in a few lines
-(``summary.json`` keeps the numbers)."""
+"""What a run on the bench shows as it goes and when it ends: a controller's progress line
+(``progress``, the one a learner's run shows: a bar on a terminal, a plain line every 30 s
+elsewhere) and the run's summary in a few lines (``summary.json`` keeps the numbers)."""
 
 from __future__ import annotations
 
@@ -20,9 +20,10 @@ SCORES = (
 
 
 class RunProgress:
-    """A document callback of the RunEngine: each event page (the loop's steps, every 0.2 s) advances the progress
-    line by its steps and sets its postfix to the page's mean score and the moves clipped and wrapped so far (read
-    off ``lines``, the bench's ``Lines``). Runs in the RunEngine's thread, not the loop's."""
+    """A document callback of the RunEngine: each event page (the loop's steps, every 0.2 s)
+    advances the progress line by its steps and sets its postfix to the page's mean score and the
+    moves clipped and wrapped so far (read off ``lines``, the bench's ``Lines``). Runs in the
+    RunEngine's thread, not the loop's."""
 
     def __init__(self, label: str, steps: int, lines):
         self.bar = progress(total=steps or None, desc=label, unit="step")
@@ -35,8 +36,8 @@ class RunProgress:
         self.bar.update(len(doc["seq_num"]))
 
     def postfix(self, data: dict) -> str:
-        """The page's mean P / P_best (else P / P_max, else the detector's reading) and the clipped and wrapped
-        moves so far."""
+        """The page's mean P / P_best (else P / P_max, else the detector's reading) and the clipped
+        and wrapped moves so far."""
         score = next(
             (f"{name} {np.mean(data[key]):.3f}, " for key, name in SCORES if key in data), ""
         )
@@ -54,23 +55,26 @@ def _number(value, digits: str) -> str:
 
 
 def readable(summary: dict, out: Path) -> str:
-    """The run's summary in a few lines: how it ended, the score, the pace, the limits' work, the learner's counts
-    (a learning run), where the files are."""
+    """The run's summary in a few lines: how it ended, the score, the pace, the limits' work, the
+    learner's counts (a learning run), where the files are."""
     s = summary
     lines = [
-        f"{s['controller']}: {s['steps']:,} steps in {s['seconds']:.1f} s ({s['rate_hz']:.1f} steps/s, "
-        f"{_number(s['frames_per_step'], '.2f')} frames per step), stopped by {s['stopped_by']}",
+        f"{s['controller']}: {s['steps']:,} steps in {s['seconds']:.1f} s ({s['rate_hz']:.1f} "
+        f"steps/s, {_number(s['frames_per_step'], '.2f')} frames per step), stopped by "
+        f"{s['stopped_by']}",
         f"  P / P_best {_number(s['p_over_pbest_mean'], '.4f')}, P / P_max "
         f"{_number(s['p_over_pmax_mean'], '.4f')} (the mean over the last 80 % of the run)",
-        f"  latency p50 / p99 {_number(s['latency_ms_p50'], '.2f')} / {_number(s['latency_ms_p99'], '.2f')} ms,"
-        f" decide p50 {_number(s['decide_ms_p50'], '.2f')} ms, CPU {_number(s['cpu_ms_per_step'], '.2f')} ms per"
-        " step",
-        f"  moves clipped {s['clipped_moves']:,}, wrapped {s['wrapped_moves']:,}; actions cut {s['actions_cut']:,}",
+        f"  latency p50 / p99 {_number(s['latency_ms_p50'], '.2f')} / "
+        f"{_number(s['latency_ms_p99'], '.2f')} ms, decide p50 "
+        f"{_number(s['decide_ms_p50'], '.2f')} ms, CPU {_number(s['cpu_ms_per_step'], '.2f')} ms "
+        "per step",
+        f"  moves clipped {s['clipped_moves']:,}, wrapped {s['wrapped_moves']:,}; actions cut "
+        f"{s['actions_cut']:,}",
     ]
     if "env_steps_total" in s:
         lines.append(
-            f"  learning: {s['env_steps_total']:,} env steps, {s['learn_steps_total']:,} gradient steps in all, "
-            f"{s['update_ratio']:.2f} per env step of {s['update_ratio_target']:g}"
+            f"  learning: {s['env_steps_total']:,} env steps, {s['learn_steps_total']:,} gradient "
+            f"steps in all, {s['update_ratio']:.2f} per env step of {s['update_ratio_target']:g}"
             + (f"; the learner failed: {s['learner_error']}" if s["learner_error"] else "")
         )
     lines.append(f"  written: {out / 'summary.json'} (every number), documents.jsonl, power.png")

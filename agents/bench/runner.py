@@ -6,36 +6,39 @@ control loop a Bluesky plan run by a ``RunEngine``.
 ``--controller``: ``spgd``, ``physics`` or a folder written by ``agents.save``; ``--set key=value``
 overrides the controller's hyperparameters, ``--env key=value`` the ``ops_jax.make`` options the
 controller is built for (stages come from the bench). The bench is the simulated one of
-``python -m ops_jax.ioc`` under ``--prefix`` (``--no-lengths``: without its length readouts) or any bench
-described by ``--mapping FILE`` (``agents.bench.devices``). A controller that reads length readouts the
-bench lacks fails at start.
+``python -m ops_jax.ioc`` under ``--prefix`` (``--no-lengths``: without its length readouts) or any
+bench described by ``--mapping FILE`` (``agents.bench.devices``). A controller that reads length
+readouts the bench lacks fails at start.
 
 One control step: wait for a detector frame that shows the last setpoints written (the newest one
 acquired ``settle_s`` or more after the write, by its time stamp), read it, build the observation
 exactly as the simulator does (power, oscilloscope samples, length readouts), decide, write the
 setpoints (within the safety limits). A probe (SPGD's dither measurement) is a real move: write the
 probed setpoints, wait for a frame that shows them, read the power; so each probe costs at least one
-frame and the step's action goes out after it. A probe the controller leaves out (``active``, ``agents.api``)
-is not made: no move, no frame, NaN in the event. ``--rate`` caps the control steps per second; ``--cpu CORE`` runs
-the runner on that core only. The loop runs in its own thread as a Bluesky flyer (``agents.bench.flyer``); the plan
-collects its events in pages.
+frame and the step's action goes out after it. A probe the controller leaves out (``active``,
+``agents.api``) is not made: no move, no frame, NaN in the event. ``--rate`` caps the control steps
+per second; ``--cpu CORE`` runs the runner on that core only. The loop runs in its own thread as a
+Bluesky flyer (``agents.bench.flyer``); the plan collects its events in pages.
 
-``--learn NAME`` (an off-policy learner: droq, td3) learns on the bench instead (``agents.bench.learning``): it acts
-in the loop and learns from the bench's transitions for ``--steps`` env steps in all, from scratch or ``--from`` a
-saved policy, checkpointing to ``DIR/checkpoint`` every ``--checkpoint-every`` steps; ``--resume`` continues it.
+``--learn NAME`` (an off-policy learner: droq, td3) learns on the bench instead
+(``agents.bench.learning``): it acts in the loop and learns from the bench's transitions for
+``--steps`` env steps in all, from scratch or ``--from`` a saved policy, checkpointing to
+``DIR/checkpoint`` every ``--checkpoint-every`` steps; ``--resume`` continues it.
 
 The watchdog stops the run at once and writes nothing more when a PV disconnects, no new frame
 arrives within ``stale_s``, a reading is older than ``stale_s`` or not finite. Ctrl-C (or SIGTERM)
 ends the run after the current step, a second one at once (``user_stops``). Written to ``DIR``:
-``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P / P_max and
-P / P_best against time, the PSD after lock beside it; learning: the update ratio too), ``summary.json`` (the lock figures of ``ops_jax.lock`` too; learning: the step counts and update
-ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time or steps, 130 when the user
-ended it with Ctrl-C (143 with SIGTERM; everything recorded is written first), 3 when the watchdog stopped it,
-2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before the run started (nothing
-recorded).
+``documents.jsonl`` (the Bluesky documents, one per line, as they are emitted), ``power.png`` (P /
+P_max and P / P_best against time, the PSD after lock beside it; learning: the update ratio too),
+``summary.json`` (the lock figures of ``ops_jax.lock`` too; learning: the step counts and update
+ratio) and, learning, ``checkpoint/``. Exit status 0 when the run ended by time or steps, 130 when
+the user ended it with Ctrl-C (143 with SIGTERM; everything recorded is written first), 3 when the
+watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before
+the run started (nothing recorded).
 
-``python -m agents.bench template --out FILE`` writes a mapping to start from, ``python -m agents.bench check
---mapping FILE`` reads every PV it names once (``agents.bench.template``).
+``python -m agents.bench template --out FILE`` writes a mapping to start from,
+``python -m agents.bench check --mapping FILE`` reads every PV it names once
+(``agents.bench.template``).
 """
 
 from __future__ import annotations
@@ -78,10 +81,12 @@ from ops_jax import lock
 from ops_jax.cli import runtime
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 
-# Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the loop, which then
-# waits at most this long for the interpreter lock held by another thread (the RunEngine writing out a page)
+# Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the
+# loop, which then waits at most this long for the interpreter lock held by another thread (the
+# RunEngine writing out a page)
 SWITCH_S = 0.0005
-EXIT_WATCHDOG = 3  # the watchdog's (safety) stop; the user's: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)
+# the watchdog's (safety) stop; the user's: 128 + the signal (130 for Ctrl-C, 143 for SIGTERM)
+EXIT_WATCHDOG = 3
 
 
 def say(line: str) -> None:
@@ -90,7 +95,8 @@ def say(line: str) -> None:
 
 
 def _stopped_by(loop: Loop) -> str:
-    """How the run ended: ``"time"``, ``"steps"``, ``"user"`` (``USER_STOP``) or the watchdog's reason."""
+    """How the run ended: ``"time"``, ``"steps"``, ``"user"`` (``USER_STOP``) or the watchdog's
+    reason."""
     user = USER_STOP if loop.user_stop else None
     return (
         loop.stop_reason
@@ -100,9 +106,10 @@ def _stopped_by(loop: Loop) -> str:
 
 
 def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
-    """``summary.json``: the score (the last 80 % of the run: of its time, in lockstep of its frames, so that a
-    lockstep score does not depend on the host's pace), achieved rates, latencies, how it ended; the lock figures
-    of P / P_best over the whole run at its achieved rate (``ops_jax.lock.trace_json``)."""
+    """``summary.json``: the score (the last 80 % of the run: of its time, in lockstep of its
+    frames, so that a lockstep score does not depend on the host's pace), achieved rates, latencies,
+    how it ended; the lock figures of P / P_best over the whole run at its achieved rate
+    (``ops_jax.lock.trace_json``)."""
     rec = {k: np.asarray(v, float) for k, v in loop.rec.items()}
     steps, t = len(rec["time_s"]), rec["time_s"]
     if loop.advance is not None and steps:
@@ -141,7 +148,8 @@ def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
 
 
 def _pyplot():
-    """matplotlib's pyplot on the Agg backend (imported before a run: the end of a run is kept short)."""
+    """matplotlib's pyplot on the Agg backend (imported before a run: the end of a run is kept
+    short)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -151,8 +159,9 @@ def _pyplot():
 
 
 def plot(path: Path, loop: Loop, title: str, ratio=None, rate_hz=None) -> None:
-    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on a second axis;
-    beside it the PSD of P / P_best after lock at ``rate_hz`` (control steps/s; ``ops_jax.lock``)."""
+    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on
+    a second axis; beside it the PSD of P / P_best after lock at ``rate_hz`` (control steps/s;
+    ``ops_jax.lock``)."""
     plt = _pyplot()
     t = np.asarray(loop.rec["time_s"])
     fig, (ax, psd_ax) = plt.subplots(1, 2, figsize=(11, 3.5), width_ratios=(3, 2))
@@ -184,8 +193,8 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m agents.bench",
         description=__doc__.split("\n\n")[0],
-        epilog="python -m agents.bench template --out FILE: a mapping to start from; python -m agents.bench check "
-        "--mapping FILE: read every PV it names once (each with --help)",
+        epilog="python -m agents.bench template --out FILE: a mapping to start from; python -m "
+        "agents.bench check --mapping FILE: read every PV it names once (each with --help)",
     )
     ap.add_argument(
         "--prefix", default="OPS:", help="PV prefix of the simulated bench (without --mapping)"
@@ -202,7 +211,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--no-lengths",
         action="store_true",
-        help="the simulated bench without its length readouts (LINEi:LEN not mapped; without --mapping)",
+        help="the simulated bench without its length readouts (LINEi:LEN not mapped; without "
+        "--mapping)",
     )
     ap.add_argument("--controller", help="spgd, physics or a folder written by agents.save")
     ap.add_argument(
@@ -229,8 +239,8 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=bench_learn.CATCH_UP_S,
         metavar="S",
-        help="--learn: at the end of a run stopped by its --steps or --seconds, take the gradient steps "
-        "the learner fell behind its ratio, for at most S seconds (default 0: none)",
+        help="--learn: at the end of a run stopped by its --steps or --seconds, take the gradient "
+        "steps the learner fell behind its ratio, for at most S seconds (default 0: none)",
     )
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller hyperparameter")
     ap.add_argument(
@@ -241,8 +251,8 @@ def parser() -> argparse.ArgumentParser:
         nargs="*",
         metavar="KEY=VALUE",
         default=None,
-        help="wrap the controller in the extremum-seeking trim (agents.controllers.trim; one more probe per step), "
-        "with these TrimConfig settings (none: its default)",
+        help="wrap the controller in the extremum-seeking trim (agents.controllers.trim; one more "
+        "probe per step), with these TrimConfig settings (none: its default)",
     )
     ap.add_argument(
         "--lockstep",
@@ -269,9 +279,9 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="WL",
-        help="take a line that comes within WL of its soft limit WL back (0: never); safety.wrap_wl of the "
-        "mapping (default: the mapping's period_wl, the simulated bench's 0.5, where the controller reads no "
-        "length readouts)",
+        help="take a line that comes within WL of its soft limit WL back (0: never); "
+        "safety.wrap_wl of the mapping (default: the mapping's period_wl, the simulated bench's "
+        "0.5, where the controller reads no length readouts)",
     )
     ap.add_argument(
         "--stale-s",
@@ -285,16 +295,16 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="S",
-        help="from a setpoint write until a frame acquired S s or more after it shows the move (s; default: "
-        "the mapping's detector.settle_s, 0.002)",
+        help="from a setpoint write until a frame acquired S s or more after it shows the move "
+        "(s; default: the mapping's detector.settle_s, 0.002)",
     )
     ap.add_argument(
         "--cpu",
         type=int,
         default=None,
         metavar="CORE",
-        help="run the runner on this CPU core only (Linux): a controller's step costs less CPU on a core "
-        "of its own, with the bench's other processes on the others",
+        help="run the runner on this CPU core only (Linux): a controller's step costs less CPU on "
+        "a core of its own, with the bench's other processes on the others",
     )
     ap.add_argument(
         "--out", required=True, help="folder for documents.jsonl, power.png, summary.json"
@@ -303,8 +313,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _setup(args):
-    """(mapping, Agent (or ``bench_learn.Learning``), env_config, action scale, window) from the arguments; raises
-    what is wrong."""
+    """(mapping, Agent (or ``bench_learn.Learning``), env_config, action scale, window) from the
+    arguments; raises what is wrong."""
     if args.seconds is None:
         args.seconds = np.inf if args.learn else 60.0
     if not args.seconds > 0:
@@ -325,7 +335,8 @@ def _setup(args):
     saved = args.controller not in ("spgd", "physics", None)
     if saved and not Path(args.controller).is_dir():
         raise ValueError(
-            f"--controller must be spgd, physics or a folder written by agents.save, got {args.controller!r}"
+            "--controller must be spgd, physics or a folder written by agents.save, got "
+            f"{args.controller!r}"
         )
     stages = args.stages or (
         bench_learn.default_stages(args, checkpoint)
@@ -356,8 +367,9 @@ def _setup(args):
             mapping,
             *bench_learn.setup(args, mapping, checkpoint, parse_set(args.env), parse_set(args.set)),
         )
-    # A controller's calls are small and each waits for its result: run them inline, without the hand-off to
-    # XLA's dispatch thread (set before JAX's first computation in the process; a learning run keeps it)
+    # A controller's calls are small and each waits for its result: run them inline, without the
+    # hand-off to XLA's dispatch thread (set before JAX's first computation in the process; a
+    # learning run keeps it)
     import jax
 
     jax.config.update("jax_cpu_enable_async_dispatch", False)
@@ -373,7 +385,8 @@ def _setup(args):
 
 
 def usable_cores(core: int) -> set:
-    """The CPU cores this process may run on; ``ValueError`` naming ``--cpu`` unless ``core`` is one (Linux)."""
+    """The CPU cores this process may run on; ``ValueError`` naming ``--cpu`` unless ``core`` is one
+    (Linux)."""
     if not hasattr(os, "sched_setaffinity"):
         raise ValueError("--cpu needs Linux (os.sched_setaffinity); leave it out here")
     allowed = os.sched_getaffinity(0)
@@ -446,7 +459,9 @@ def main(argv=None) -> int:
         shown = None if learning else report.RunProgress(label, steps, lines)
         try:
             elapsed = _run(loop, md, out, shown)
-            if learning:  # the learner's steps while the loop ran end here (then its catch-up, its last checkpoint)
+            # the learner's steps while the loop ran end here (then its catch-up, its last
+            # checkpoint)
+            if learning:
                 learning.end(args.catch_up_s if _stopped_by(loop) in ("steps", "time") else 0.0)
         finally:
             if shown is not None:
@@ -483,8 +498,9 @@ QUIET_LOGGERS = (
 
 
 class _QuietStop(logging.Filter):
-    """Drops what an expected stop prints besides the runner's line: the RunEngine's "Run aborted" traceback of
-    a watchdog stop, and caproto's notes on a closing circuit or channel (the watchdog names the lost PV)."""
+    """Drops what an expected stop prints besides the runner's line: the RunEngine's "Run aborted"
+    traceback of a watchdog stop, and caproto's notes on a closing circuit or channel (the watchdog
+    names the lost PV)."""
 
     def filter(self, record) -> bool:
         if record.name.startswith("caproto"):
@@ -493,8 +509,8 @@ class _QuietStop(logging.Filter):
 
 
 def _writer(out: Path):
-    """The document callback: every document a line of ``out/documents.jsonl`` as it comes (bluesky's
-    ``JSONLinesWriter``), an event page as its events."""
+    """The document callback: every document a line of ``out/documents.jsonl`` as it comes
+    (bluesky's ``JSONLinesWriter``), an event page as its events."""
     from bluesky.callbacks.json_writer import JSONLinesWriter
     from event_model import sanitize_doc, unpack_event_page
 
@@ -516,9 +532,10 @@ def _writer(out: Path):
 
 @contextlib.contextmanager
 def user_stops(loop: Loop):
-    """Ctrl-C and SIGTERM while the run lasts: the first ends it after the current step (a line on stderr says
-    so), a second at once (``USER_STOP``, no further move); once the plan has returned, while what the run recorded
-    is written, each is answered with a line and otherwise ignored. The previous handlers are restored after."""
+    """Ctrl-C and SIGTERM while the run lasts: the first ends it after the current step (a line on
+    stderr says so), a second at once (``USER_STOP``, no further move); once the plan has returned,
+    while what the run recorded is written, each is answered with a line and otherwise ignored. The
+    previous handlers are restored after."""
 
     def stop(signum, frame):
         if loop.ended:
@@ -538,8 +555,9 @@ def user_stops(loop: Loop):
 
 
 def _run(loop: Loop, md: dict, out: Path, shown=None) -> float:
-    """Run the plan, documents streamed to ``out/documents.jsonl`` (and to ``shown``, a document callback, where
-    given), Ctrl-C and SIGTERM as ``user_stops`` says; returns the seconds it ran."""
+    """Run the plan, documents streamed to ``out/documents.jsonl`` (and to ``shown``, a document
+    callback, where given), Ctrl-C and SIGTERM as ``user_stops`` says; returns the seconds it
+    ran."""
     from bluesky import RunEngine
 
     RE = RunEngine({}, context_managers=[])  # its own Ctrl-C handling left out: user_stops

@@ -1,16 +1,19 @@
-"""A lab's first steps with the bench: a template mapping to start from, and a check of a mapping against the live
-bench that moves nothing.
+"""A lab's first steps with the bench: a template mapping to start from, and a check of a mapping
+against the live bench that moves nothing.
 
-    python -m agents.bench template --out mapping.json [--prefix OPS: --stages 5 --no-lengths --lockstep]
+    python -m agents.bench template --out mapping.json \
+        [--prefix OPS: --stages 5 --no-lengths --lockstep]
     python -m agents.bench check --mapping mapping.json
 
-``template`` writes the simulated bench's mapping (``python -m ops_jax.ioc --prefix OPS: --stages 5``), every key
-with its value and a note beside each part (keys that start with ``_``, ignored by the runner): replace the PV names,
-units and limits by the bench's. ``check`` connects to every PV the mapping names, reads each once and prints what it
-found (value, units and limits where the IOC serves them), writing nothing; it says what does not fit the mapping
-(a trace of another length than the lines' 2^N - 1 pulses, a soft range outside a setpoint's limits, a reading that
-is not finite). Exit status 0 when everything answered and fits, 1 when something does not fit, 2 for a bad mapping
-or PVs that do not answer (one line naming them).
+``template`` writes the simulated bench's mapping
+(``python -m ops_jax.ioc --prefix OPS: --stages 5``), every key with its value and a note beside
+each part (keys that start with ``_``, ignored by the runner): replace the PV names, units and
+limits by the bench's. ``check`` connects to every PV the mapping names, reads each once and prints
+what it found (value, units and limits where the IOC serves them), writing nothing; it says what
+does not fit the mapping (a trace of another length than the lines' 2^N - 1 pulses, a soft range
+outside a setpoint's limits, a reading that is not finite). Exit status 0 when everything answered
+and fits, 1 when something does not fit, 2 for a bad mapping or PVs that do not answer (one line
+naming them).
 """
 
 from __future__ import annotations
@@ -27,32 +30,37 @@ from agents.bench.mapping import MappingError, check_mapping, load_mapping, sim_
 
 COMMANDS = ("template", "check")
 NOTES = {
-    "_about": "The PVs of an OPS bench for `python -m agents.bench --mapping FILE`, here the simulated bench's "
-    "(`python -m ops_jax.ioc --prefix PREFIX --stages N`): on a real bench put its PV names, units and limits in "
-    "their place. Keys that start with _ are notes (ignored). `python -m agents.bench check --mapping FILE` reads "
-    "every PV once and writes nothing. Every key: docs/lab.md, 'A real bench: the mapping file'.",
-    "_lines": "One per delay line, in the order of the stages: setpoint (written), readback, length (optional: a "
-    "sensor of the line's offset from the optimum; leave it out where there is none, and the physics-informed "
-    "controller runs on the detector's frames alone).",
-    "_detector": "power: the stacked-power detector (power_full_scale: its reading at P_max); trace: the "
-    "oscilloscope waveform, 2^N - 1 samples at the pulse positions (trace_peak: one ideal pulse's peak); tick: a "
-    "counter that changes once per complete acquisition; settle_s: from a setpoint write until a frame acquired "
-    "after it shows the move (s).",
-    "_evaluation": "The simulator's true P / P_max and P / P_best, recorded, never shown to a controller: remove "
-    "it on a real bench.",
-    "_advance": "A PV whose write advances a lockstep simulator one tick; null on a free-running bench.",
-    "_units_per_wl": "Setpoint units per wavelength (1.03 for micrometres at 1030 nm, volts per wavelength for an "
-    "open-loop piezo).",
-    "_period_wl": "The optics' period in a line's position (wl; 0.5 for a folded delay line); null where unknown.",
-    "_safety": "max_step_wl: the largest move of a line in one step (wl); soft_range_wl: [low, high] (wl) inside "
-    "the actuators' travel, or one per line; stale_s: the watchdog's limit on a reading's age (s); connect_s: the "
-    "wait for every PV at start (s); wrap_wl: a line within it of a soft limit is taken back by it (null: the "
-    "period_wl where the controller reads no length readouts, 0: never).",
+    "_about": "The PVs of an OPS bench for `python -m agents.bench --mapping FILE`, here the "
+    "simulated bench's (`python -m ops_jax.ioc --prefix PREFIX --stages N`): on a real bench put "
+    "its PV names, units and limits in their place. Keys that start with _ are notes (ignored). "
+    "`python -m agents.bench check --mapping FILE` reads every PV once and writes nothing. Every "
+    "key: docs/lab.md, 'A real bench: the mapping file'.",
+    "_lines": "One per delay line, in the order of the stages: setpoint (written), readback, "
+    "length (optional: a sensor of the line's offset from the optimum; leave it out where there "
+    "is none, and the physics-informed controller runs on the detector's frames alone).",
+    "_detector": "power: the stacked-power detector (power_full_scale: its reading at P_max); "
+    "trace: the oscilloscope waveform, 2^N - 1 samples at the pulse positions (trace_peak: one "
+    "ideal pulse's peak); tick: a counter that changes once per complete acquisition; settle_s: "
+    "from a setpoint write until a frame acquired after it shows the move (s).",
+    "_evaluation": "The simulator's true P / P_max and P / P_best, recorded, never shown to a "
+    "controller: remove it on a real bench.",
+    "_advance": "A PV whose write advances a lockstep simulator one tick; null on a free-running "
+    "bench.",
+    "_units_per_wl": "Setpoint units per wavelength (1.03 for micrometres at 1030 nm, volts per "
+    "wavelength for an open-loop piezo).",
+    "_period_wl": "The optics' period in a line's position (wl; 0.5 for a folded delay line); "
+    "null where unknown.",
+    "_safety": "max_step_wl: the largest move of a line in one step (wl); soft_range_wl: [low, "
+    "high] (wl) inside the actuators' travel, or one per line; stale_s: the watchdog's limit on "
+    "a reading's age (s); connect_s: the wait for every PV at start (s); wrap_wl: a line within "
+    "it of a soft limit is taken back by it (null: the period_wl where the controller reads no "
+    "length readouts, 0: never).",
 }
 
 
 def template(prefix: str, stages: int, lengths: bool = True, lockstep: bool = False) -> dict:
-    """The simulated bench's mapping, every key written out, each part preceded by its note (``NOTES``)."""
+    """The simulated bench's mapping, every key written out, each part preceded by its note
+    (``NOTES``)."""
     mapping = check_mapping(sim_mapping(prefix, stages, lockstep, lengths))
     out = {"_about": NOTES["_about"]}
     for key, value in mapping.items():
@@ -81,7 +89,8 @@ def _shown(value) -> str:
 
 
 def read(sig) -> dict:
-    """One reading of ``sig`` (connected): its value, units and control limits where the IOC serves them."""
+    """One reading of ``sig`` (connected): its value, units and control limits where the IOC serves
+    them."""
     value, meta = sig.get(), sig.metadata
     low, high = meta.get("lower_ctrl_limit"), meta.get("upper_ctrl_limit")
     return {
@@ -92,8 +101,8 @@ def read(sig) -> dict:
 
 
 def misfits(mapping: dict, readings: dict) -> list:
-    """What the readings (where -> ``read``) say does not fit ``mapping``: the trace's length, a soft range outside
-    a setpoint's limits, a reading that is not finite."""
+    """What the readings (where -> ``read``) say does not fit ``mapping``: the trace's length, a
+    soft range outside a setpoint's limits, a reading that is not finite."""
     found, n = [], len(mapping["lines"])
     samples = np.atleast_1d(readings["detector.trace"]["value"]).size
     if samples != 2**n - 1:
@@ -103,8 +112,8 @@ def misfits(mapping: dict, readings: dict) -> list:
         span = np.multiply([low, high], mapping["units_per_wl"])
         if limits is not None and not (limits[0] <= span[0] and span[1] <= limits[1]):
             found.append(
-                f"safety.soft_range_wl of line {i + 1}, {span.tolist()} in setpoint units, lies outside "
-                f"lines[{i}].setpoint's limits {list(limits)}"
+                f"safety.soft_range_wl of line {i + 1}, {span.tolist()} in setpoint units, lies "
+                f"outside lines[{i}].setpoint's limits {list(limits)}"
             )
     for where, r in readings.items():
         value = np.asarray(r["value"])
@@ -114,8 +123,9 @@ def misfits(mapping: dict, readings: dict) -> list:
 
 
 def check(mapping: dict) -> int:
-    """Connect to every PV of a checked ``mapping``, read each once, print what was found; writes nothing. The
-    exit status (module docstring); ``MappingError`` names the PVs that did not answer."""
+    """Connect to every PV of a checked ``mapping``, read each once, print what was found; writes
+    nothing. The exit status (module docstring); ``MappingError`` names the PVs that did not
+    answer."""
     bench, _ = make_bench(mapping)
     try:
         connect(bench, mapping["safety"]["connect_s"])
@@ -187,7 +197,8 @@ def main(argv) -> int:
                 + "\n"
             )
             print(
-                f"wrote {out}: edit its PV names, units and limits, then: python -m agents.bench check --mapping {out}"
+                f"wrote {out}: edit its PV names, units and limits, then: python -m agents.bench "
+                f"check --mapping {out}"
             )
             return 0
         mapping = (

@@ -1,1 +1,2 @@
-"""Controllers that learn nothing: SPGD-PID, the physics-informed fit, the trim, the stall escape."""
+"""Controllers that learn nothing: SPGD-PID, the physics-informed fit, the trim, the stall
+escape."""

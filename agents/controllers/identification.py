@@ -1,6 +1,6 @@
 """The physics-informed controller's online identification (``agents.controllers.physics_informed``,
-``identify=True``): the static unknowns theta and their recursive estimate, the length readout's calibration and
-its fusion with the frames' fit; ``wrap``, an offset from the nearest optimum."""
+``identify=True``): the static unknowns theta and their recursive estimate, the length readout's
+calibration and its fusion with the frames' fit; ``wrap``, an offset from the nearest optimum."""
 
 from __future__ import annotations
 
@@ -21,8 +21,9 @@ def wrap(x):
 
 # Online identification (``identify=True``): the static unknowns theta, with their start, prior
 # standard deviation and accepted range: detector gain error and offset (y = 2 ((1 + g) v + o) - 1),
-# each stage's wave plate rotation error (rad) and PBS leakage amplitude sqrt(leak) (started off zero,
-# where P is flat in it), each fitted line's actuator gain error; NOISE_Y: the assumed noise of y.
+# each stage's wave plate rotation error (rad) and PBS leakage amplitude sqrt(leak) (started off
+# zero, where P is flat in it), each fitted line's actuator gain error; NOISE_Y: the assumed noise
+# of y.
 THETA = {  # block: (start, prior SD, lowest, highest)
     "detector_gain": (0.0, 0.05, -0.3, 0.3),
     "detector_offset": (0.0, 0.05, -0.3, 0.3),
@@ -31,24 +32,25 @@ THETA = {  # block: (start, prior SD, lowest, highest)
     "actuator_gain": (0.0, 0.15, -0.5, 0.5),
 }
 NOISE_Y = 0.01
-# The length readout's calibration (``identify=True`` with ``use_lengths=True``): readout = (1 + g) x + o
-# per fitted line, recursive least squares of the readout on the fitted lengths (their assumed error
-# CAL_NOISE wl, innovations beyond CAL_CLIP times their standard deviation cut) from the prior
+# The length readout's calibration (``identify=True`` with ``use_lengths=True``): readout = (1 + g)
+# x + o per fitted line, recursive least squares of the readout on the fitted lengths (their assumed
+# error CAL_NOISE wl, innovations beyond CAL_CLIP times their standard deviation cut) from the prior
 # o ~ N(0, CAL_PRIOR^2) wl, 1 + g ~ N(1, CAL_PRIOR^2); the controller reads the calibrated readout
 # where its standard deviation is below CAL_TRUST wl, the fitted offsets elsewhere.
 CAL_NOISE, CAL_CLIP, CAL_PRIOR, CAL_TRUST = 0.01, 3.0, 0.05, 0.002
-# Where it is trusted, the calibrated readout (per-step noise CAL_READ_SD wl on top of its calibration's
-# standard deviation) and the fit are averaged by inverse variance (``fuse``); the fit's variance starts at
-# FIT_VAR0 wl^2 and is at least FIT_VAR_MIN.
+# Where it is trusted, the calibrated readout (per-step noise CAL_READ_SD wl on top of its
+# calibration's standard deviation) and the fit are averaged by inverse variance (``fuse``); the
+# fit's variance starts at FIT_VAR0 wl^2 and is at least FIT_VAR_MIN.
 CAL_READ_SD, FIT_VAR0, FIT_VAR_MIN = 1e-3, 1e-4, 1e-8
 
 
 def fuse(z_fit, z_cal, sd, fit_var, forget: float):
-    """One line's length (wl, modulo the period) from the frames' fit ``z_fit`` and the calibrated readout
-    ``z_cal`` (standard deviation ``sd`` wl): the fit or its mirror image, whichever is nearer the readout
-    (near the optimum the frames cannot tell +x from -x), averaged with the readout by inverse variance. The
-    fit's variance ``fit_var`` (wl^2) is the discounted mean square of its distance to the readout less the
-    readout's own variance. Returns (length, fit_var); the fit alone while ``sd`` >= CAL_TRUST."""
+    """One line's length (wl, modulo the period) from the frames' fit ``z_fit`` and the calibrated
+    readout ``z_cal`` (standard deviation ``sd`` wl): the fit or its mirror image, whichever is
+    nearer the readout (near the optimum the frames cannot tell +x from -x), averaged with the
+    readout by inverse variance. The fit's variance ``fit_var`` (wl^2) is the discounted mean square
+    of its distance to the readout less the readout's own variance. Returns (length, fit_var); the
+    fit alone while ``sd`` >= CAL_TRUST."""
     var_cal = sd**2 + CAL_READ_SD**2
     near = jnp.where(jnp.abs(wrap(-z_fit - z_cal)) < jnp.abs(wrap(z_fit - z_cal)), -z_fit, z_fit)
     d = wrap(near - z_cal)
@@ -59,8 +61,8 @@ def fuse(z_fit, z_cal, sd, fit_var, forget: float):
 
 
 def theta_layout(n: int, fit: int) -> dict:
-    """Slices of theta's blocks: detector gain, offset (1 each), rotations and leak amplitudes (N each),
-    actuator gains (``fit``)."""
+    """Slices of theta's blocks: detector gain, offset (1 each), rotations and leak amplitudes (N
+    each), actuator gains (``fit``)."""
     sizes = {
         "detector_gain": 1,
         "detector_offset": 1,
@@ -75,7 +77,8 @@ def theta_layout(n: int, fit: int) -> dict:
 
 
 def per_theta(n: int, fit: int, column: int) -> np.ndarray:
-    """Column ``column`` of ``THETA`` (0 start, 1 prior SD, 2 lowest, 3 highest) as a vector over theta."""
+    """Column ``column`` of ``THETA`` (0 start, 1 prior SD, 2 lowest, 3 highest) as a vector over
+    theta."""
     layout = theta_layout(n, fit)
     out = np.zeros(max(s.stop for s in layout.values()), np.float32)
     for k, sl in layout.items():
@@ -86,12 +89,13 @@ def per_theta(n: int, fit: int, column: int) -> np.ndarray:
 def identify_function(
     fit: int, n_theta: int, config: PhysicsConfig, residual, max_step, theta_lo, theta_hi
 ):
-    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance (``config``'s
-    ``damping`` and ``forget``)."""
+    """The identification: ``identify_one(z, th, info, y, hist) -> (z, th, info)`` of one instance
+    (``config``'s ``damping`` and ``forget``)."""
 
     def identify_one(z, th, info, y, hist):
-        """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior, then
-        the information update (the Schur complement of z: what this step tells about theta alone)."""
+        """One Gauss-Newton step on (z, theta) with theta's accumulated information as its prior,
+        then the information update (the Schur complement of z: what this step tells about theta
+        alone)."""
 
         def res(u):
             return residual(u[:fit], u[fit:], y, hist)
@@ -117,14 +121,15 @@ def identify_function(
 
 
 def calibrate_function(config: PhysicsConfig):
-    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line (``config``'s ``forget``)."""
+    """The length readout's calibration: ``calibrate_one(info, vec, z, r)`` of one line
+    (``config``'s ``forget``)."""
     cal_prior = jnp.eye(2) / CAL_PRIOR**2  # information of (o, 1 + g) before any data
     cal_mean = jnp.array([0.0, 1.0])
 
     def calibrate_one(info, vec, z, r):
         """One line's readout calibration: the recursive least squares update with the fitted offset
-        ``z`` (wl, modulo the period) and readout ``r`` (wl); returns (info, vec, the calibrated length
-        (wl, modulo the period), its standard deviation (wl))."""
+        ``z`` (wl, modulo the period) and readout ``r`` (wl); returns (info, vec, the calibrated
+        length (wl, modulo the period), its standard deviation (wl))."""
 
         def solve(info, vec):
             A = info + cal_prior

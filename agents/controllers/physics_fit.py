@@ -1,6 +1,7 @@
-"""The physics-informed controller's fit (``agents.controllers.physics_informed``): the measurement model of the
-offsets (and, with ``identify``, of theta), its misfit to the latest frames and the multi-start Levenberg-Marquardt
-estimate of the offsets of one instance; the static structure of a policy (``Shape``, ``Theta``, ``Steps``)."""
+"""The physics-informed controller's fit (``agents.controllers.physics_informed``): the measurement
+model of the offsets (and, with ``identify``, of theta), its misfit to the latest frames and the
+multi-start Levenberg-Marquardt estimate of the offsets of one instance; the static structure of a
+policy (``Shape``, ``Theta``, ``Steps``)."""
 
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ if TYPE_CHECKING:
 
 
 def model_function(n: int, fit: int, detector: str, identify: bool, layout: dict):
-    """``model(z, th) -> y``: the measured vector (..., 1 + 2^n - 1) of offsets ``z`` (..., fit) wl, the unfitted
-    stages at 0, with theta ``th`` (n_theta,) read where ``identify`` (the ideal detector and optics elsewhere)."""
+    """``model(z, th) -> y``: the measured vector (..., 1 + 2^n - 1) of offsets ``z`` (..., fit) wl,
+    the unfitted stages at 0, with theta ``th`` (n_theta,) read where ``identify`` (the ideal
+    detector and optics elsewhere)."""
     p_max = physics.p_max(n, detector)
     peak = physics.peak_intensity(n)
 
@@ -53,9 +55,9 @@ def model_function(n: int, fit: int, detector: str, identify: bool, layout: dict
 def fit_functions(
     n: int, fit: int, detector: str, identify: bool, layout: dict, config: PhysicsConfig
 ) -> tuple:
-    """The fit: ``(moved, residual, estimate_one)``: the length change of a commanded move, the misfit of
-    the measurement model and the multi-start Levenberg-Marquardt estimate of the offsets of one instance
-    (``config``'s ``starts``, ``iters``, ``damping`` and ``use_lengths``)."""
+    """The fit: ``(moved, residual, estimate_one)``: the length change of a commanded move, the
+    misfit of the measurement model and the multi-start Levenberg-Marquardt estimate of the offsets
+    of one instance (``config``'s ``starts``, ``iters``, ``damping`` and ``use_lengths``)."""
     model = model_function(n, fit, detector, identify, layout)
 
     def moved(dz, th):
@@ -64,8 +66,8 @@ def fit_functions(
 
     def residual(z, th, y, hist):
         """Misfit of the latest frame ``y`` and, through the moves since, of the H frames before it.
-        ``hist``: (their frames y_prev (H, ny), newest first; the moves commanded after each dz_prev (H, fit);
-        the drift estimate v (fit,); their weights w (H,))."""
+        ``hist``: (their frames y_prev (H, ny), newest first; the moves commanded after each dz_prev
+        (H, fit); the drift estimate v (fit,); their weights w (H,))."""
         y_prev, dz_prev, v, w = hist
         back = jnp.cumsum(
             jax.vmap(moved, in_axes=(0, None))(dz_prev, th) + v, axis=0
@@ -100,15 +102,15 @@ def fit_functions(
 
 
 def fitted_stages(config) -> int:
-    """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the detector
-    "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
+    """The stages the fit estimates (the interferometric ones) of an ``EnvConfig``: all N with the
+    detector "polariser", 1..N-1 with "total" (its last stage's carrier phase is invisible)."""
     return config.stages if config.detector == "polariser" else config.stages - 1
 
 
 class Shape(NamedTuple):
-    """The static structure of one physics policy: its ``config``, the environment's ``n`` stages, the ``fit``
-    stages it estimates, the detector's vector size ``ny``, whether it identifies theta (``identify``) and
-    calibrates the length readout (``readout``)."""
+    """The static structure of one physics policy: its ``config``, the environment's ``n`` stages,
+    the ``fit`` stages it estimates, the detector's vector size ``ny``, whether it identifies theta
+    (``identify``) and calibrates the length readout (``readout``)."""
 
     config: PhysicsConfig
     n: int
@@ -124,8 +126,8 @@ class Shape(NamedTuple):
 
 
 class Theta(NamedTuple):
-    """Theta's start, accepted range (``lo``, ``hi``), prior information and largest step per control step
-    (empty without ``identify``)."""
+    """Theta's start, accepted range (``lo``, ``hi``), prior information and largest step per
+    control step (empty without ``identify``)."""
 
     start: jax.Array
     lo: jax.Array
@@ -135,8 +137,8 @@ class Theta(NamedTuple):
 
 
 class Steps(NamedTuple):
-    """The per-instance functions of the estimate: ``physics_fit.fit_functions``'s ``moved`` and ``estimate_one``,
-    ``identification``'s ``identify_one`` and ``calibrate_one``."""
+    """The per-instance functions of the estimate: ``physics_fit.fit_functions``'s ``moved`` and
+    ``estimate_one``, ``identification``'s ``identify_one`` and ``calibrate_one``."""
 
     moved: Callable
     estimate_one: Callable
@@ -145,8 +147,8 @@ class Steps(NamedTuple):
 
 
 def shape_of(config: PhysicsConfig, env_config, obs_layout) -> Shape:
-    """The ``Shape`` of ``config`` on an ``EnvConfig`` and its observation layout (ValueError where the config reads
-    length readouts the observation does not hold)."""
+    """The ``Shape`` of ``config`` on an ``EnvConfig`` and its observation layout (ValueError where
+    the config reads length readouts the observation does not hold)."""
     if not obs_layout.lengths and (config.use_lengths or config.lengths_only):
         raise ValueError(
             "use_lengths and lengths_only must be False on an environment without length readouts "

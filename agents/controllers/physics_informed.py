@@ -8,25 +8,28 @@ State estimation (every control step, batched over B instances, jitted, no learn
 - Unknowns: the offsets of the interferometric stages, modulo the wl/2 period (all N stages with
   detector "polariser"; stages 1..N-1 with "total", whose last stage's carrier phase is invisible:
   P does not depend on it, so the controller leaves it alone).
-- Residual r(z) = [f(z) - y_t, w_hist (f(z - dx_{t-1}) - y_{t-1}), ..., w_hist (f(z - dx_{t-1} - ... - dx_{t-H})
-  - y_{t-H})], where dx_{t-k} is the move the controller itself commanded before y_{t-k+1} (carried) and H is
-  ``history`` (1: the frame before the latest alone). The history blocks resolve the ambiguities of a single
-  snapshot (the intensity pattern is nearly invariant under x -> -x): no probe is needed, so the controller
-  makes 1 measurement per step. Under vibration, which moves the lines between frames, more frames
-  (``history`` 2-3) average that motion out of the comparison: docs/imperfections.md ("Frames compared").
+- Residual r(z) = [f(z) - y_t, w_hist (f(z - dx_{t-1}) - y_{t-1}), ..., w_hist (f(z - dx_{t-1} -
+  ... - dx_{t-H}) - y_{t-H})], where dx_{t-k} is the move the controller itself commanded before
+  y_{t-k+1} (carried) and H is ``history`` (1: the frame before the latest alone). The history
+  blocks resolve the ambiguities of a single snapshot (the intensity pattern is nearly invariant
+  under x -> -x): no probe is needed, so the controller makes 1 measurement per step. Under
+  vibration, which moves the lines between frames, more frames (``history`` 2-3) average that motion
+  out of the comparison: docs/imperfections.md ("Frames compared").
 - Gauss-Newton / Levenberg-Marquardt from ``starts`` random points on the period torus plus the
   tracked prediction (last estimate + last move), ``iters`` iterations each (Jacobian by jacfwd);
-  the start with the lowest residual wins (the model, its residual and the fit: ``agents.controllers.physics_fit``).
+  the start with the lowest residual wins (the model, its residual and the fit:
+  ``agents.controllers.physics_fit``).
 
 Control: a = clip(-gain * wrap(z) / action_scale, -1, 1) on the fitted stages, 0 elsewhere
 (``wrap`` maps to the nearest optimum, [-wl/4, wl/4)).
 
-The hold (``hold``, preset "frames-hold"): where the measured P/Pmax is at or above ``hold``, the move is SPGD's
-proportional step instead (``agents.controllers.spgd``, its preset's gain schedule and fine dither, one probe per step there: 2
-measurements per step; under ``hold`` the probe is left out), and the fit follows the lines through the moves
-really sent. The fit acquires from anywhere (no trap of a hill climber), the dither reads the slope at every step,
-where the fit compares frames that the vibration has moved apart: docs/imperfections.md ("The hold"). The trim's
-``hold`` around the "frames" preset (``agents.controllers.trim``) runs the same episodes.
+The hold (``hold``, preset "frames-hold"): where the measured P/Pmax is at or above ``hold``, the
+move is SPGD's proportional step instead (``agents.controllers.spgd``, its preset's gain schedule
+and fine dither, one probe per step there: 2 measurements per step; under ``hold`` the probe is left
+out), and the fit follows the lines through the moves really sent. The fit acquires from anywhere
+(no trap of a hill climber), the dither reads the slope at every step, where the fit compares frames
+that the vibration has moved apart: docs/imperfections.md ("The hold"). The trim's ``hold`` around
+the "frames" preset (``agents.controllers.trim``) runs the same episodes.
 
 The length channel: the observation also holds the (noisy, normalised) delay-line lengths
 x / window, which reveal the offsets directly (obs noise 1e-4 -> 3e-4 wl). ``use_lengths=True``
@@ -39,18 +42,19 @@ whose observation holds no length readouts (``observe_lengths=False``), ``use_le
 added to the prediction and pre-compensated in the action (off by default: it slows the approach at
 feedback_k = 1 and helps only at long feedback delays).
 
-Online identification (``identify=True``, the default preset's; ``config="frames"`` or ``identify=False`` turns
-it off): the model also carries static unknowns theta (the detector's gain and offset, shared by P and the
-samples; each stage's wave-plate rotation error and PBS leakage; each fitted line's actuator gain error;
-``identification.THETA``), estimated recursively. After the multi-start fit of the offsets (theta held), one
-Gauss-Newton step on (offsets, theta) with theta's accumulated information as its prior; the information then
-grows by what that step tells about theta alone (the Schur complement of the offsets), discounted by ``forget``
-per step. Moves are divided by the identified actuator gains. With ``use_lengths=True`` as well, each fitted
-line's length readout is calibrated against the fit (readout = (1 + g) x + o, recursive least squares,
-discounted by ``forget``) and, once the calibrated length is known to CAL_TRUST, averaged with the fitted offset
-(``identification.fuse``): the readout sees the length at once and has no sign ambiguity, where the fit, near
-the optimum, has to tell +x from -x through the moves since earlier frames; the fit is sharper where the model
-holds.
+Online identification (``identify=True``, the default preset's; ``config="frames"`` or
+``identify=False`` turns it off): the model also carries static unknowns theta (the detector's gain
+and offset, shared by P and the samples; each stage's wave-plate rotation error and PBS leakage;
+each fitted line's actuator gain error; ``identification.THETA``), estimated recursively. After the
+multi-start fit of the offsets (theta held), one Gauss-Newton step on (offsets, theta) with theta's
+accumulated information as its prior; the information then grows by what that step tells about theta
+alone (the Schur complement of the offsets), discounted by ``forget`` per step. Moves are divided by
+the identified actuator gains. With ``use_lengths=True`` as well, each fitted line's length readout
+is calibrated against the fit (readout = (1 + g) x + o, recursive least squares, discounted by
+``forget``) and, once the calibrated length is known to CAL_TRUST, averaged with the fitted offset
+(``identification.fuse``): the readout sees the length at once and has no sign ambiguity, where the
+fit, near the optimum, has to tell +x from -x through the moves since earlier frames; the fit is
+sharper where the model holds.
 
 Measured scores and costs: docs/results.md (the physics-informed controller) and
 docs/imperfections.md (with lab imperfections).
@@ -79,7 +83,8 @@ from agents.envs import built, check_env_config
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsConfig(AlgoConfig):
-    """The physics-informed controller (``agents.controllers.physics_informed``): the fit and the control gain."""
+    """The physics-informed controller (``agents.controllers.physics_informed``): the fit and the
+    control gain."""
 
     NAME: ClassVar[str] = "physics"
     DEFAULT_PRESET: ClassVar[str] = "default"
@@ -96,7 +101,8 @@ class PhysicsConfig(AlgoConfig):
             identify=True,
             forget=0.98,
         ),
-        "frames": dict(  # the detector's frames alone, the ideal model: no identification, no length readout
+        # the detector's frames alone, the ideal model: no identification, no length readout
+        "frames": dict(
             starts=16,
             iters=8,
             damping=1e-3,
@@ -109,8 +115,9 @@ class PhysicsConfig(AlgoConfig):
             forget=0.98,
         ),
     }
-    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step); it gains over
-    # "frames" only where a probe is read in the frame's instant (ops_jax EnvConfig.probe; docs/imperfections.md)
+    # the frames' fit to acquire, SPGD's dither step to hold near the top (2 measurements per step);
+    # it gains over "frames" only where a probe is read in the frame's instant (ops_jax
+    # EnvConfig.probe; docs/imperfections.md)
     PRESETS["frames-hold"] = dict(PRESETS["frames"], hold=0.85)
 
     starts: int = field(Range(0, 4096, integer=True))
@@ -124,8 +131,9 @@ class PhysicsConfig(AlgoConfig):
     identify: bool = field(flag)
     forget: float = field(Range(0, 1, lo_open=True))
     history: int = field(HISTORY, default=1)
-    # the measured P/Pmax at and above which SPGD's proportional step from one dither probe (its preset's gains)
-    # moves the lines instead of the fit (None: the fit's move throughout, 1 measurement per step)
+    # the measured P/Pmax at and above which SPGD's proportional step from one dither probe (its
+    # preset's gains) moves the lines instead of the fit (None: the fit's move throughout, 1
+    # measurement per step)
     hold: float | None = field(optional(Range(0, 1)), default=None)
 
     def check(self):
@@ -156,7 +164,8 @@ def policy_params(env_config: dict) -> dict:
 
 
 def params_of(env_params, xp=jnp) -> dict:
-    """``policy_params`` of an ``EnvParams`` (``xp``: ``jax.numpy``, which keeps traced fields traced, or ``numpy``)."""
+    """``policy_params`` of an ``EnvParams`` (``xp``: ``jax.numpy``, which keeps traced fields
+    traced, or ``numpy``)."""
     return {
         "action_scale": xp.float32(env_params.action_scale),
         "window": xp.float32(env_params.window),
@@ -164,8 +173,9 @@ def params_of(env_params, xp=jnp) -> dict:
 
 
 def init_carry(shape: Shape, theta: Theta, b: int) -> dict:
-    """The carry of ``b`` instances before their first step: no earlier frame, move, estimate or drift; theta at
-    its start and prior (``identify``); the readout's calibration empty (``readout``)."""
+    """The carry of ``b`` instances before their first step: no earlier frame, move, estimate or
+    drift; theta at its start and prior (``identify``); the readout's calibration empty
+    (``readout``)."""
     ny, fit, older = shape.ny, shape.fit, shape.older
     carry = {
         "y_prev": jnp.zeros((b, ny), jnp.float32),
@@ -196,8 +206,8 @@ def init_carry(shape: Shape, theta: Theta, b: int) -> dict:
 
 
 def earlier_frames(shape: Shape, carry: dict) -> tuple:
-    """(frames (B, H, ny), moves (B, H, fit), valid (B, H)) of the H frames before the latest, newest first, and
-    the carry's update that shifts them by one."""
+    """(frames (B, H, ny), moves (B, H, fit), valid (B, H)) of the H frames before the latest,
+    newest first, and the carry's update that shifts them by one."""
     frames, moves, valid = (
         carry["y_prev"][:, None],
         carry["dz_prev"][:, None],
@@ -217,9 +227,9 @@ def earlier_frames(shape: Shape, carry: dict) -> tuple:
 
 
 def estimate(shape: Shape, steps: Steps, carry: dict, inputs: tuple, key) -> tuple:
-    """The offsets (B, fit) wl from the latest frame, the earlier ones and the length readouts: (z, theta, the
-    carry's update). ``inputs``: (theta (B, n_theta), y (B, ny), x_len (B, n) wl, z_pred (B, fit) wl, frames,
-    moves, valid of ``earlier_frames``)."""
+    """The offsets (B, fit) wl from the latest frame, the earlier ones and the length readouts: (z,
+    theta, the carry's update). ``inputs``: (theta (B, n_theta), y (B, ny), x_len (B, n) wl, z_pred
+    (B, fit) wl, frames, moves, valid of ``earlier_frames``)."""
     th, y, x_len, z_pred, frames, moves, valid = inputs
     config, fit = shape.config, shape.fit
     if config.lengths_only or fit == 0:
@@ -241,8 +251,8 @@ def estimate(shape: Shape, steps: Steps, carry: dict, inputs: tuple, key) -> tup
 
 
 def control(shape: Shape, carry: dict, z, z_pred, th, scale) -> tuple:
-    """The move to the nearest optimum: (action (B, n) in [-1, 1], the drift estimate v (B, fit) wl per step);
-    ``scale``: wl per action unit."""
+    """The move to the nearest optimum: (action (B, n) in [-1, 1], the drift estimate v (B, fit) wl
+    per step); ``scale``: wl per action unit."""
     config, fit, layout = shape.config, shape.fit, theta_layout(shape.n, shape.fit)
     # Drift (free-running mean, wl per step): integrate the innovation of the prediction.
     v = carry["v"] + config.drift_gain * carry["valid"][:, None] * wrap(z - z_pred)
@@ -254,7 +264,8 @@ def control(shape: Shape, carry: dict, z, z_pred, th, scale) -> tuple:
 
 
 def held(obs_layout, hold: float, action, obs, key, probe):
-    """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step elsewhere."""
+    """``action`` where the measured P/Pmax is under ``hold``, SPGD's proportional step
+    elsewhere."""
     if probe is None:
         raise ValueError(
             "hold needs a probe (one more detector reading per step): run the controller "
@@ -268,7 +279,8 @@ def held(obs_layout, hold: float, action, obs, key, probe):
 
 
 def act_step(shape: Shape, steps: Steps, obs_layout, params: dict, carry: dict, obs, key, probe):
-    """One control step of B instances: (action (B, n), the next carry); ``params``: ``policy_params``."""
+    """One control step of B instances: (action (B, n), the next carry); ``params``:
+    ``policy_params``."""
     scale, window = params["action_scale"], params["window"]
     b, n, fit = obs.shape[0], shape.n, shape.fit
     y = obs_layout.detector(obs)
@@ -293,7 +305,8 @@ def act_step(shape: Shape, steps: Steps, obs_layout, params: dict, carry: dict, 
 
 
 def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
-    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of ``env_config``)."""
+    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of
+    ``env_config``)."""
     env_config = check_env_config(env_config)
     config = hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)
     env, _ = built(env_config)

@@ -3,8 +3,9 @@ with a gain schedule and an escape from the landscape's local maxima.
 
 Each control step, per instance (B of them):
 1. draw a perturbation d = amp * s, s in {-1, +1}^N (Bernoulli signs), d in wavelengths (wl);
-2. P(tau) is read from the current observation (its latest frame's P/Pmax, ``env.layout.power``, with
-   the observation noise; no extra measurement) and P(tau + d) is one counted ``probe``: 2 measurements per control step;
+2. P(tau) is read from the current observation (its latest frame's P/Pmax, ``env.layout.power``,
+   with the observation noise; no extra measurement) and P(tau + d) is one counted ``probe``: 2
+   measurements per control step;
 3. gradient estimate g = [P(tau + d) - P(tau)] * s / amp  (P in units of P/Pmax, g in 1/wl;
    this is the classic [P(tau+d) - P(tau)] * d rescaled by 1/amp^2, an estimate of dP/dx);
 4. PID on g: i <- leak * i + g, u = Kp(P) g + Ki i + Kd (g - g_prev), action = clip(u, -1, 1)
@@ -20,12 +21,13 @@ P/Pmax ~ 1 - 79 sum_i x_i^2 (x_i in wl, 5 stages), and the per-step update is st
 Kp < ~0.3 (kp_min 0.1 chosen); with a fixed Kp of 16 the lines jitter by ~0.01 wl and P hovers
 at 0.85-0.98.
 
-Stall escape (``jump`` > 0; ``jump = 0`` is plain SPGD-PID): ``agents.controllers.escape``, which the trim
-(``agents.controllers.trim``) shares; during a committed jump its lines move at full action speed.
+Stall escape (``jump`` > 0; ``jump = 0`` is plain SPGD-PID): ``agents.controllers.escape``, which
+the trim (``agents.controllers.trim``) shares; during a committed jump its lines move at full action
+speed.
 
-``SPGDConfig``'s preset holds values chosen by a grid search (5-stage, phasor, tuning seed 1000; other
-seeds for evaluation); ``python -m agents.controllers.spgd --search`` reruns the patience x margin grid. Measured
-results: docs/results.md.
+``SPGDConfig``'s preset holds values chosen by a grid search (5-stage, phasor, tuning seed 1000;
+other seeds for evaluation); ``python -m agents.controllers.spgd --search`` reruns the patience x
+margin grid. Measured results: docs/results.md.
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ from agents.envs import built, check_env_config
 
 @dataclasses.dataclass(frozen=True)
 class SPGDConfig(escape.EscapeConfig):
-    """SPGD-PID (``agents.controllers.spgd``): dither (wl), gain schedule, PID and the stall escape."""
+    """SPGD-PID (``agents.controllers.spgd``): dither (wl), gain schedule, PID and the stall
+    escape."""
 
     NAME: ClassVar[str] = "SPGD"
     DEFAULT_PRESET: ClassVar[str] = "default"
@@ -70,8 +73,8 @@ class SPGDConfig(escape.EscapeConfig):
             margin=0.005,
         )
     }
-    # for probes read a frame later, as on a bench (ops_jax EnvConfig.probe="frame"): a dither above the
-    # frame-to-frame change of P, a lower gain (docs/imperfections.md)
+    # for probes read a frame later, as on a bench (ops_jax EnvConfig.probe="frame"): a dither above
+    # the frame-to-frame change of P, a lower gain (docs/imperfections.md)
     PRESETS["bench"] = dict(PRESETS["default"], delta=0.01, kp=8.0, kp_min=0.05)
 
     delta: float = field(DITHER)
@@ -99,7 +102,8 @@ def slope(p0, p1, s, amp) -> jax.Array:
 
 
 def proportional_gain(p: dict, p0) -> jax.Array:
-    """Kp(P) = kp_min + (kp - kp_min) (1 - P)^kp_pow (B, 1) at the measured P/Pmax ``p0`` (B,): the gain schedule."""
+    """Kp(P) = kp_min + (kp - kp_min) (1 - P)^kp_pow (B, 1) at the measured P/Pmax ``p0`` (B,): the
+    gain schedule."""
     return p["kp_min"] + (p["kp"] - p["kp_min"]) * jnp.clip(1 - p0, 0, 1)[:, None] ** p["kp_pow"]
 
 
@@ -109,9 +113,9 @@ HOLD = {
 
 
 def held(action, p0, g, hold) -> jax.Array:
-    """The hold of the physics-informed controller and the trim: ``action`` (B, N) where the measured P/Pmax ``p0``
-    (B,) is under ``hold``, at or above it the proportional step up the probed slope ``g`` (B, N), 1/wl, with the
-    preset's gain schedule."""
+    """The hold of the physics-informed controller and the trim: ``action`` (B, N) where the
+    measured P/Pmax ``p0`` (B,) is under ``hold``, at or above it the proportional step up the
+    probed slope ``g`` (B, N), 1/wl, with the preset's gain schedule."""
     step = jnp.clip(proportional_gain(HOLD, p0) * g, -1.0, 1.0)
     return jnp.where((p0 >= hold)[:, None], step, action)
 
@@ -126,7 +130,8 @@ def gains(hyper: dict | SPGDConfig, action_scale: float = 0.01) -> dict:
 
 
 def scaled(config, action_scale: float) -> dict:
-    """A controller's parameters: ``config``'s fields as float32 scalars and ``action_scale`` (wl per unit action)."""
+    """A controller's parameters: ``config``'s fields as float32 scalars and ``action_scale`` (wl
+    per unit action)."""
     if (
         isinstance(action_scale, bool)
         or not isinstance(action_scale, (int, float, np.number))

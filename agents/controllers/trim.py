@@ -3,28 +3,32 @@ measured power, removing the static bias a policy keeps on a system it has not f
 
 Each control step, per instance (B of them), with pi the wrapped policy and c (B, N) the trim:
 1. a = clip(pi(obs) + c, -1, 1), in the environment's action units;
-2. one probe P(tau + amp s) with random signs s (``agents.controllers.spgd.dither``) gives SPGD's one-probe
-   gradient estimate g (``agents.controllers.spgd.slope``, 1/wl), so 2 measurements per control step as SPGD; none where
-   nothing would use it (the measured P/Pmax under ``p_gate`` and under ``hold``, the escape not testing): there
-   the wrapped policy runs at one measurement per step (``probe``'s ``active``, ``agents.api``);
+2. one probe P(tau + amp s) with random signs s (``agents.controllers.spgd.dither``) gives SPGD's
+   one-probe gradient estimate g (``agents.controllers.spgd.slope``, 1/wl), so 2 measurements per
+   control step as SPGD; none where nothing would use it (the measured P/Pmax under ``p_gate`` and
+   under ``hold``, the escape not testing): there the wrapped policy runs at one measurement per
+   step (``probe``'s ``active``, ``agents.api``);
 3. while the measured P/Pmax >= ``p_gate``: c <- c + ki g; below it: c <- release c;
-4. with ``hold``: where the measured P/Pmax is at or above it, the move is SPGD's proportional step up g
-   (``agents.controllers.spgd.held``) instead of a: the wrapped policy acquires, the dither holds;
-5. the stall escape (``agents.controllers.escape``, as SPGD's; ``jump = 0``: off): after ``patience`` steps below
-   ``p_stall`` the probe tests jumps of a line or a pair of lines by ``jump`` wl instead of the dither, and
-   a committed jump moves its lines at full action speed, the wrapped policy paused on those lines;
-6. a wrapped policy that reads its own last move (``Policy.sent``: the physics-informed fit, the fit observer) is
-   told the move sent, trim, hold and escape included.
+4. with ``hold``: where the measured P/Pmax is at or above it, the move is SPGD's proportional step
+   up g (``agents.controllers.spgd.held``) instead of a: the wrapped policy acquires, the dither
+   holds;
+5. the stall escape (``agents.controllers.escape``, as SPGD's; ``jump = 0``: off): after
+   ``patience`` steps below ``p_stall`` the probe tests jumps of a line or a pair of lines by
+   ``jump`` wl instead of the dither, and a committed jump moves its lines at full action speed, the
+   wrapped policy paused on those lines;
+6. a wrapped policy that reads its own last move (``Policy.sent``: the physics-informed fit, the fit
+   observer) is told the move sent, trim, hold and escape included.
 
 A feedback policy a = -K (x - x0) (x the delay offsets, x0 where the policy believes the optimum is)
 settles with the trim at x0 + c / K: the integrator moves the set point until the measured gradient
 vanishes, whatever the policy's calibration error. No learning and no model; ``ki = 0`` is the
 wrapped policy itself. The gate keeps the trim from integrating while the policy is still acquiring
 (P far from the top, where g says little about the final set point); ``release < 1`` lets a trim
-that has led the lines away from the top decay, so the policy takes over again. The escape leaves the
-local maxima (a stage at a pi phase error) where a policy, like any hill climber, can stop. Gate and escape are
-off by default: on the tuning benches the gate kept the trim from freeing episodes in which the policy alone
-stops short, and the escape fought policies still acquiring (docs/learners.md).
+that has led the lines away from the top decay, so the policy takes over again. The escape leaves
+the local maxima (a stage at a pi phase error) where a policy, like any hill climber, can stop. Gate
+and escape are off by default: on the tuning benches the gate kept the trim from freeing episodes in
+which the policy alone stops short, and the escape fought policies still acquiring
+(docs/learners.md).
 
     policy, params = trim.trimmed(result)                     # a TrainResult, default TrimConfig
     agents.evaluate((policy, params), env_config, episodes=32)
@@ -51,8 +55,8 @@ from agents.envs import built, check_env_config
 
 @dataclasses.dataclass(frozen=True)
 class TrimConfig(escape.EscapeConfig):
-    """The extremum-seeking trim (``agents.controllers.trim``): integral gain, dither (wl), the gate on P/Pmax and the
-    stall escape."""
+    """The extremum-seeking trim (``agents.controllers.trim``): integral gain, dither (wl), the gate
+    on P/Pmax and the stall escape."""
 
     NAME: ClassVar[str] = "trim"
     DEFAULT_PRESET: ClassVar[str] = "default"
@@ -68,19 +72,19 @@ class TrimConfig(escape.EscapeConfig):
             margin=0.005,
         )
     }
-    # integrates only above half of P_max and lets the offset decay below: a trim that led a line off the top is
-    # undone (docs/learners.md, "Does the trim ever lose?")
+    # integrates only above half of P_max and lets the offset decay below: a trim that led a line
+    # off the top is undone (docs/learners.md, "Does the trim ever lose?")
     PRESETS["guarded"] = dict(PRESETS["default"], p_gate=0.5, release=0.9)
-    # the guarded trim with a dither above the frame-to-frame change of P, for probes read a frame later (a bench;
-    # ops_jax ``EnvConfig.probe="frame"``, docs/learners.md)
+    # the guarded trim with a dither above the frame-to-frame change of P, for probes read a frame
+    # later (a bench; ops_jax ``EnvConfig.probe="frame"``, docs/learners.md)
     PRESETS["bench"] = dict(PRESETS["guarded"], amp=0.005)
 
     ki: float = field(Range(0, 1))
     amp: float = field(DITHER)
     p_gate: float = field(Range(0, 1))
     release: float = field(Range(0, 1))
-    # the measured P/Pmax at and above which SPGD's proportional step up the probed slope replaces the move
-    # (``agents.controllers.spgd.held``; None: never)
+    # the measured P/Pmax at and above which SPGD's proportional step up the probed slope replaces
+    # the move (``agents.controllers.spgd.held``; None: never)
     hold: float | None = field(optional(Range(0, 1)), default=None)
 
 
@@ -90,8 +94,9 @@ DITHER_STREAM = (
 
 
 def gains(hyper: dict | TrimConfig | None = None, action_scale: float = 0.01) -> dict:
-    """The trim's parameters (float32 scalars) from a ``TrimConfig`` or overrides of its default preset, plus
-    ``action_scale`` (wl per unit action of the environment it runs in; the escape's move needs it)."""
+    """The trim's parameters (float32 scalars) from a ``TrimConfig`` or overrides of its default
+    preset, plus ``action_scale`` (wl per unit action of the environment it runs in; the escape's
+    move needs it)."""
     c = hyper if isinstance(hyper, TrimConfig) else TrimConfig.from_hyper(hyper)
     return {
         **spgd.scaled(c, action_scale),
@@ -100,8 +105,9 @@ def gains(hyper: dict | TrimConfig | None = None, action_scale: float = 0.01) ->
 
 
 def make_policy(policy: Policy, env_config: dict) -> Policy:
-    """``policy`` with the trim; the wrapped program's params are ``{"policy": its params, "trim": gains(...)}``
-    (``None``: the wrapped policy's default params and the default trim)."""
+    """``policy`` with the trim; the wrapped program's params are
+    ``{"policy": its params, "trim": gains(...)}`` (``None``: the wrapped policy's default params
+    and the default trim)."""
     env, env_params = built(check_env_config(env_config))
     n, layout = env.num_actions, env.layout
     default = gains(None, float(env_params.action_scale))
@@ -150,8 +156,9 @@ def trimmed(
     hyper: dict | TrimConfig | None = None,
     env_config: dict | None = None,
 ):
-    """``(Policy, params)`` of a ``TrainResult`` (or a ``(Policy, params)`` pair, with ``env_config``) with the
-    trim (``hyper``: a ``TrimConfig`` or overrides of its default preset), for ``agents.evaluate`` or the bench."""
+    """``(Policy, params)`` of a ``TrainResult`` (or a ``(Policy, params)`` pair, with
+    ``env_config``) with the trim (``hyper``: a ``TrimConfig`` or overrides of its default preset),
+    for ``agents.evaluate`` or the bench."""
     if isinstance(result, TrainResult):
         policy, params, env_config = result.policy(), result.params, env_config or result.env_config
     elif isinstance(result, tuple) and len(result) == 2 and isinstance(result[0], Policy):

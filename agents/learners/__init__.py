@@ -1,1 +1,2 @@
-"""Learners: brax's PPO and SAC (``brax/``), and the off-policy family TD3 and DroQ (``offpolicy/``)."""
+"""Learners: brax's PPO and SAC (``brax/``), and the off-policy family TD3 and DroQ
+(``offpolicy/``)."""

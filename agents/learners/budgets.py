@@ -1,8 +1,8 @@
-"""How much of a training budget trains: the env steps a learner runs before its first gradient step (the
-off-policy warm-up, SAC's replay prefill), the least budget that takes one, and the share of a budget left
-to training. ``check`` refuses a budget that trains nothing (naming the least one that does) and words a
-warning for one whose warm-up takes most of it; ``agents.train`` and ``python -m agents`` ask it before
-any work starts."""
+"""How much of a training budget trains: the env steps a learner runs before its first gradient step
+(the off-policy warm-up, SAC's replay prefill), the least budget that takes one, and the share of a
+budget left to training. ``check`` refuses a budget that trains nothing (naming the least one that
+does) and words a warning for one whose warm-up takes most of it; ``agents.train`` and
+``python -m agents`` ask it before any work starts."""
 
 from __future__ import annotations
 
@@ -20,21 +20,21 @@ def ceil_to(n: int, unit: int) -> int:
 
 
 def brax_units(num_evals: int, units: int) -> int:
-    """Training steps of ``units`` that brax's trainers run: whole epochs, one per evaluation but the
-    first (``agents.learners.brax.training``)."""
+    """Training steps of ``units`` that brax's trainers run: whole epochs, one per evaluation but
+    the first (``agents.learners.brax.training``)."""
     epochs = min(max(num_evals - 1, 1), units)
     return epochs * (units // epochs) if epochs else 0
 
 
 def layout(config) -> tuple[int, int, str] | None:
-    """(env steps before the first gradient step, env steps per training step, what the first ones are) of a
-    learner's ``config`` (its ``budget_layout``); None for a controller's."""
+    """(env steps before the first gradient step, env steps per training step, what the first ones
+    are) of a learner's ``config`` (its ``budget_layout``); None for a controller's."""
     return config.budget_layout()
 
 
 def trained_steps(config, total: int) -> int:
-    """Env steps of a ``total``-step budget that train (the rest: the warm-up, and what whole training
-    steps and evaluation chunks leave out)."""
+    """Env steps of a ``total``-step budget that train (the rest: the warm-up, and what whole
+    training steps and evaluation chunks leave out)."""
     warm, unit, _ = layout(config)
     return config.trained_units(max(0, (total - warm) // unit)) * unit
 
@@ -56,8 +56,9 @@ def useful_steps(config) -> int:
 
 
 def check(config, total: int, option: str = "total_steps", sep: str = "=") -> str | None:
-    """ValueError when a ``total``-step budget of ``config`` takes no gradient step (the least that does
-    and the least that trains half of it named as ``{option}{sep}N``); a warning line when under ``SMALL_SHARE`` of it trains; else None."""
+    """ValueError when a ``total``-step budget of ``config`` takes no gradient step (the least that
+    does and the least that trains half of it named as ``{option}{sep}N``); a warning line when
+    under ``SMALL_SHARE`` of it trains; else None."""
     if layout(config) is None:
         return None
     warm, unit, why = layout(config)
@@ -67,7 +68,8 @@ def check(config, total: int, option: str = "total_steps", sep: str = "=") -> st
         first = f"its first {warm:,} env steps are {why}, and " if warm else ""
         raise ValueError(
             f"{said} takes no gradient step: {first}one training step takes {unit:,} env steps; "
-            f"try {option}{sep}{useful_steps(config)} ({option}{sep}{least_steps(config)} takes one)"
+            f"try {option}{sep}{useful_steps(config)} ({option}{sep}{least_steps(config)} takes "
+            "one)"
         )
     if trained < SMALL_SHARE * total:
         before = f"{warm:,} are {why}" if warm else ""
@@ -75,8 +77,9 @@ def check(config, total: int, option: str = "total_steps", sep: str = "=") -> st
         left = f"{rest:,} are not run (whole training steps of {unit:,})" if rest else ""
         return (
             f"{said} trains {trained:,} env steps ({trained / total:.0%}): "
-            f"{'; '.join(x for x in (before, left) if x)}; {option}{sep}{useful_steps(config)} trains half, "
-            f"the {config.config} preset trains {type(config).preset(config.config).total_steps:,}"
+            f"{'; '.join(x for x in (before, left) if x)}; {option}{sep}{useful_steps(config)} "
+            f"trains half, the {config.config} preset trains "
+            f"{type(config).preset(config.config).total_steps:,}"
         )
     return None
 
@@ -95,8 +98,8 @@ def config_of(algo: str, hyper: dict):
 
 
 def warn(algo: str, hyper: dict, total_steps: int | None) -> int | None:
-    """Warn (``BudgetWarning``) when ``total_steps`` (None: the config's) of ``algo`` with ``hyper`` trains
-    nothing or under ``SMALL_SHARE`` of it; returns that budget (None for a controller)."""
+    """Warn (``BudgetWarning``) when ``total_steps`` (None: the config's) of ``algo`` with ``hyper``
+    trains nothing or under ``SMALL_SHARE`` of it; returns that budget (None for a controller)."""
     import warnings
 
     config = config_of(algo, hyper)

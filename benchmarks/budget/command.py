@@ -1,5 +1,6 @@
-"""``python -m benchmarks.budget``'s command line: the lab-budget section's plan (``benchmarks.budget.plan``) of a
-preset (``benchmarks.budget.presets``), computed cell by cell into ``<out>/cells``, then its report."""
+"""``python -m benchmarks.budget``'s command line: the lab-budget section's plan
+(``benchmarks.budget.plan``) of a preset (``benchmarks.budget.presets``), computed cell by cell into
+``<out>/cells``, then its report."""
 
 from __future__ import annotations
 
@@ -22,8 +23,8 @@ def parser() -> argparse.ArgumentParser:
         "--preset",
         choices=sorted(plan.PRESETS),
         default="default",
-        help="quick: tiny (seconds); default: DroQ, the references, protocol (b); full: every learner; "
-        "frames-residual-history: the frames only (benchmarks/budget/presets.py)",
+        help="quick: tiny (seconds); default: DroQ, the references, protocol (b); full: every "
+        "learner; frames-residual-history: the frames only (benchmarks/budget/presets.py)",
     )
     ap.add_argument("--out", type=Path, required=True, help="output folder")
     ap.add_argument(
@@ -40,14 +41,15 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="X",
-        help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the preset's)",
+        help="protocol (b)'s unseen benches at X times the lab preset, X in (0, 10] (default: the "
+        "preset's)",
     )
     ap.add_argument(
         "--bench-probe",
         choices=PROBES,
         default=None,
-        help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a bench "
-        "(ops_jax EnvConfig.probe; default: the simulator's, instant)",
+        help="how a probe is measured on protocol (b)'s benches: frame, a frame later as on a "
+        "bench (ops_jax EnvConfig.probe; default: the simulator's, instant)",
     )
     ap.add_argument(
         "--bench-trim",
@@ -60,7 +62,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> str:
-    """Compute the cells of the chosen plan (reusing those stored in ``<out>/cells``) and write the report."""
+    """Compute the cells of the chosen plan (reusing those stored in ``<out>/cells``) and write the
+    report."""
     ap = parser()
     args = ap.parse_args(argv)
     keep_ctrl_c()

@@ -1,43 +1,48 @@
 """Learning on a lab's budget: P / P_best against env steps of the target system, from scratch.
 
 The plan is three functions, importable by any runner:
-- ``cells(preset) -> list[Cell]``: work units (``benchmarks.budget.cell.Cell``, JSON-able by ``to_dict``), one per
-  (controller, environment, seed);
+- ``cells(preset) -> list[Cell]``: work units (``benchmarks.budget.cell.Cell``, JSON-able by
+  ``to_dict``), one per (controller, environment, seed);
 - ``compute(cell) -> dict``: train once to the last checkpoint, evaluate the policy at every
   checkpoint of env steps (``agents.evaluate``, final-step P / P_best, the testing environment);
 - ``report(records, out_dir) -> str``: budget.md (table of the median env steps to reach 0.9 and
   the mean P / P_best at each checkpoint), budget.png (P / P_best against env steps, log x, one
   line per controller, min-max band over seeds) and budget.json.
 
-A learner's checkpoints are the states its one run passes through: with ``eval_every`` dividing
-the checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exactly the state of a
-run of 10k (``agents.learners.offpolicy.driver.train_seeds``'s ``snapshot_fn``). Learners trained by brax (PPO,
-SAC) are trained once per checkpoint; a run that overruns its budget is recorded as an error. SPGD
-and the physics-informed controller learn nothing: their one evaluation (one cell, under the first
-seed) is drawn at every checkpoint, as references. That is protocol (a), from scratch on the target.
+A learner's checkpoints are the states its one run passes through: with ``eval_every`` dividing the
+checkpoints after the warm-up, the run to 20k env steps holds, at 10k, exactly the state of a run of
+10k (``agents.learners.offpolicy.driver.train_seeds``'s ``snapshot_fn``). Learners trained by brax
+(PPO, SAC) are trained once per checkpoint; a run that overruns its budget is recorded as an error.
+SPGD and the physics-informed controller learn nothing: their one evaluation (one cell, under the
+first seed) is drawn at every checkpoint, as references. That is protocol (a), from scratch on the
+target.
 
 Protocol (b), simulator to bench (``adapt`` cells): a learner pretrained on the randomised simulator
-(``randomize=1``: each episode's imperfections 0-2x the lab preset; ``randomize_layout=1``: its signed
-per-stage error patterns permuted over the stages, signs flipped; any budget, the preset's ``pretrain_steps``),
-then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench (``unseen_bench`` of ``bench_env``: the
-lab preset at twice its magnitudes, its per-stage error patterns re-drawn from a seed that pretraining never used),
-continuing from the pretrained networks (``start_from``, agents.learners.offpolicy.driver); P / P_best on that bench before
-adapting and at each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
-controller that needs no training holds there); and the same policies with the preset's extremum-seeking trim
-(``agents.controllers.trim``: one more probe per step, no learning), which removes the static bias an adapted policy keeps.
+(``randomize=1``: each episode's imperfections 0-2x the lab preset; ``randomize_layout=1``: its
+signed per-stage error patterns permuted over the stages, signs flipped; any budget, the preset's
+``pretrain_steps``), then trained on for at most ``checkpoints[-1]`` env steps on an unseen bench
+(``unseen_bench`` of ``bench_env``: the lab preset at twice its magnitudes, its per-stage error
+patterns re-drawn from a seed that pretraining never used), continuing from the pretrained networks
+(``start_from``, agents.learners.offpolicy.driver); P / P_best on that bench before adapting and at
+each checkpoint, beside the references' on the same bench (``bench reference`` cells: what a
+controller that needs no training holds there); and the same policies with the preset's
+extremum-seeking trim (``agents.controllers.trim``: one more probe per step, no learning), which
+removes the static bias an adapted policy keeps.
 
     # preset "default": DroQ, references, protocol (b); "full": every learner (TD3, SAC, PPO too)
     python -m benchmarks.budget --out results/budget
     python -m benchmarks.budget --preset full --out results/budget
     python -m benchmarks.budget --preset quick --out results/budget-quick
-    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames   # the frames only
+    # the frames only
+    python -m benchmarks.budget --preset frames-residual-history --out results/budget-frames
     python -m benchmarks.budget --only droq spgd physics --seeds 11 12 13 --out results/budget
     python -m benchmarks.budget --envs "unseen bench" --out results/budget   # protocol (b) only
     # protocol (b) with probes a frame later and the bench trim
     python -m benchmarks.budget --preset frames-residual-history --envs "unseen bench" \\
         --only droq --bench-probe frame --bench-trim bench --out results/budget-frames
 
-The presets are benchmarks/budget/presets.py. Finished cells are stored in ``<out>/cells`` (``benchmarks.cells.CellStore``): a rerun reuses them.
+The presets are benchmarks/budget/presets.py. Finished cells are stored in ``<out>/cells``
+(``benchmarks.cells.CellStore``): a rerun reuses them.
 """
 
 from __future__ import annotations
@@ -61,8 +66,8 @@ REFERENCE_KINDS = (
 
 
 def controllers(preset: str) -> tuple[dict, dict]:
-    """({learner: hyper}, {reference: hyper}) of ``preset``: its ``controllers``, in their order (ValueError
-    naming one that is not registered)."""
+    """({learner: hyper}, {reference: hyper}) of ``preset``: its ``controllers``, in their order
+    (ValueError naming one that is not registered)."""
     chosen = PRESETS[preset]["controllers"]
     return tuple(
         {algo: hyper for algo, hyper in chosen.items() if get(algo).learner == learner}
@@ -71,8 +76,8 @@ def controllers(preset: str) -> tuple[dict, dict]:
 
 
 def cost(cell: Cell) -> float:
-    """Estimated seconds of ``cell`` (the algorithm's ``benchmarks.costs.CostModel``): its training runs and
-    evaluations."""
+    """Estimated seconds of ``cell`` (the algorithm's ``benchmarks.costs.CostModel``): its training
+    runs and evaluations."""
     algo, ks = cell.algo, cell.checkpoints
     evals = cost_model(algo).eval_s
     if cell.kind in REFERENCE_KINDS:
@@ -91,7 +96,8 @@ def cost(cell: Cell) -> float:
 def unseen_bench(env_config: dict, seed: int, scale: float = 2.0) -> dict:
     """``env_config`` with the lab preset's imperfections at ``scale`` times their magnitudes, each
     per-stage error's pattern permuted over the stages and its signs flipped at random by ``seed``:
-    a bench whose errors are as large as the largest that randomised training drew, in a layout it never saw."""
+    a bench whose errors are as large as the largest that randomised training drew, in a layout it
+    never saw."""
     from ops_jax import imperfections
 
     n = env_config["stages"]
@@ -124,8 +130,8 @@ def _check_options(preset: str, bench_scale, bench_probe, bench_trim) -> None:
 
 
 def _target_cells(p: dict, learners: dict, references: dict, only, seeds, envs) -> list[Cell]:
-    """Protocol (a)'s cells of preset ``p``: learners under each seed, references under the first (no training
-    seed), on each of its environments."""
+    """Protocol (a)'s cells of preset ``p``: learners under each seed, references under the first
+    (no training seed), on each of its environments."""
     out = []
     for env_name, env_config in p["envs"].items():
         if envs is not None and env_name not in envs:
@@ -154,8 +160,9 @@ def _target_cells(p: dict, learners: dict, references: dict, only, seeds, envs) 
 
 
 def _bench_cells(p: dict, references: dict, seed: int, only, options: tuple) -> list[Cell]:
-    """Protocol (b)'s cells of preset ``p`` and training ``seed`` on its unseen bench: the adapted learner, then
-    the references; ``options``: ``cells``'s (bench_scale, bench_probe, bench_trim)."""
+    """Protocol (b)'s cells of preset ``p`` and training ``seed`` on its unseen bench: the adapted
+    learner, then the references; ``options``: ``cells``'s (bench_scale, bench_probe,
+    bench_trim)."""
     adapt, (bench_scale, bench_probe, bench_trim) = p["adapt"], options
     bench_seed = int(seed) + adapt["bench_seed_offset"]
     scale = adapt["scale"] if bench_scale is None else bench_scale
@@ -208,11 +215,12 @@ def cells(
     bench_probe=None,
     bench_trim=None,
 ) -> list[Cell]:
-    """The work units of ``preset`` (``benchmarks.budget.presets``): learners and references x environments x
-    seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them; ``bench_scale`` (in (0, 10]) sets
-    protocol (b)'s unseen benches at that many times the lab preset instead of the preset's level;
-    ``bench_probe`` (``ops_jax.env.PROBES``) how their probes are measured (None: the simulator's default);
-    ``bench_trim`` (a ``TrimConfig`` preset) the trim around the adapted policies (None: the preset's)."""
+    """The work units of ``preset`` (``benchmarks.budget.presets``): learners and references x
+    environments x seeds; ``only`` (controllers), ``seeds`` and ``envs`` (names) narrow them;
+    ``bench_scale`` (in (0, 10]) sets protocol (b)'s unseen benches at that many times the lab
+    preset instead of the preset's level; ``bench_probe`` (``ops_jax.env.PROBES``) how their probes
+    are measured (None: the simulator's default); ``bench_trim`` (a ``TrimConfig`` preset) the trim
+    around the adapted policies (None: the preset's)."""
     _check_options(preset, bench_scale, bench_probe, bench_trim)
     p = PRESETS[preset]
     learners, references = controllers(preset)
@@ -242,7 +250,8 @@ def _score(result_or_policy, env_config: dict, cell: Cell) -> float:
 
 
 def _snapshot_run(cell: Cell, start_from=None):
-    """One run of ``cell``'s off-policy learner to its last checkpoint: (result, {checkpoint: policy params})."""
+    """One run of ``cell``'s off-policy learner to its last checkpoint: (result, {checkpoint: policy
+    params})."""
     from agents import api as base
     from agents.learners.offpolicy import driver as offpolicy
 
@@ -278,7 +287,8 @@ def _scores(result, snapshots: dict, cell: Cell) -> dict:
 
 
 def _trimmed_scores(pretrained, result, snapshots: dict, cell: Cell) -> dict:
-    """P / P_best with the cell's trim (``agents.controllers.trim``) around the pretrained policy ("0") and each snapshot."""
+    """P / P_best with the cell's trim (``agents.controllers.trim``) around the pretrained policy
+    ("0") and each snapshot."""
     from agents.controllers import trim
 
     policy, params = trim.trimmed(result, cell.trim, env_config=cell.env_config)
@@ -298,9 +308,10 @@ def _off_policy(cell: Cell) -> dict:
 
 
 def _adapt(cell: Cell) -> dict:
-    """Protocol (b): pretrain on the randomised simulator, score on the unseen bench (``before``), train on
-    there from the pretrained state; ``scores`` at each checkpoint of bench env steps, ``trimmed``: the same with
-    the trim ("0": the pretrained policy), ``pretrain_s``, ``train_s``."""
+    """Protocol (b): pretrain on the randomised simulator, score on the unseen bench (``before``),
+    train on there from the pretrained state; ``scores`` at each checkpoint of bench env steps,
+    ``trimmed``: the same with the trim ("0": the pretrained policy), ``pretrain_s``,
+    ``train_s``."""
     import agents
 
     t0 = time.perf_counter()
@@ -328,9 +339,9 @@ def _adapt(cell: Cell) -> dict:
 
 
 def _per_budget(cell: Cell) -> dict:
-    """A run per checkpoint (brax's trainers); a budget the config refuses, or one smaller than a single
-    training step (which the trainer runs anyway), is recorded as an error, without a score; ``steps``:
-    the env steps each scored run took."""
+    """A run per checkpoint (brax's trainers); a budget the config refuses, or one smaller than a
+    single training step (which the trainer runs anyway), is recorded as an error, without a score;
+    ``steps``: the env steps each scored run took."""
     import agents
 
     scores, steps, errors, wall = {}, {}, {}, 0.0

@@ -1,18 +1,20 @@
-"""The lab-budget section's presets (``python -m benchmarks.budget --preset NAME``; the sweep's budget section
-runs "quick", "default" and, in its "paper" preset, "full"): each preset's environments, seeds, checkpoints of env
-steps, test episodes, protocol (b)'s pretraining and adapting (``adapt``), and its ``controllers``: algorithm
-(``agents.registry`` name) -> its hyperparameters, trained there if a learner, else evaluated as a reference, in
-the order of the plan's cells (their labels in the sweep, budget-<index>) and of the tables.
+"""The lab-budget section's presets (``python -m benchmarks.budget --preset NAME``; the sweep's
+budget section runs "quick", "default" and, in its "paper" preset, "full"): each preset's
+environments, seeds, checkpoints of env steps, test episodes, protocol (b)'s pretraining and
+adapting (``adapt``), and its ``controllers``: algorithm (``agents.registry`` name) -> its
+hyperparameters, trained there if a learner, else evaluated as a reference, in the order of the
+plan's cells (their labels in the sweep, budget-<index>) and of the tables.
 
-    "quick"                    tiny (seconds): 3 stages, DroQ with small networks, the references
-    "default"                  DroQ at its budget preset, the references and protocol (b) (15 min on 2 cores)
-    "full"                     every learner at its budget preset (52 min on 2 cores)
-    "frames-residual-history"  the detector's frames only: DroQ correcting the physics-informed fit's move on
-                               four frames, and the references (docs/learners.md, "The residual on a fit of four
-                               frames")
+    "quick"    tiny (seconds): 3 stages, DroQ with small networks, the references
+    "default"  DroQ at its budget preset, the references and protocol (b) (15 min on 2 cores)
+    "full"     every learner at its budget preset (52 min on 2 cores)
+    "frames-residual-history"
+               the detector's frames only: DroQ correcting the physics-informed fit's move on four
+               frames, and the references (docs/results.md, "Frames only")
 
-The presets that docs/learners.md measured and no longer recommends are retired; docs/results.md ("Retired
-lab-budget presets") names each with its date, its command and the settings it differed in.
+The presets that docs/learners.md measured and no longer recommends are retired; docs/results.md
+("Retired lab-budget presets") names each with its date, its command and the settings it differed
+in.
 """
 
 from __future__ import annotations
@@ -32,10 +34,10 @@ DROQ_QUICK = {
     "critic_hidden": [32, 32],
     "batch_size": 64,
 }
-# protocol (b): pretrained on the randomised simulator (each episode's imperfections 0-2x the lab preset, its
-# per-stage errors in any layout), 8 envs, 10 gradient steps per 8 env steps; then adapted on an unseen bench:
-# 250 steps of the pretrained policy, then 2 gentler gradient steps per step; the trim of agents.controllers.trim's
-# default TrimConfig
+# protocol (b): pretrained on the randomised simulator (each episode's imperfections 0-2x the lab
+# preset, its per-stage errors in any layout), 8 envs, 10 gradient steps per 8 env steps; then
+# adapted on an unseen bench: 250 steps of the pretrained policy, then 2 gentler gradient steps per
+# step; the trim of agents.controllers.trim's default TrimConfig
 ADAPT = dict(
     algo="droq",
     pretrain_env=dict(HARD, imperfections="lab", randomize=1.0, randomize_layout=1.0),
@@ -62,10 +64,12 @@ ADAPT = dict(
     checkpoints=(1000, 2000, 5000),
     trim={},
 )
-# the frames alone (``observe_lengths=False``: no length readouts), on the lab's system and in protocol (b)
+# the frames alone (``observe_lengths=False``: no length readouts), on the lab's system and in
+# protocol (b)
 FRAMES = dict(observe_lengths=False)
-# DroQ's action a correction of at most a quarter of the action range added to the physics-informed fit's move, the
-# fit comparing the newest frame with the three before it (``agents.learners.offpolicy.observer``)
+# DroQ's action a correction of at most a quarter of the action range added to the physics-informed
+# fit's move, the fit comparing the newest frame with the three before it
+# (``agents.learners.offpolicy.observer``)
 RESIDUAL_HISTORY = {"observer": "fit-residual", "residual_scale": 0.25, "fit_history": 3}
 
 PRESETS = {

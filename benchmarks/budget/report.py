@@ -28,7 +28,8 @@ def _groups(records) -> dict:
 
 
 def _median_steps(rs) -> str:
-    """Median over seeds of the env steps to reach the target ("not reached" when most seeds never do)."""
+    """Median over seeds of the env steps to reach the target ("not reached" when most seeds never
+    do)."""
     reached = [steps_to_target(r["cell"].checkpoints, r["result"]["scores"]) for r in rs]
     ks = sorted(np.inf if k is None else k for k in reached)
     m = float(np.median(ks))
@@ -40,7 +41,8 @@ def _median_steps(rs) -> str:
 
 
 def _target_panel(ax, env: str, groups: dict, algos: list) -> None:
-    """Protocol (a)'s panel of ``env``: each controller's mean P / P_best over seeds, min-max band."""
+    """Protocol (a)'s panel of ``env``: each controller's mean P / P_best over seeds, min-max
+    band."""
     for i, algo in enumerate(algos):
         rs = groups.get((env, algo))
         if not rs:
@@ -60,8 +62,8 @@ def _target_panel(ax, env: str, groups: dict, algos: list) -> None:
 
 
 def _bench_panel(ax, adapted: list, on_bench: dict) -> None:
-    """Protocol (b)'s panel: each pretraining seed's P / P_best before and while adapting (and trimmed), the
-    references' mean over the benches."""
+    """Protocol (b)'s panel: each pretraining seed's P / P_best before and while adapting (and
+    trimmed), the references' mean over the benches."""
     for i, r in enumerate(adapted):
         ks = [0, *r["cell"].checkpoints]
         ax.plot(
@@ -98,7 +100,8 @@ def _bench_panel(ax, adapted: list, on_bench: dict) -> None:
 
 
 def _figure(groups: dict, adapted: list, on_bench: dict, path: Path) -> None:
-    """budget.png: a panel per protocol (a) environment, and protocol (b)'s where there are adapted cells."""
+    """budget.png: a panel per protocol (a) environment, and protocol (b)'s where there are adapted
+    cells."""
     from benchmarks.sweep.report import _plt
 
     plt = _plt()
@@ -128,8 +131,9 @@ def _bench_references(records) -> dict:
 
 
 def _adapt_table(adapted: list, on_bench: dict) -> list:
-    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after adapting, with
-    the trim around the pretrained and the last adapted policy, and the references' on the same bench."""
+    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after
+    adapting, with the trim around the pretrained and the last adapted policy, and the references'
+    on the same bench."""
     c = adapted[0]["cell"]
     ks = c.checkpoints
     trimmed = all("trimmed" in r["result"] for r in adapted)
@@ -148,12 +152,14 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
     lines = [
         f"## Simulator to bench ({NAMES.get(c.algo, c.algo)})",
         "",
-        f"Pretrained {c.pretrain_steps:,} env steps on the randomised simulator ({c.pretrain_env}, "
-        f"{c.pretrain_hyper}), then trained on for up to {ks[-1]:,} env steps on an unseen bench (the lab "
-        f"preset at {adapted[0]['cell'].env_config.get('imperfection_scale')}x, per-stage errors re-drawn "
+        f"Pretrained {c.pretrain_steps:,} env steps on the randomised simulator "
+        f"({c.pretrain_env}, {c.pretrain_hyper}), then trained on for up to {ks[-1]:,} env steps "
+        "on an unseen bench (the lab preset at "
+        f"{adapted[0]['cell'].env_config.get('imperfection_scale')}x, per-stage errors re-drawn "
         "from the bench seed); final P / P_best on that bench"
         + (
-            f"; trimmed: with the extremum-seeking trim (agents.controllers.trim, {c.trim or 'default'})."
+            "; trimmed: with the extremum-seeking trim (agents.controllers.trim, "
+            f"{c.trim or 'default'})."
             if trimmed
             else "."
         ),
@@ -198,8 +204,8 @@ def _cells(rs: list, checkpoints, fmt) -> list:
 
 
 def _robust_lines(groups: dict, checkpoints) -> list:
-    """IQM [95 % CI] over seeds per row and checkpoint, and per environment the probability of improvement
-    between its controllers at the last checkpoint all of them reached."""
+    """IQM [95 % CI] over seeds per row and checkpoint, and per environment the probability of
+    improvement between its controllers at the last checkpoint all of them reached."""
     from benchmarks import robust
     from benchmarks.sweep.report import aggregate_table
 
@@ -231,8 +237,8 @@ def _robust_lines(groups: dict, checkpoints) -> list:
         }
         lines += [
             "",
-            f"{env}, after {k:,} env steps: probability of improvement P(row > column), a seed of the row's "
-            "controller above one of the column's (ties count half).",
+            f"{env}, after {k:,} env steps: probability of improvement P(row > column), a seed of "
+            "the row's controller above one of the column's (ties count half).",
             "",
             *aggregate_table(scores),
         ]
@@ -240,14 +246,16 @@ def _robust_lines(groups: dict, checkpoints) -> list:
 
 
 def _target_table(groups: dict, checkpoints: list, first) -> list:
-    """Protocol (a)'s lines: per environment and controller the mean ± std over seeds at each checkpoint and the
-    median env steps to the target; ``first``: a cell (its ``episodes`` and ``eval_seed``)."""
+    """Protocol (a)'s lines: per environment and controller the mean ± std over seeds at each
+    checkpoint and the median env steps to the target; ``first``: a cell (its ``episodes`` and
+    ``eval_seed``)."""
     lines = [
         "# Learning on a lab's budget",
         "",
-        f"Final P / P_best after each number of env steps of the target system (mean ± std over seeds; each "
-        f"seed: {first.episodes} test episodes of 200 steps, evaluation seed {first.eval_seed}), trained "
-        f"from scratch; median env steps to reach {TARGET} over seeds (seeds that reach it / seeds; "
+        "Final P / P_best after each number of env steps of the target system (mean ± std over "
+        f"seeds; each seed: {first.episodes} test episodes of 200 steps, evaluation seed "
+        f"{first.eval_seed}), trained from scratch; median env steps to reach {TARGET} over seeds "
+        "(seeds that reach it / seeds; "
         '"not reached" when most never do within the budget). References learn nothing.',
         "",
         "| environment | controller | median steps to 0.9 | "
@@ -285,8 +293,8 @@ def _wall_lines(groups: dict) -> list:
 
 
 def report(records: list[dict], out_dir) -> str:
-    """budget.md (returned), budget.png and budget.json in ``out_dir``; ``records``: [{"cell": ``Cell``,
-    "result"}]."""
+    """budget.md (returned), budget.png and budget.json in ``out_dir``; ``records``: [{"cell":
+    ``Cell``, "result"}]."""
     from agents.io import write_json_atomic
 
     out = Path(out_dir)

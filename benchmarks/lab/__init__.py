@@ -1,6 +1,6 @@
-"""Controllers on the simulated bench over real Channel Access (``python -m benchmarks.lab``; the command's
-options and columns: benchmarks/lab/command.py): the processes (``processes``), the runs on a fresh IOC
-(``runs``) and the command line (``command``)."""
+"""Controllers on the simulated bench over real Channel Access (``python -m benchmarks.lab``; the
+command's options and columns: benchmarks/lab/command.py): the processes (``processes``), the runs
+on a fresh IOC (``runs``) and the command line (``command``)."""
 
 from benchmarks.lab.command import main, parser, table
 from benchmarks.lab.processes import (

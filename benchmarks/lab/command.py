@@ -8,20 +8,21 @@ Prints the table and writes ``lab.json`` (needs the ``lab`` extra).
     python -m benchmarks.lab --lockstep 600 --controllers --policy DIR --trims none guarded bench \\
         --seeds 1 2 3
 
-``--frames-only``: the bench serves no length readouts (``--observe-lengths False``) and the runner maps none;
-``--wrap WL``: the runner's ``--wrap``; ``--idle-s``: the bench runs uncontrolled this long before the runner
-starts (its own start-up comes on top: the summary's ``first_tick`` is the tick of its first step);
-``--seeds``: the benches' seeds (``--seed`` of the IOC), a run per seed; ``--learn ALGO``: learn on each bench, then
-run the checkpoint (``--kill-learner-after S``: the learning run SIGKILLed after S seconds and resumed);
-``--trims``: each controller run alone ("none") and wrapped in each named preset of the extremum-seeking trim
-(``agents.controllers.trim``: the runner's ``--trim config=NAME``).
+``--frames-only``: the bench serves no length readouts (``--observe-lengths False``) and the runner
+maps none; ``--wrap WL``: the runner's ``--wrap``; ``--idle-s``: the bench runs uncontrolled this
+long before the runner starts (its own start-up comes on top: the summary's ``first_tick`` is the
+tick of its first step); ``--seeds``: the benches' seeds (``--seed`` of the IOC), a run per seed;
+``--learn ALGO``: learn on each bench, then run the checkpoint (``--kill-learner-after S``: the
+learning run SIGKILLed after S seconds and resumed); ``--trims``: each controller run alone ("none")
+and wrapped in each named preset of the extremum-seeking trim (``agents.controllers.trim``: the
+runner's ``--trim config=NAME``).
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
 step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
-time per step (all its threads), mean P / P_best over the last 80 % of the run, and the early frames: steps whose
-frame, taken as the bench's answer to the step before, the IOC had computed before that step's move reached it
-(``early_frames`` of ``early_frames_checked`` steps, from the IOC's ``--tick-log``): the mapping's
-``detector.settle_s`` was too short for them.
+time per step (all its threads), mean P / P_best over the last 80 % of the run, and the early
+frames: steps whose frame, taken as the bench's answer to the step before, the IOC had computed
+before that step's move reached it (``early_frames`` of ``early_frames_checked`` steps, from the
+IOC's ``--tick-log``): the mapping's ``detector.settle_s`` was too short for them.
 """
 
 from __future__ import annotations
@@ -48,16 +49,16 @@ from benchmarks.lab.runs import (
 def table(rows: list) -> str:
     """The markdown table of ``rows`` (one per run: its summary with the row's labels)."""
     head = (
-        "| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | latency p50 / p99 (ms) "
-        "| CPU ms/step | P / P_best | clipped / wrapped moves | early frames | stopped by |\n"
-        + "|---" * 12
-        + "|"
+        "| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | "
+        "latency p50 / p99 (ms) | CPU ms/step | P / P_best | clipped / wrapped moves | "
+        "early frames | stopped by |\n" + "|---" * 12 + "|"
     )
     body = [
-        f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | {r['rate_hz']:.1f} | "
-        f"{r['frames_per_step']:.2f} | {r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | "
-        f"{r['cpu_ms_per_step']:.2f} | {r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / "
-        f"{r['wrapped_moves']} | {r['early_frames']} / {r['early_frames_checked']} | {r['stopped_by']} |"
+        f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | "
+        f"{r['rate_hz']:.1f} | {r['frames_per_step']:.2f} | "
+        f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['cpu_ms_per_step']:.2f} | "
+        f"{r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / {r['wrapped_moves']} | "
+        f"{r['early_frames']} / {r['early_frames_checked']} | {r['stopped_by']} |"
         for r in rows
     ]
     return "\n".join([head, *body])
@@ -118,8 +119,8 @@ def _add_learning_options(ap: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="S",
-        help="--learn: the learning loop's limit (s; start-up not included): it stops at --learn-steps or "
-        "S, whichever comes first",
+        help="--learn: the learning loop's limit (s; start-up not included): it stops at "
+        "--learn-steps or S, whichever comes first",
     )
     ap.add_argument(
         "--from", dest="from_", metavar="DIR", help="--learn: start from this policy (agents.save)"
@@ -136,8 +137,8 @@ def _add_learning_options(ap: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="S",
-        help="--learn: SIGKILL the learning run S seconds after its start (not before its first checkpoint), "
-        "then continue it with --resume",
+        help="--learn: SIGKILL the learning run S seconds after its start (not before its first "
+        "checkpoint), then continue it with --resume",
     )
     ap.add_argument(
         "--checkpoint-every",
@@ -156,7 +157,8 @@ def _add_learning_options(ap: argparse.ArgumentParser) -> None:
 
 
 def _add_bench_options(ap: argparse.ArgumentParser) -> None:
-    """The options of the trims, the benches' imperfections, the cores, the settle time and the output."""
+    """The options of the trims, the benches' imperfections, the cores, the settle time and the
+    output."""
     from agents import TrimConfig
 
     ap.add_argument(
@@ -185,8 +187,8 @@ def _add_bench_options(ap: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="CORE",
-        help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on any), the "
-        "simulated bench on the others",
+        help="the controllers' runs on this CPU core only (the runner's --cpu; learning runs on "
+        "any), the simulated bench on the others",
     )
     ap.add_argument(
         "--settle-s",
@@ -194,7 +196,8 @@ def _add_bench_options(ap: argparse.ArgumentParser) -> None:
         nargs="+",
         default=[None],
         metavar="S",
-        help="the runner's --settle-s (s), a run per value (--learn: the first; default: the runner's)",
+        help="the runner's --settle-s (s), a run per value (--learn: the first; default: the "
+        "runner's)",
     )
     ap.add_argument("--out", type=Path, default=Path("results/lab"))
 
@@ -211,7 +214,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _parse(argv) -> argparse.Namespace:
-    """The parsed command line; ``--cpu`` out of reach and ``--settle-s`` out of range fail naming them."""
+    """The parsed command line; ``--cpu`` out of reach and ``--settle-s`` out of range fail naming
+    them."""
     ap = parser()
     args = ap.parse_args(argv)
     try:
@@ -227,7 +231,8 @@ def _parse(argv) -> argparse.Namespace:
 
 
 def _run_settings(args: argparse.Namespace, rate: float, seed: int, settle_s) -> RunSettings:
-    """The settings of a run at ``rate`` (Hz) on the bench of ``seed`` with the runner's ``settle_s`` (s)."""
+    """The settings of a run at ``rate`` (Hz) on the bench of ``seed`` with the runner's
+    ``settle_s`` (s)."""
     return RunSettings(
         seconds=args.seconds,
         rate=rate,
@@ -250,7 +255,8 @@ def _print_row(rows: list) -> None:
 
 
 def _learning_rows(args: argparse.Namespace) -> list:
-    """``--learn``: per bench seed, the learning run's row and its checkpoint's (at the first rate and settle)."""
+    """``--learn``: per bench seed, the learning run's row and its checkpoint's (at the first rate
+    and settle)."""
     learning = LearnSettings(
         algo=args.learn,
         steps=args.learn_steps,
@@ -285,8 +291,8 @@ def _learning_rows(args: argparse.Namespace) -> list:
 
 
 def _controller_rows(args: argparse.Namespace, rows: list) -> list:
-    """Each controller (and policy), alone and in each trim, per rate, settle and bench seed: ``rows`` and their
-    rows (none with ``--learn``)."""
+    """Each controller (and policy), alone and in each trim, per rate, settle and bench seed:
+    ``rows`` and their rows (none with ``--learn``)."""
     controllers = [(c, *CONTROLLERS[c]) for c in args.controllers] + [
         (Path(p).name, p, []) for p in args.policy
     ]
@@ -319,7 +325,8 @@ def _controller_rows(args: argparse.Namespace, rows: list) -> list:
 
 
 def _result(args: argparse.Namespace, rows: list) -> dict:
-    """lab.json's content: the IOC's options, the command's settings, the rows and the IOC-SIGKILL check."""
+    """lab.json's content: the IOC's options, the command's settings, the rows and the IOC-SIGKILL
+    check."""
     ioc = (
         IOC_ARGS
         + (["--lockstep"] if args.lockstep else ["--rate", "100"])

@@ -1,5 +1,6 @@
-"""The processes of ``benchmarks.lab``: Channel Access confined to free localhost ports, ``python -m``
-subprocesses in their own process groups, the simulated bench (``ops_jax.ioc``) and the check of its tick log."""
+"""The processes of ``benchmarks.lab``: Channel Access confined to free localhost ports,
+``python -m`` subprocesses in their own process groups, the simulated bench (``ops_jax.ioc``) and
+the check of its tick log."""
 
 from __future__ import annotations
 
@@ -19,18 +20,20 @@ TICK_LOG = "ticks.jsonl"  # the IOC's --tick-log, beside its ioc.log
 
 
 def free_port(other: int | None = None) -> int:
-    """A localhost port free for both TCP and UDP (Channel Access serves both on one port), not ``other``, and
-    outside the kernel's range for auto-bound ports (from 20,000 up: clear of the well-known ports and of Ray's
-    worker ports, 10002-19999). caproto binds an IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its
-    client sockets, so a client socket the kernel auto-binds to the IOC's port takes the IOC's search replies for
-    itself and the client's search times out."""
+    """A localhost port free for both TCP and UDP (Channel Access serves both on one port), not
+    ``other``, and outside the kernel's range for auto-bound ports (from 20,000 up: clear of the
+    well-known ports and of Ray's worker ports, 10002-19999). caproto binds an IOC's UDP port with
+    SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a client socket the kernel
+    auto-binds to the IOC's port takes the IOC's search replies for itself and the client's search
+    times out."""
     from ops_jax.ioc import ephemeral_ports
 
     first, last = ephemeral_ports()
     outside = [*range(20_000, first), *range(last + 1, 65_536)] or [*range(1024, first)]
     if not outside:
         raise RuntimeError(
-            f"no localhost port for Channel Access outside the kernel's auto-bound range {first}-{last}"
+            "no localhost port for Channel Access outside the kernel's auto-bound range "
+            f"{first}-{last}"
         )
     rng = random.SystemRandom()
     for _ in range(200):
@@ -62,8 +65,8 @@ def ca_env() -> dict:
 
 
 class Process:
-    """A ``python -m MODULE ARGS`` subprocess in its own process group, output to ``log``; ``cpus``: on these CPU
-    cores only (Linux; None: any)."""
+    """A ``python -m MODULE ARGS`` subprocess in its own process group, output to ``log``; ``cpus``:
+    on these CPU cores only (Linux; None: any)."""
 
     def __init__(self, module: str, args, env: dict, log: Path, cpus: set | None = None):
         self.env, self.log = env, Path(log)
@@ -91,7 +94,8 @@ class Process:
         return self.log.read_text()
 
     def wait_for(self, needle: str, timeout: float = START_S) -> "Process":
-        """Wait until ``needle`` is in the output; raise (with the output) if it exits or times out."""
+        """Wait until ``needle`` is in the output; raise (with the output) if it exits or times
+        out."""
         deadline = time.monotonic() + timeout
         while needle not in self.text():
             if self.proc.poll() is not None:
@@ -123,17 +127,18 @@ class Process:
 
 
 def start_ioc(out: Path, *args, cpus: set | None = None) -> Process:
-    """A simulated bench serving on a fresh port (on CPU cores ``cpus``; None: any), once it serves; its ticks
-    logged to ``out/TICK_LOG``."""
+    """A simulated bench serving on a fresh port (on CPU cores ``cpus``; None: any), once it serves;
+    its ticks logged to ``out/TICK_LOG``."""
     return Process(
         "ops_jax.ioc", [*args, "--tick-log", out / TICK_LOG], ca_env(), out / "ioc.log", cpus
     ).wait_for("serving")
 
 
 def early_frames(documents: Path, ticks: Path) -> tuple[int, int]:
-    """(steps whose frame the IOC computed from other setpoints than the move of the step before, steps checked):
-    each event's frame tick looked up in the IOC's tick log (``--tick-log``) and its setpoints compared with the
-    previous event's move (within a run; a run resumed into the same documents starts afresh)."""
+    """(steps whose frame the IOC computed from other setpoints than the move of the step before,
+    steps checked): each event's frame tick looked up in the IOC's tick log (``--tick-log``) and its
+    setpoints compared with the previous event's move (within a run; a run resumed into the same
+    documents starts afresh)."""
     applied = {}
     for line in ticks.read_text().split("\n")[:-1]:  # whole lines: the IOC may be writing the last
         tick = json.loads(line)

@@ -1,5 +1,6 @@
-"""The runs of ``benchmarks.lab``, each against a fresh simulated bench (``ops_jax.ioc``): a controller's, a
-learning run's followed by its checkpoint's, and the check of how the runner ends when the IOC is SIGKILLed."""
+"""The runs of ``benchmarks.lab``, each against a fresh simulated bench (``ops_jax.ioc``): a
+controller's, a learning run's followed by its checkpoint's, and the check of how the runner ends
+when the IOC is SIGKILLed."""
 
 from __future__ import annotations
 
@@ -13,16 +14,17 @@ from benchmarks.lab.processes import START_S, TICK_LOG, Process, early_frames, s
 
 IOC_ARGS = ["--stages", "5", "--mode", "hard", "--imperfections", "lab"]
 # name: (controller, settings). The physics-informed controller's best settings at the lab level
-# (docs/imperfections.md); SPGD as tuned for the simulator, and with a dither above the bench's noise
-# between two frames (docs/lab.md).
+# (docs/imperfections.md); SPGD as tuned for the simulator, and with a dither above the bench's
+# noise between two frames (docs/lab.md).
 CONTROLLERS = {
     "spgd": ("spgd", []),
     "spgd-bench": ("spgd", ["delta=0.01", "kp_min=0.05"]),
     "physics": ("physics", ["identify=True", "use_lengths=True", "starts=8", "iters=6"]),
-    # the detector's frames alone: the ideal model's fit (comparing the latest frame with the one before
-    # it, or with the three before it), or the fit that identifies the imperfections
+    # the detector's frames alone: the ideal model's fit (comparing the latest frame with the one
+    # before it, or with the three before it), or the fit that identifies the imperfections
     "physics-frames": ("physics", ["config=frames", "starts=8", "iters=6"]),
-    # the runner's own choice (on a bench without length readouts: the frames configuration, 16 x 8 fit)
+    # the runner's own choice (on a bench without length readouts: the frames configuration, 16 x 8
+    # fit)
     "physics-defaults": ("physics", []),
     "physics-frames-history": ("physics", ["config=frames", "history=3", "starts=8", "iters=6"]),
     # the fit to acquire, SPGD's dither step to hold near the top (one probe per step)
@@ -37,12 +39,13 @@ FRAMES_ONLY = ["--observe-lengths", "False"]
 
 @dataclass(frozen=True)
 class RunSettings:
-    """A run's settings on the simulated bench: ``seconds`` of control (s) at the runner's rate cap ``rate`` (Hz),
-    its watchdog's ``stale_s`` (s); ``lockstep`` > 0: that many steps in lockstep (0: the IOC at 100 Hz);
-    ``frames_only``: no length readouts; ``wrap``: the runner's ``--wrap`` (wl; None: none); ``idle_s``: the bench
-    uncontrolled this long first (s); ``seed``: the bench's seed; ``scale``: its lab imperfections x the preset;
-    ``unseen``: its per-stage errors re-drawn from ``seed`` (``unseen_args``); ``cpu``: the runner on that core and
-    the IOC on the others (None: any); ``settle_s``: the runner's ``--settle-s`` (s; None: its default)."""
+    """A run's settings on the simulated bench: ``seconds`` of control (s) at the runner's rate cap
+    ``rate`` (Hz), its watchdog's ``stale_s`` (s); ``lockstep`` > 0: that many steps in lockstep (0:
+    the IOC at 100 Hz); ``frames_only``: no length readouts; ``wrap``: the runner's ``--wrap`` (wl;
+    None: none); ``idle_s``: the bench uncontrolled this long first (s); ``seed``: the bench's seed;
+    ``scale``: its lab imperfections x the preset; ``unseen``: its per-stage errors re-drawn from
+    ``seed`` (``unseen_args``); ``cpu``: the runner on that core and the IOC on the others (None:
+    any); ``settle_s``: the runner's ``--settle-s`` (s; None: its default)."""
 
     seconds: float
     rate: float
@@ -60,11 +63,12 @@ class RunSettings:
 
 @dataclass(frozen=True)
 class LearnSettings:
-    """A learning run's settings: ``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``, an
-    ``agents.save`` folder; ``sets``: its ``--set`` values); ``kill_after``: SIGKILLed that many seconds (s) after
-    its start, or once it has written its first checkpoint if later, and continued with ``--resume`` (None: not
-    killed); ``catch_up_s``, ``learn_seconds`` (its ``--seconds``: it stops at ``steps`` or then, whichever comes
-    first), ``checkpoint_every``: the runner's options (None: its defaults)."""
+    """A learning run's settings: ``agents.bench --learn ALGO --steps STEPS`` (from ``start_from``,
+    an ``agents.save`` folder; ``sets``: its ``--set`` values); ``kill_after``: SIGKILLed that many
+    seconds (s) after its start, or once it has written its first checkpoint if later, and continued
+    with ``--resume`` (None: not killed); ``catch_up_s``, ``learn_seconds`` (its ``--seconds``: it
+    stops at ``steps`` or then, whichever comes first), ``checkpoint_every``: the runner's options
+    (None: its defaults)."""
 
     algo: str
     steps: int
@@ -77,7 +81,8 @@ class LearnSettings:
 
 
 def _bench_args(run: RunSettings) -> list:
-    """The runner's arguments shared by every run on the simulated bench (``settle_s`` None: the runner's default)."""
+    """The runner's arguments shared by every run on the simulated bench (``settle_s`` None: the
+    runner's default)."""
     return (
         ["--prefix", "OPS:", "--rate", run.rate, "--stale-s", run.stale_s]
         + (["--no-lengths"] if run.frames_only else [])
@@ -97,7 +102,8 @@ def _cpu(core: int | None) -> list:
 
 
 def other_cores(core: int | None) -> set | None:
-    """The cores this process may use but ``core``: the simulated bench's when the runner has ``core`` (None: any)."""
+    """The cores this process may use but ``core``: the simulated bench's when the runner has
+    ``core`` (None: any)."""
     if core is None:
         return None
     from agents.bench.runner import usable_cores
@@ -106,8 +112,9 @@ def other_cores(core: int | None) -> set | None:
 
 
 def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
-    """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's tick at the
-    run's first step, and ``wall_s``, the process's seconds from its start (imports and compiling included)."""
+    """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's
+    tick at the run's first step, and ``wall_s``, the process's seconds from its start (imports and
+    compiling included)."""
     t0 = time.monotonic()
     runner = Process("agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log")
     rc = runner.wait(timeout)
@@ -130,8 +137,8 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
 
 
 def unseen_args(seed: int, scale: float) -> list:
-    """IOC options of protocol (b)'s unseen bench ``seed`` (``benchmarks.budget.plan.unseen_bench``: the lab preset at
-    ``scale``, its per-stage error patterns re-drawn from the seed)."""
+    """IOC options of protocol (b)'s unseen bench ``seed`` (``benchmarks.budget.plan.unseen_bench``:
+    the lab preset at ``scale``, its per-stage error patterns re-drawn from the seed)."""
     from benchmarks.budget.plan import unseen_bench
 
     drawn = unseen_bench({"stages": 5}, seed, scale)
@@ -166,9 +173,9 @@ def _ioc(out: Path, run: RunSettings) -> Process:
 def run_controller(
     out: Path, controller: str, sets, run: RunSettings, trim: str | None = None
 ) -> dict:
-    """One run of ``controller`` (its ``--set`` values ``sets``) against a fresh IOC as ``run`` says, started
-    ``run.idle_s`` after the IOC serves, the controller wrapped in the trim's preset ``trim`` (None: alone); returns
-    its summary.json with ``first_tick``."""
+    """One run of ``controller`` (its ``--set`` values ``sets``) against a fresh IOC as ``run``
+    says, started ``run.idle_s`` after the IOC serves, the controller wrapped in the trim's preset
+    ``trim`` (None: alone); returns its summary.json with ``first_tick``."""
     out.mkdir(parents=True, exist_ok=True)
     ioc = _ioc(out, run)
     try:
@@ -182,7 +189,8 @@ def run_controller(
 
 
 def _learning_args(learning: LearnSettings, run: RunSettings) -> list:
-    """The learning run's own arguments (those ``--resume`` keeps: neither ``--from`` nor ``--set``)."""
+    """The learning run's own arguments (those ``--resume`` keeps: neither ``--from`` nor
+    ``--set``)."""
     args = [*_bench_args(run), "--learn", learning.algo, "--steps", learning.steps]
     args += [] if learning.catch_up_s is None else ["--catch-up-s", learning.catch_up_s]
     args += [] if learning.learn_seconds is None else ["--seconds", learning.learn_seconds]
@@ -193,8 +201,8 @@ def _learning_args(learning: LearnSettings, run: RunSettings) -> list:
 def _kill_at_first_checkpoint(
     out: Path, args: list, env: dict, learning: LearnSettings, rate: float
 ) -> float:
-    """Start the learning run ``args`` and SIGKILL it ``learning.kill_after`` s after its start, or once it has
-    written its first checkpoint if later; the seconds it ran."""
+    """Start the learning run ``args`` and SIGKILL it ``learning.kill_after`` s after its start, or
+    once it has written its first checkpoint if later; the seconds it ran."""
     killed = Process("agents.bench", [*args, "--out", out / "learn"], env, out / "learn-killed.log")
     started = time.monotonic()
     limit = START_S + learning.kill_after + 10 * learning.steps / rate
@@ -215,10 +223,10 @@ def _kill_at_first_checkpoint(
 
 
 def run_learning(out: Path, learning: LearnSettings, run: RunSettings) -> tuple[dict, dict]:
-    """``learning`` against a fresh IOC as ``run`` says (free-running: ``run.lockstep`` must be 0) started
-    ``run.idle_s`` before, then its checkpoint as a controller for ``run.seconds`` on the same bench (on core
-    ``run.cpu``; the learning run on any): the two summaries. Killed (``learning.kill_after``): the summary, the
-    resumed run's, adds ``killed_after_s``."""
+    """``learning`` against a fresh IOC as ``run`` says (free-running: ``run.lockstep`` must be 0)
+    started ``run.idle_s`` before, then its checkpoint as a controller for ``run.seconds`` on the
+    same bench (on core ``run.cpu``; the learning run on any): the two summaries. Killed
+    (``learning.kill_after``): the summary, the resumed run's, adds ``killed_after_s``."""
     if run.lockstep:
         raise ValueError(f"lockstep must be 0 for a learning run, got {run.lockstep}")
     out.mkdir(parents=True, exist_ok=True)

@@ -1,1 +1,2 @@
-"""How fast ops-jax runs: throughput, the step's breakdown, the device, the learners, Gymnasium's modes."""
+"""How fast ops-jax runs: throughput, the step's breakdown, the device, the learners, Gymnasium's
+modes."""

@@ -1,6 +1,6 @@
 """This machine's accelerator (or CPU) in one command under a time budget: env-steps/s of
-``env.step_batch`` and of ``ops_jax.rollout`` (phasor and field models, N = 5, 7, 10, batches 2^10 ..
-2^20 until the budget or the device's memory ends), the training rates of DroQ (its "budget"
+``env.step_batch`` and of ``ops_jax.rollout`` (phasor and field models, N = 5, 7, 10, batches
+2^10 .. 2^20 until the budget or the device's memory ends), the training rates of DroQ (its "budget"
 preset, 20k env steps), TD3 and SAC (brax), and the wall time of the quick sweep's table-1 section.
 
     # on a GPU: benchmarks/measured/device.json; on a CPU: benchmarks/measured/device-cpu.json
@@ -13,10 +13,10 @@ Each section runs in a fresh process with a deadline, its share of ``--budget-s`
 leaves unused goes to the ones after it); a process still running past its deadline is stopped. The
 JSON is written after every section, each with ``status`` (ok | failed | skipped), ``wall_s``, its
 error on failure and what it measured before failing. A batch scan doubles the batch until the next
-doubling would pass its deadline or the device runs out of memory (``oom_at_batch``).
-Env-steps/s as in ``benchmarks.speed.throughput``: a jitted 200-step scan, compilation timed apart, median
-of the repeats after a warm-up. Training: ``agents.train`` from a cold start, wall time with and
-without the XLA compilation inside it.
+doubling would pass its deadline or the device runs out of memory (``oom_at_batch``). Env-steps/s as
+in ``benchmarks.speed.throughput``: a jitted 200-step scan, compilation timed apart, median of the
+repeats after a warm-up. Training: ``agents.train`` from a cold start, wall time with and without
+the XLA compilation inside it.
 """
 
 from __future__ import annotations
@@ -96,8 +96,9 @@ def child_main(args) -> int:
         write_json_atomic(path, dict(result=partial, error=None))
 
     def at_deadline():
-        """Past the deadline (a batch or training chunk still running): keep what is measured and exit.
-        A scan section is then complete up to its budget (exit 0), a training run is not (exit 1)."""
+        """Past the deadline (a batch or training chunk still running): keep what is measured and
+        exit. A scan section is then complete up to its budget (exit 0), a training run is not (exit
+        1)."""
         partial = live[0]
         running = partial.pop("running", None) if isinstance(partial, dict) else None
         scan = args.child in ("step_batch", "rollout")
@@ -173,8 +174,8 @@ def _child_command(name: str, args, out: str, budget_s: float) -> list:
 
 
 def run_child(name: str, args, budget_s: float, kill_after_s: float) -> dict:
-    """Run section ``name`` in a child process with ``budget_s`` seconds; stopped after ``kill_after_s``.
-    Returns {status, wall_s, budget_s, error, ...results}."""
+    """Run section ``name`` in a child process with ``budget_s`` seconds; stopped after
+    ``kill_after_s``. Returns {status, wall_s, budget_s, error, ...results}."""
     fd, tmp = tempfile.mkstemp(prefix=f"device-{name}-", suffix=".json")
     os.close(fd)
     os.unlink(tmp)
@@ -229,8 +230,8 @@ def parser() -> argparse.ArgumentParser:
         nargs="+",
         default=None,
         metavar="SECTION",
-        help=f"sections to run, in this order (default: {' '.join(SECTIONS)}; --tiny leaves out sweep "
-        "unless named); an unknown name is recorded as a failed section",
+        help=f"sections to run, in this order (default: {' '.join(SECTIONS)}; --tiny leaves out "
+        "sweep unless named); an unknown name is recorded as a failed section",
     )
     ap.add_argument(
         "--budget-s", type=float, default=450.0, help="seconds for everything (default 450)"
@@ -239,7 +240,8 @@ def parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         default=None,
-        help="JSON file (default: benchmarks/measured/device.json on a GPU, device-cpu.json otherwise)",
+        help="JSON file (default: benchmarks/measured/device.json on a GPU, device-cpu.json "
+        "otherwise)",
     )
     ap.add_argument(
         "--tiny",
@@ -315,7 +317,8 @@ def parse_args(argv=None):
         or args.batch_exp[2:3] == [0]
     ):
         ap.error(
-            f"--batch-exp takes LO HI [STRIDE] with 0 <= LO <= HI and STRIDE >= 1, got {args.batch_exp}"
+            "--batch-exp takes LO HI [STRIDE] with 0 <= LO <= HI and STRIDE >= 1, got "
+            f"{args.batch_exp}"
         )
     if args.budget_s <= 0 or args.repeats < 1:
         ap.error("--budget-s must be > 0 and --repeats >= 1")

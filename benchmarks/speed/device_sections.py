@@ -1,4 +1,5 @@
-"""The sections of ``benchmarks.speed.device``, each run in a child process: step, rollout and training rates, the sweep."""
+"""The sections of ``benchmarks.speed.device``, each run in a child process: step, rollout and
+training rates, the sweep."""
 
 from __future__ import annotations
 
@@ -53,8 +54,8 @@ MIN_SECTION_S = 5.0  # a section with less time than this left is skipped
 
 
 def batches(tiny: bool, exps=None) -> list[int]:
-    """The scanned batch sizes: 2^lo .. 2^hi in steps of 2^stride, ``exps`` = (lo, hi[, stride]) (default
-    2^4 .. 2^6 with ``tiny``, else 2^10 .. 2^20)."""
+    """The scanned batch sizes: 2^lo .. 2^hi in steps of 2^stride, ``exps`` = (lo, hi[, stride])
+    (default 2^4 .. 2^6 with ``tiny``, else 2^10 .. 2^20)."""
     lo, hi, stride = (*(exps or ((4, 6) if tiny else (10, 20))), 1)[:3]
     return [2**k for k in range(lo, hi + 1, stride)]
 
@@ -105,8 +106,9 @@ def device_info() -> dict:
 def _scan_batches(
     measure_one, model: str, n: int, batch_list, cfg_deadline: float, record, out: dict, s: dict
 ) -> None:
-    """``measure_one(model, n, batch)`` over ``batch_list`` into ``out["rows"]`` and the config's summary ``s``
-    until the next batch would pass ``cfg_deadline`` or the device runs out of memory."""
+    """``measure_one(model, n, batch)`` over ``batch_list`` into ``out["rows"]`` and the config's
+    summary ``s`` until the next batch would pass ``cfg_deadline`` or the device runs out of
+    memory."""
     import gc
 
     for b in batch_list:
@@ -146,7 +148,8 @@ def _scan_batches(
 def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) -> None:
     """For each (model, stages) of ``configs``, ``measure_one(model, stages, batch) -> row`` over
     ``batch_list`` until the next batch would pass the config's share of the time to ``deadline`` or
-    the device runs out of memory; rows and a summary per config go into ``out`` (saved by ``record``)."""
+    the device runs out of memory; rows and a summary per config go into ``out`` (saved by
+    ``record``)."""
     out.setdefault("rows", [])
     summary = out.setdefault("configs", [])
     out["planned"] = [dict(model=m, stages=n) for m, n in configs]
@@ -173,7 +176,8 @@ def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) 
 
 
 def step_dtypes(stages: int, model: str) -> list[str]:
-    """The dtypes of every array that ``reset_batch`` and ``step_batch`` return (traced, not run)."""
+    """The dtypes of every array that ``reset_batch`` and ``step_batch`` return (traced, not
+    run)."""
     import jax
     import jax.numpy as jnp
 
@@ -187,7 +191,8 @@ def step_dtypes(stages: int, model: str) -> list[str]:
 
 
 def section_step_batch(args, deadline: float, record) -> dict:
-    """env-steps/s of a jitted 200-step scan of ``env.step_batch`` (``benchmarks.speed.throughput.measure``)."""
+    """env-steps/s of a jitted 200-step scan of ``env.step_batch``
+    (``benchmarks.speed.throughput.measure``)."""
     import jax
 
     from benchmarks.speed.throughput import SCAN_STEPS, measure
@@ -218,8 +223,8 @@ def section_step_batch(args, deadline: float, record) -> dict:
 
 
 def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int = 200) -> dict:
-    """env-steps/s of ``ops_jax.rollout`` (uniform random actions, the whole trajectory returned): the
-    first call's time less the median of ``repeats`` later calls is its compilation."""
+    """env-steps/s of ``ops_jax.rollout`` (uniform random actions, the whole trajectory returned):
+    the first call's time less the median of ``repeats`` later calls is its compilation."""
     import statistics
 
     import jax
@@ -271,8 +276,9 @@ class OutOfTime(Exception):
 
 
 def train_rate(algo: str, steps: int, hyper: dict, deadline: float, record, out: dict) -> dict:
-    """Train ``algo`` once from a cold start: env steps, wall seconds, XLA compile seconds and count,
-    env-steps/s with and without compilation; stops at ``deadline`` (raising ``OutOfTime``)."""
+    """Train ``algo`` once from a cold start: env steps, wall seconds, XLA compile seconds and
+    count, env-steps/s with and without compilation; stops at ``deadline`` (raising
+    ``OutOfTime``)."""
     import agents
     from benchmarks.common import count_compiles
 
@@ -389,7 +395,8 @@ def _pythonpath() -> str:
 
 
 def _stop(proc: subprocess.Popen, sig: int, wait_s: float) -> None:
-    """Send ``sig`` to ``proc``'s process group, then SIGKILL it if it is still running after ``wait_s``."""
+    """Send ``sig`` to ``proc``'s process group, then SIGKILL it if it is still running after
+    ``wait_s``."""
     try:
         os.killpg(proc.pid, sig)
         proc.wait(timeout=wait_s)

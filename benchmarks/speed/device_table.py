@@ -1,4 +1,5 @@
-"""The side-by-side table of ``python -m benchmarks.speed.device --table``: runs' JSON as markdown."""
+"""The side-by-side table of ``python -m benchmarks.speed.device --table``: runs' JSON as
+markdown."""
 
 from __future__ import annotations
 
@@ -23,19 +24,24 @@ def _scan_cell(section: dict, model: str, n: int) -> str:
 def _train_cell(section: dict) -> str:
     if section.get("env_steps"):
         return (
-            f"{section['env_steps']:,} steps in {section['wall_s_train']:.1f} s: {section['steps_per_s']:,.0f}/s, "
-            f"{section['steps_per_s_excl_compile']:,.0f}/s without {section['compile_s']:.0f} s compiling"
+            f"{section['env_steps']:,} steps in {section['wall_s_train']:.1f} s: "
+            f"{section['steps_per_s']:,.0f}/s, {section['steps_per_s_excl_compile']:,.0f}/s "
+            f"without {section['compile_s']:.0f} s compiling"
         )
     last = (section.get("progress") or [None])[-1]
     if last:
-        return f"{section['status']}: {last['step']:,} of {section['total_steps']:,} steps in {last['elapsed_s']:.0f} s"
+        return (
+            f"{section['status']}: {last['step']:,} of {section['total_steps']:,} steps in "
+            f"{last['elapsed_s']:.0f} s"
+        )
     return f"{section.get('status', 'not run')}" + (
         f" ({section['error'][:60]})" if section.get("error") else ""
     )
 
 
 def _as_list(value) -> list:
-    """A JSON field that holds one value, or a list of them for a device measured in several calls."""
+    """A JSON field that holds one value, or a list of them for a device measured in several
+    calls."""
     return list(value) if isinstance(value, list) else [value]
 
 
@@ -47,7 +53,8 @@ def _listed(value) -> str:
 def compare_table(docs: list) -> str:
     """A markdown table of device JSON files side by side (one column each)."""
     head = [
-        f"{(d.get('device') or {}).get('kind', '?')} ({(d.get('device') or {}).get('platform', '?')})"
+        f"{(d.get('device') or {}).get('kind', '?')} "
+        f"({(d.get('device') or {}).get('platform', '?')})"
         for d in docs
     ]
     rows = [
@@ -92,7 +99,8 @@ def compare_table(docs: list) -> str:
 
 
 def best_phasor_n5(sections: dict):
-    """The fastest phasor N = 5 rate of the step_batch section (env-steps/s), None if not measured."""
+    """The fastest phasor N = 5 rate of the step_batch section (env-steps/s), None if not
+    measured."""
     s = sections.get("step_batch") or {}
     rates = [
         r["steps_per_s"] for r in s.get("rows", []) if r["model"] == "phasor" and r["stages"] == 5

@@ -91,7 +91,8 @@ def measure_one(
 def run_in_subprocess(
     mode: str, context: str | None, num_envs: int, model: str, stages: int, repeats: int
 ) -> dict:
-    """``measure_one`` in a fresh Python process under a watchdog; a failure becomes the row's ``error``."""
+    """``measure_one`` in a fresh Python process under a watchdog; a failure becomes the row's
+    ``error``."""
     cmd = [
         sys.executable,
         "-m",
@@ -128,7 +129,8 @@ def label(row: dict) -> str:
 def measure_modes(
     models, stages: int = 5, num_envs: int = 8, big: int = 1024, repeats: int = 3, write=print
 ) -> list[dict]:
-    """Every mode for every model, one fresh process each; ``write`` gets the header and each row."""
+    """Every mode for every model, one fresh process each; ``write`` gets the header and each
+    row."""
     from ops_jax.cli.progress import progress
 
     header = f"{'model':7} {'mode':30} {'envs':>5} {'env-steps/s':>12} {'start s':>8}"
@@ -145,7 +147,8 @@ def measure_modes(
             write(f"{model:7} {label(row):30} {n:>5} failed: {row['error']}")
         else:
             write(
-                f"{model:7} {label(row):30} {n:>5} {row['env_steps_per_s']:>12,.0f} {row['start_s']:>8.1f}"
+                f"{model:7} {label(row):30} {n:>5} {row['env_steps_per_s']:>12,.0f} "
+                f"{row['start_s']:>8.1f}"
             )
     return rows
 

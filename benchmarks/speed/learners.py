@@ -1,14 +1,14 @@
-"""Training speed of the learners: env steps per second of ``agents.train`` for PPO, SAC and TD3 at the
-sweep's default settings (5-stage hard), with the XLA compile time and count inside each call.
+"""Training speed of the learners: env steps per second of ``agents.train`` for PPO, SAC and TD3 at
+the sweep's default settings (5-stage hard), with the XLA compile time and count inside each call.
 
     python -m benchmarks.speed.learners [--algos ppo sac td3] [--repeats 3] [--steps ppo=262144 ...]
                                         [--python /other/venv/bin/python ...]
                                         [--out results/learners_speed.json]
 
-Each measurement is one fresh process (``agents.train`` from a cold start, compilation included, as a
-sweep cell pays it). ``--python`` adds interpreters (other JAX versions, say) measured side by side: the
-runs alternate between interpreters, repeat after repeat, and the table gives each one's median and its
-ratio to the first interpreter (this one).
+Each measurement is one fresh process (``agents.train`` from a cold start, compilation included, as
+a sweep cell pays it). ``--python`` adds interpreters (other JAX versions, say) measured side by
+side: the runs alternate between interpreters, repeat after repeat, and the table gives each one's
+median and its ratio to the first interpreter (this one).
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ def _sweep_hyper(algo: str) -> dict:
 
 
 def measure_one(algo: str, steps: int) -> dict:
-    """Train ``algo`` once in this process: env steps trained, wall and CPU seconds (all threads), XLA compile
-    seconds and count."""
+    """Train ``algo`` once in this process: env steps trained, wall and CPU seconds (all threads),
+    XLA compile seconds and count."""
     import jax
 
     from benchmarks.common import count_compiles
@@ -89,7 +89,8 @@ def _run(python: str, algo: str, steps: int) -> dict:
 
 def _table(rows: list[dict], pythons: list[str], algos: list[str]) -> str:
     lines = [
-        "| algo | JAX | env steps | wall s (median) | CPU s | env-steps/s | compile s | compiles | vs first |",
+        "| algo | JAX | env steps | wall s (median) | CPU s | env-steps/s | compile s | "
+        "compiles | vs first |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for algo in algos:
@@ -100,8 +101,8 @@ def _table(rows: list[dict], pythons: list[str], algos: list[str]) -> str:
             base = rate if base is None else base
             med = {k: statistics.median(r[k] for r in rs) for k in ("wall_s", "cpu_s", "compile_s")}
             lines.append(
-                f"| {algo} | {rs[0]['jax']} | {rs[0]['steps']:,} | {med['wall_s']:.1f} | {med['cpu_s']:.1f} | "
-                f"{rate:,.0f} | {med['compile_s']:.1f} | "
+                f"| {algo} | {rs[0]['jax']} | {rs[0]['steps']:,} | {med['wall_s']:.1f} | "
+                f"{med['cpu_s']:.1f} | {rate:,.0f} | {med['compile_s']:.1f} | "
                 f"{rs[0]['compiles']} | {rate / base:.2f}x |"
             )
     return "\n".join(lines)
@@ -139,8 +140,9 @@ def main(argv=None) -> None:
                 r.update(python=py, repeat=rep)
                 rows.append(r)
                 print(
-                    f"[{len(rows)}/{total}] {algo} jax {r['jax']}: {r['steps']:,} steps in {r['wall_s']:.1f} s "
-                    f"({r['steps_per_s']:,.0f}/s, compile {r['compile_s']:.1f} s x{r['compiles']})",
+                    f"[{len(rows)}/{total}] {algo} jax {r['jax']}: {r['steps']:,} steps in "
+                    f"{r['wall_s']:.1f} s ({r['steps_per_s']:,.0f}/s, compile "
+                    f"{r['compile_s']:.1f} s x{r['compiles']})",
                     flush=True,
                 )
     table = _table(rows, pythons, args.algos)

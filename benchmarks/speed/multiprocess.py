@@ -49,7 +49,8 @@ def instance_rollout(env, params, key, i, steps: int):
 
 def batched_rollout(instances: int, steps: int, seed: int, sharding=None):
     """P/Pmax (instances, steps) of instances 0..``instances``-1 in one jitted call; with
-    ``sharding`` (a ``NamedSharding`` of the instance axis) split over its devices, in any process."""
+    ``sharding`` (a ``NamedSharding`` of the instance axis) split over its devices, in any
+    process."""
     import jax
     import jax.numpy as jnp
 
@@ -69,7 +70,8 @@ def batched_rollout(instances: int, steps: int, seed: int, sharding=None):
 
 
 def sharded_rollout(instances: int, steps: int, seed: int):
-    """``batched_rollout`` over every device of every process (call after ``jax.distributed.initialize``)."""
+    """``batched_rollout`` over every device of every process (call after
+    ``jax.distributed.initialize``)."""
     import jax
 
     if instances % jax.device_count():
@@ -86,7 +88,8 @@ def sharded_rollout(instances: int, steps: int, seed: int):
 
 
 def worker(args) -> None:
-    """One of the processes: join the others, run its share, write the gathered result (process 0)."""
+    """One of the processes: join the others, run its share, write the gathered result (process
+    0)."""
     import jax
 
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
@@ -115,8 +118,9 @@ def _free_port() -> int:
 
 
 def check(processes: int, instances: int, steps: int, seed: int) -> dict:
-    """Run the rollouts over ``processes`` local processes and in this one; returns {"equal", "instances",
-    "max_abs_diff", "seconds_multi", "seconds_single", "devices"}. Raises RuntimeError if a process fails."""
+    """Run the rollouts over ``processes`` local processes and in this one; returns {"equal",
+    "instances", "max_abs_diff", "seconds_multi", "seconds_single", "devices"}. Raises RuntimeError
+    if a process fails."""
     coordinator = f"127.0.0.1:{_free_port()}"
     with tempfile.TemporaryDirectory() as tmp:
         result = Path(tmp) / "npow.npz"
@@ -195,13 +199,16 @@ def main(argv=None) -> int:
         return 0
     if args.instances % args.processes:
         ap.error(
-            f"--instances must be a multiple of --processes ({args.processes}), got {args.instances}"
+            f"--instances must be a multiple of --processes ({args.processes}), got "
+            f"{args.instances}"
         )
     r = check(args.processes, args.instances, args.steps, args.seed)
     print(
-        f"{r['instances']} instances x {args.steps} steps over {args.processes} processes ({r['devices']} devices): "
-        f"{r['equal_instances']} equal to the single-process run (max |diff| {r['max_abs_diff']:.3g}); "
-        f"{r['seconds_multi']:.2f} s sharded (compile included), {r['seconds_single']:.2f} s in one process"
+        f"{r['instances']} instances x {args.steps} steps over {args.processes} processes "
+        f"({r['devices']} devices): {r['equal_instances']} equal to the single-process run (max "
+        "|diff| "
+        f"{r['max_abs_diff']:.3g}); {r['seconds_multi']:.2f} s sharded (compile included), "
+        f"{r['seconds_single']:.2f} s in one process"
     )
     return 0 if r["equal"] else 1
 

@@ -1,6 +1,6 @@
 """Where a batched env step's time goes: the whole ``env.step_batch``, its physics alone
-(``physics.measure``) and its random draws alone (``noise.draws``, one key per instance), each a jitted
-200-step ``lax.scan`` at the same batch, median of the repeats (compilation apart).
+(``physics.measure``) and its random draws alone (``noise.draws``, one key per instance), each a
+jitted 200-step ``lax.scan`` at the same batch, median of the repeats (compilation apart).
 
     python -m benchmarks.speed.step_breakdown --stages 5 --model phasor --batch 65536 1048576 \\
         --out results/breakdown.json
@@ -55,7 +55,8 @@ def physics_scan(stages: int, model: str, batch: int):
 
 
 def draws_scan(env, batch: int):
-    """(fn, args): SCAN_STEPS of the draws one step makes, one key per instance (as ``step_batch``)."""
+    """(fn, args): SCAN_STEPS of the draws one step makes, one key per instance (as
+    ``step_batch``)."""
     c = env.config
     shapes = dict(
         normal={"run": (c.feedback_k, c.stages), "obs": (env.frame_size,)},
@@ -119,7 +120,8 @@ def main(argv=None) -> list[dict]:
         jax=jax.__version__, device=jax.devices()[0].device_kind, scan_steps=SCAN_STEPS, rows=[]
     )
     print(
-        f"{'model':7} {'N':>2} {'batch':>8} {'step ns':>9} {'physics ns':>10} {'draws ns':>9} {'physics':>8} {'draws':>6}"
+        f"{'model':7} {'N':>2} {'batch':>8} {'step ns':>9} {'physics ns':>10} {'draws ns':>9} "
+        f"{'physics':>8} {'draws':>6}"
     )
     for n in args.stages:
         for b in args.batch:
@@ -127,8 +129,8 @@ def main(argv=None) -> list[dict]:
             out["rows"].append(r)
             write_json_atomic(args.out, out)
             print(
-                f"{r['model']:7} {n:>2} {b:>8} {r['step_ns']:>9.2f} {r['physics_ns']:>10.2f} {r['draws_ns']:>9.2f} "
-                f"{r['physics_share']:>8.0%} {r['draws_share']:>6.0%}",
+                f"{r['model']:7} {n:>2} {b:>8} {r['step_ns']:>9.2f} {r['physics_ns']:>10.2f} "
+                f"{r['draws_ns']:>9.2f} {r['physics_share']:>8.0%} {r['draws_share']:>6.0%}",
                 flush=True,
             )
     print(f"wrote {args.out}")

@@ -9,9 +9,9 @@ single-instance step time.
     python -m benchmarks.speed.throughput --gymnax --stages 5 --batch 4096 --models phasor \\
         --repeats 5
 
-``--gymnax``: only ``jax.vmap`` of the gymnax adapter's step (``ops_jax.adapters.gymnax``, needs the gymnax
-extra) against ``step_batch``, side by side, by wall time and by this process's CPU time (less moved by other
-jobs on a shared machine); the other tables are left out.
+``--gymnax``: only ``jax.vmap`` of the gymnax adapter's step (``ops_jax.adapters.gymnax``, needs the
+gymnax extra) against ``step_batch``, side by side, by wall time and by this process's CPU time
+(less moved by other jobs on a shared machine); the other tables are left out.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ GYMNAX_PATHS = ("step_batch", "gymnax")  # ... | jax.vmap of the gymnax adapter'
 
 
 def build(stages: int, model: str, batch: int, path: str = "step_batch"):
-    """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS or GYMNAX_PATHS) from a given
-    state. With several local devices that divide the batch, the batch is split across them
+    """A jitted function running SCAN_STEPS batched steps (``path`` in PATHS or GYMNAX_PATHS) from a
+    given state. With several local devices that divide the batch, the batch is split across them
     (``agents.evaluation.split_over_devices``)."""
     env, params = ops_jax.make(stages, "hard", model=model)
     step = env.step_batch if path == "step_batch" else jax.vmap(env.step, in_axes=(0, 0, 0, None))
@@ -81,7 +81,8 @@ def build(stages: int, model: str, batch: int, path: str = "step_batch"):
 
 
 def program_text(compiled) -> str:
-    """The optimised HLO of a compiled function without its source locations (for comparing programs)."""
+    """The optimised HLO of a compiled function without its source locations (for comparing
+    programs)."""
     lines = compiled.as_text().splitlines()
     debug_info = r"^\s*(\d+ [{\"]|FileNames|FunctionNames|FileLocations|StackFrames)"
     text = "\n".join(l for l in lines if not re.match(debug_info, l))
@@ -155,9 +156,9 @@ def step_cost(
     repeats: int = 5,
     **options,
 ) -> dict:
-    """Steady-state cost of the Gymnasium adapters: ``num_envs=None`` times
-    ``OPSGymEnv.step`` (seconds per step, best of ``repeats`` runs of ``number`` steps, zero actions,
-    truncation disabled); an integer times ``OPSVectorEnv.step`` (env-steps per second)."""
+    """Steady-state cost of the Gymnasium adapters: ``num_envs=None`` times ``OPSGymEnv.step``
+    (seconds per step, best of ``repeats`` runs of ``number`` steps, zero actions, truncation
+    disabled); an integer times ``OPSVectorEnv.step`` (env-steps per second)."""
     import timeit
 
     from ops_jax.adapters.gymnasium.env import OPSGymEnv, OPSVectorEnv
@@ -242,8 +243,8 @@ def main(argv=None):
 
 
 def measure_gymnax(args, results: dict) -> None:
-    """vmap of the gymnax adapter's step against ``step_batch``, per model, stage count and batch, appended
-    to ``results["rows"]``; the two timed alternately in one process."""
+    """vmap of the gymnax adapter's step against ``step_batch``, per model, stage count and batch,
+    appended to ``results["rows"]``; the two timed alternately in one process."""
     from importlib.metadata import version
 
     results["meta"]["gymnax"] = version("gymnax")
@@ -311,7 +312,8 @@ def measure_all(args, results: dict) -> None:
             )
         )
         ratio = (
-            f", {ref5 / single['seconds_per_call']:.0f}x faster than the reference's {1e3 * ref5:.1f} ms"
+            f", {ref5 / single['seconds_per_call']:.0f}x faster than the reference's "
+            f"{1e3 * ref5:.1f} ms"
             if ref5
             else ""
         )

@@ -7,16 +7,17 @@
     python -m benchmarks.sweep --preset paper --seeds 20 --ray auto  # a Ray cluster: docs/scale.md
 
 Sections (benchmarks/sweep/plan.py): ``table1`` (5-stage x easy/medium/hard x algorithms x seeds:
-final P/Pmax in the training and testing environments, Welch's t-test bolding), ``table2`` (timings of
-the paper's Table 2, from the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train on
-one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100), ``budget`` (score against env
-steps on a lab's budget, benchmarks/budget/plan.py); when named with ``--only``, ``reality`` (controllers under lab
-imperfections, benchmarks/sweep/reality.py). Everything lands in
-``results/<name>/``: tables (.md, .csv), figures (.png), ``summary.md``. Finished work units are stored
-in ``cells/`` the moment they finish (see benchmarks/cells.py): a re-run, or a run after a crash, skips
-them. The work is cut into units (``Sweep.units``, from each section's declared cells) that Ray actors
-compute, on a local Ray instance with ``--jobs`` workers by default or on a cluster with ``--ray ADDRESS``
-(benchmarks/sweep/executor.py); this process stores what they return and then writes the reports (docs/sweep.md).
+final P/Pmax in the training and testing environments, Welch's t-test bolding), ``table2`` (timings
+of the paper's Table 2, from the table1 runs), ``stages`` (stage scan N = 1..7), ``transfer`` (train
+on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100), ``budget`` (score
+against env steps on a lab's budget, benchmarks/budget/plan.py); when named with ``--only``,
+``reality`` (controllers under lab imperfections, benchmarks/sweep/reality.py). Everything lands in
+``results/<name>/``: tables (.md, .csv), figures (.png), ``summary.md``. Finished work units are
+stored in ``cells/`` the moment they finish (see benchmarks/cells.py): a re-run, or a run after a
+crash, skips them. The work is cut into units (``Sweep.units``, from each section's declared cells)
+that Ray actors compute, on a local Ray instance with ``--jobs`` workers by default or on a cluster
+with ``--ray ADDRESS`` (benchmarks/sweep/executor.py); this process stores what they return and then
+writes the reports (docs/sweep.md).
 
 Evaluation as in the paper: P/Pmax at the end of 200-step test episodes. The training environment
 uses the training seed's draws; the testing environment another seed, so in hard mode it has a
@@ -27,10 +28,11 @@ from __future__ import annotations
 
 import os
 
-# Before jax loads (the imports below load it): XLA's C++ log lines, e.g. one per program loaded from
-# the persistent compilation cache, would drown the progress output.
+# Before jax loads (the imports below load it): XLA's C++ log lines, e.g. one per program loaded
+# from the persistent compilation cache, would drown the progress output.
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-# A GPU shared with the workers: no process reserves most of its memory up front (benchmarks/sweep/executor.py).
+# A GPU shared with the workers: no process reserves most of its memory up front
+# (benchmarks/sweep/executor.py).
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 import argparse  # noqa: E402
@@ -70,7 +72,8 @@ def parser() -> ArgumentParser:
         "--preset",
         choices=("default", "paper"),
         default="default",
-        help="seeds, budgets and episodes of every section (benchmarks/sweep/presets.py; default: default)",
+        help="seeds, budgets and episodes of every section (benchmarks/sweep/presets.py; default: "
+        "default)",
     )
     ap.add_argument("--quick", action="store_true", help="a few-minute version (tests, first look)")
     ap.add_argument("--seeds", type=int, help="seeds per cell (the paper used 20)")
@@ -86,27 +89,29 @@ def parser() -> ArgumentParser:
     ap.add_argument(
         "--ray",
         metavar="ADDRESS",
-        help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or HOST:PORT); "
-        "default: a local Ray instance with --jobs workers",
+        help="run the work on this Ray cluster ('auto' as in ray.init(address='auto'), or "
+        "HOST:PORT); default: a local Ray instance with --jobs workers",
     )
     ap.add_argument(
         "--jobs",
         type=int,
-        help="workers computing units at once (default: 2 locally, or 1 on a 1-CPU machine; with --ray, "
-        "one per CPU of the cluster); times in table2 are then measured beside the other workers",
+        help="workers computing units at once (default: 2 locally, or 1 on a 1-CPU machine; with "
+        "--ray, one per CPU of the cluster); times in table2 are then measured beside the other "
+        "workers",
     )
     ap.add_argument(
         "--restarts",
         type=int,
         default=2,
-        help="times Ray restarts a worker that died (crash signal, killed, node lost) and retries its "
-        "unit (default 2); a later run resumes from the stored cells in any case",
+        help="times Ray restarts a worker that died (crash signal, killed, node lost) and retries "
+        "its unit (default 2); a later run resumes from the stored cells in any case",
     )
     ap.add_argument(
         "--worker-gpus",
         type=float,
         default=0.0,
-        help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by two)",
+        help="GPUs each worker claims on a Ray cluster with GPUs (e.g. 1, or 0.5 to share one by "
+        "two)",
     )
     return ap
 
@@ -118,7 +123,8 @@ def main(argv=None):
     keep_ctrl_c()
     if args.seeds is not None and args.seeds < 2:
         ap.error(
-            f"--seeds must be >= 2 (Welch's t-test needs two samples per algorithm), got {args.seeds}"
+            "--seeds must be >= 2 (Welch's t-test needs two samples per algorithm), got "
+            f"{args.seeds}"
         )
     ap.check_least(args, worker_gpus=0, restarts=0, jobs=1)
     preset = build_preset(args)
@@ -148,7 +154,8 @@ def main(argv=None):
     except KeyboardInterrupt:  # Ray's workers are stopped by then (sweep_ray.run shuts Ray down)
         stored = len(list((out / "cells").glob("*.json")))
         print(
-            f"interrupted: {stored} finished cells are kept in {out}/cells; run the same command again to resume",
+            f"interrupted: {stored} finished cells are kept in {out}/cells; run the same command "
+            "again to resume",
             file=sys.stderr,
             flush=True,
         )

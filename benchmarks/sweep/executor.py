@@ -1,4 +1,5 @@
-"""The sweep's work units on Ray actors (a local Ray instance or a cluster); this process stores the cells.
+"""The sweep's work units on Ray actors (a local Ray instance or a cluster); this process stores the
+cells.
 
 Each actor computes whole units (``Sweep.units``) in a scratch folder of its own node and returns
 the files they wrote (cell JSON, checkpoints): no shared filesystem is needed, and this process
@@ -52,9 +53,9 @@ def _stderr(msg: str) -> None:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Computed:
-    """What a worker returns for a unit: the ``files`` it wrote ({path relative to the output folder: bytes}), the
-    number of cells it ``computed`` (not found stored), its wall ``seconds`` and where it ran (Ray ``node_id``,
-    ``hostname``)."""
+    """What a worker returns for a unit: the ``files`` it wrote ({path relative to the output
+    folder: bytes}), the number of cells it ``computed`` (not found stored), its wall ``seconds``
+    and where it ran (Ray ``node_id``, ``hostname``)."""
 
     files: dict
     computed: int
@@ -73,7 +74,8 @@ class SweepWorker:
 
         if cpus:
             pin(cpus)
-        faulthandler.enable()  # a crash prints the Python stack into the worker's log (shown by the driver)
+        # a crash prints the Python stack into the worker's log (shown by the driver)
+        faulthandler.enable()
         os.environ.update(env)
         enable_compilation_cache()
         self.where = dict(
@@ -85,8 +87,8 @@ class SweepWorker:
     def run(
         self, unit: Unit, record: dict | None = None, checkpoint: dict | None = None
     ) -> Computed:
-        """Compute ``unit`` (an eval unit gets its controller's training ``record`` and ``checkpoint``
-        files, {relative path: bytes})."""
+        """Compute ``unit`` (an eval unit gets its controller's training ``record`` and
+        ``checkpoint`` files, {relative path: bytes})."""
         t0 = time.perf_counter()
         for rel, blob in (checkpoint or {}).items():
             (self.scratch / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -117,16 +119,16 @@ class SweepWorker:
 
 
 def pin(cpus) -> None:
-    """Run every thread of this process, and the threads it starts later, on ``cpus`` only; called before
-    JAX starts its CPU client, which then sizes its thread pool to them."""
+    """Run every thread of this process, and the threads it starts later, on ``cpus`` only; called
+    before JAX starts its CPU client, which then sizes its thread pool to them."""
     runtime.set_cores(cpus)
 
 
 def cpu_shares(n: int) -> list:
-    """``n`` disjoint, near-equal sets of this process's CPUs, one per local worker; ``[None] * n`` (no
-    pinning) when there are fewer CPUs than workers or no affinity interface. Two workers on two cores
-    each with a two-thread pool share every core; one core each trained 20-25% faster, compilation excluded
-    (docs/sweep.md)."""
+    """``n`` disjoint, near-equal sets of this process's CPUs, one per local worker; ``[None] * n``
+    (no pinning) when there are fewer CPUs than workers or no affinity interface. Two workers on two
+    cores each with a two-thread pool share every core; one core each trained 20-25% faster,
+    compilation excluded (docs/sweep.md)."""
     if not hasattr(os, "sched_getaffinity"):
         return [None] * n
     cpus = sorted(os.sched_getaffinity(0))
@@ -165,8 +167,8 @@ def store_files(out: Path, files: dict) -> None:
 
 
 def connect(address: str | None, jobs: int | None):
-    """``ray.init``: the cluster at ``address`` (the project's packages shipped to its workers), or a
-    local instance with ``jobs`` CPUs."""
+    """``ray.init``: the cluster at ``address`` (the project's packages shipped to its workers), or
+    a local instance with ``jobs`` CPUs."""
     import ray
 
     import agents
@@ -182,10 +184,11 @@ def connect(address: str | None, jobs: int | None):
             log_to_driver=True,
         )
     else:
-        # Ray starts workers at nice 15 (for the raylet's sake): on a machine running other work they
-        # would get a small share of the CPU (measured: a several-fold slower sweep).
+        # Ray starts workers at nice 15 (for the raylet's sake): on a machine running other work
+        # they would get a small share of the CPU (measured: a several-fold slower sweep).
         os.environ.setdefault("RAY_worker_niceness", "0")
-        # logging_level: no start-up lines of Ray's own (a local instance's token notice, "Started ...").
+        # logging_level: no start-up lines of Ray's own (a local instance's token notice, "Started
+        # ...").
         ray.init(
             num_cpus=jobs,
             include_dashboard=False,
@@ -204,8 +207,8 @@ def run(
     restarts: int = 2,
     worker_gpus: float = 0.0,
 ):
-    """Compute the cells of ``sections`` not stored in ``out`` on Ray workers (``jobs``, default one per
-    CPU of the cluster), then write the reports. Returns (cells computed, cells reused)."""
+    """Compute the cells of ``sections`` not stored in ``out`` on Ray workers (``jobs``, default one
+    per CPU of the cluster), then write the reports. Returns (cells computed, cells reused)."""
     started = time.time()
     sweep = Sweep(preset, out, _stderr)
     units = sweep.units(sections)
@@ -241,10 +244,10 @@ def run(
 
 
 def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
-    """The variables set in each of ``n`` workers before jax starts: this process's ``FORWARDED_ENV``, and
-    for workers sharing a GPU (a local instance with ``worker_gpus`` 0, or a fraction of a GPU each) no
-    preallocation and each a cap on its share of the GPU's memory (``XLA_PYTHON_CLIENT_MEM_FRACTION``);
-    values set in this process win."""
+    """The variables set in each of ``n`` workers before jax starts: this process's
+    ``FORWARDED_ENV``, and for workers sharing a GPU (a local instance with ``worker_gpus`` 0, or a
+    fraction of a GPU each) no preallocation and each a cap on its share of the GPU's memory
+    (``XLA_PYTHON_CLIENT_MEM_FRACTION``); values set in this process win."""
     environ = os.environ if environ is None else environ
     env = {k: environ[k] for k in FORWARDED_ENV if k in environ}
     env.setdefault(
@@ -259,8 +262,8 @@ def worker_env(n: int, worker_gpus: float, local: bool, environ=None) -> dict:
 
 
 def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
-    """Start ``unit`` on the worker ``actor``; an eval unit takes its controller's training record and checkpoint
-    files along. Returns the task's reference."""
+    """Start ``unit`` on the worker ``actor``; an eval unit takes its controller's training record
+    and checkpoint files along. Returns the task's reference."""
     record = checkpoint = None
     if isinstance(unit, EvalUnit):
         record = sweep.store.load(unit.train.label, unit.train.config)
@@ -269,7 +272,8 @@ def _submit(sweep: Sweep, out: Path, actor, unit: Unit):
 
 
 def _returned(ray, ref, unit: Unit, out: Path) -> Computed:
-    """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it failed."""
+    """What the task ``ref`` of ``unit`` returned; SystemExit saying how to resume where it
+    failed."""
     try:
         return ray.get(ref)
     except (ray.exceptions.RayError, OSError) as exc:
@@ -292,9 +296,9 @@ def _compute(
     reused: int = 0,
     local: bool = False,
 ):
-    """The scheduling loop: units to idle workers, returned files into the store (``reused``: the plan's
-    cells stored before, said on the progress line; ``local``: a local instance, whose workers get a share
-    of the CPUs each). Returns (cells computed, a record per worker)."""
+    """The scheduling loop: units to idle workers, returned files into the store (``reused``: the
+    plan's cells stored before, said on the progress line; ``local``: a local instance, whose
+    workers get a share of the CPUs each). Returns (cells computed, a record per worker)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
     env = worker_env(n, worker_gpus, local)
     actor = ray.remote(
@@ -343,7 +347,8 @@ def _compute(
 
 
 class _Tally:
-    """What the workers did: seconds busy and algorithms run per worker, cells per node, cells computed."""
+    """What the workers did: seconds busy and algorithms run per worker, cells per node, cells
+    computed."""
 
     def __init__(self, n: int):
         self.busy, self.algos = [0.0] * n, [set() for _ in range(n)]

@@ -1,5 +1,5 @@
-"""lock.md of ``benchmarks.sweep``: each controller's lock figures (``ops_jax.lock``) per mode and evaluation
-environment, from the table-1 cells' evaluations (``agents.evaluate``'s summary)."""
+"""lock.md of ``benchmarks.sweep``: each controller's lock figures (``ops_jax.lock``) per mode and
+evaluation environment, from the table-1 cells' evaluations (``agents.evaluate``'s summary)."""
 
 from __future__ import annotations
 
@@ -16,14 +16,16 @@ DASH = "–"
 
 
 def _env_summary(record: dict, env: str) -> dict:
-    """The stored ``agents.evaluate`` summary of a cell's evaluation in ``env`` ("training" or "testing")."""
+    """The stored ``agents.evaluate`` summary of a cell's evaluation in ``env`` ("training" or
+    "testing")."""
     return record["train_env" if env == "training" else "test_env"].get("summary", {})
 
 
 def lock_cells(summaries: list) -> tuple:
-    """Table cells (locked episodes, lock step, RMS after lock) over seeds' evaluation summaries: the mean
-    fraction of episodes that locked, the seeds' median lock steps and RMS (mean ± std over the seeds where
-    some episode locked); a dash for each figure when no summary holds the lock figures (older cells)."""
+    """Table cells (locked episodes, lock step, RMS after lock) over seeds' evaluation summaries:
+    the mean fraction of episodes that locked, the seeds' median lock steps and RMS (mean ± std over
+    the seeds where some episode locked); a dash for each figure when no summary holds the lock
+    figures (older cells)."""
     scored = [s for s in summaries if s.get("fraction_locked") is not None]
     if not scored:
         return DASH, DASH, DASH
@@ -50,13 +52,15 @@ def lock_table(out: Path, runs: dict, p: dict) -> None:
     )
     rule = "" if band is None else f" within {band:.0%}"
     lines = [
-        f"# Lock figures, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset {p['name']})",
+        f"# Lock figures, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
+        f"{p['name']})",
         "",
-        f"Per episode (`ops_jax.lock`): the lock step is the control steps made when P enters the band{rule} of its "
-        f"held level (the median of the episode's last half) for good, lasting at least the last "
-        f"{DEFAULT_HOLD:.0%} of the episode; the RMS after lock is std / mean of P from then on. Per seed the medians over the episodes "
-        "that locked; here the mean fraction of episodes that locked and the seeds' medians, mean ± std over "
-        "the seeds where some episode locked. –: cells stored before the lock figures were recorded (they "
+        "Per episode (`ops_jax.lock`): the lock step is the control steps made when P enters the "
+        f"band{rule} of its held level (the median of the episode's last half) for good, lasting "
+        f"at least the last {DEFAULT_HOLD:.0%} of the episode; the RMS after lock is std / mean "
+        "of P from then on. Per seed the medians over the episodes that locked; here the mean "
+        "fraction of episodes that locked and the seeds' medians, mean ± std over the seeds "
+        "where some episode locked. –: cells stored before the lock figures were recorded (they "
         "keep only the mean curve over episodes, not each episode's).",
         "",
         "| mode | evaluation env | controller | episodes locked | lock step | RMS after lock (%) |",

@@ -43,8 +43,8 @@ PAPER_TABLE1 = {  # (mode, env) -> {algo: (mean, std)}: the paper's Table 1
         ),
     }.items()
 }
-# The paper's Table 2, algo -> (sim TPS, opt TPS, convergence step, training s, inference TPS, test conv
-# step, control s)
+# The paper's Table 2, algo -> (sim TPS, opt TPS, convergence step, training s, inference TPS, test
+# conv step, control s)
 PAPER_TABLE2 = {
     "ppo": (0.0086, 0.0274, "142666 ± 25390", "5141 ± 979", 0.0057, "78 ± 10", "1.13 ± 0.21"),
     "sac": (0.0086, 0.0199, "168844 ± 24889", "4833 ± 740", 0.0046, "67 ± 10", "0.89 ± 0.18"),

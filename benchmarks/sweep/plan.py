@@ -4,8 +4,8 @@ benchmarks/sweep/presets.py.
 Sections: ``table1`` (5-stage x easy/medium/hard x algorithms x seeds, evaluated in the training and
 testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (stage scan),
 ``transfer`` (train on one mode, test on each), ``feedback`` (train at k = 1, test at k = 1..100),
-``budget`` (benchmarks/budget/plan.py) and, when named, ``reality`` (benchmarks/sweep/reality.py). ``register(section)``
-adds a section.
+``budget`` (benchmarks/budget/plan.py) and, when named, ``reality`` (benchmarks/sweep/reality.py).
+``register(section)`` adds a section.
 """
 
 from __future__ import annotations
@@ -50,8 +50,8 @@ def table1_runs(sweep) -> dict:
 
 
 class Table1(Section):
-    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves; the lock
-    figures."""
+    """Final P/Pmax in the training and testing environments, Welch's t-test bolding; the curves;
+    the lock figures."""
 
     name = "table1"
 
@@ -120,13 +120,15 @@ class Stages(Section):
 
 class TableOneEvaluations(Section):
     """Evaluations of the table-1 controllers (the first ``aux_seeds`` seeds) in other environments:
-    ``evals(sweep, mode) -> [(key, label prefix, env options)]`` for the controllers trained in ``mode``."""
+    ``evals(sweep, mode) -> [(key, label prefix, env options)]`` for the controllers trained in
+    ``mode``."""
 
     def evals(self, sweep, mode: str) -> list:
         raise NotImplementedError
 
     def _tests(self, sweep) -> list:
-        """(mode, controller, seed, [(result key, Evaluation)]) of each table-1 controller tested here."""
+        """(mode, controller, seed, [(result key, Evaluation)]) of each table-1 controller tested
+        here."""
         out = []
         for mode in MODES:
             for algo in sweep.algos:
@@ -211,8 +213,8 @@ def _budget_cell(config: dict) -> budget.Cell:
 
 
 def _budget_section() -> CellSection:
-    """Score against env steps on a lab's budget (benchmarks/budget/plan.py), at the budget preset of
-    ``presets.BUDGET_PRESETS``; part of a run without ``--only``. Its cells are stored as dicts
+    """Score against env steps on a lab's budget (benchmarks/budget/plan.py), at the budget preset
+    of ``presets.BUDGET_PRESETS``; part of a run without ``--only``. Its cells are stored as dicts
     (``benchmarks.budget.cell.Cell.to_dict``), read back into records here."""
     return CellSection(
         "budget",

@@ -1,10 +1,12 @@
-"""The sweep's presets ("quick", "default", "paper"): seeds, episodes and section settings (``PRESETS``), and each
-algorithm's part in them (``BUDGETS``, ``HYPER``, ``REALITY_BUDGETS``), keyed by its ``agents.registry`` name.
+"""The sweep's presets ("quick", "default", "paper"): seeds, episodes and section settings
+(``PRESETS``), and each algorithm's part in them (``BUDGETS``, ``HYPER``, ``REALITY_BUDGETS``),
+keyed by its ``agents.registry`` name.
 
-An algorithm takes part in a preset where ``BUDGETS`` gives it a training budget there (env steps; 0 for a
-controller that trains nothing), in the order of ``BUDGETS``; ``HYPER`` overrides its config's fields there, on top
-of the preset's ``algo_config`` (the ``config`` of the learners' config types). A new algorithm joins the sweep
-with its entry in ``BUDGETS`` (and, where it needs them, ``HYPER``) and its cost model in ``benchmarks.costs``.
+An algorithm takes part in a preset where ``BUDGETS`` gives it a training budget there (env steps; 0
+for a controller that trains nothing), in the order of ``BUDGETS``; ``HYPER`` overrides its config's
+fields there, on top of the preset's ``algo_config`` (the ``config`` of the learners' config types).
+A new algorithm joins the sweep with its entry in ``BUDGETS`` (and, where it needs them, ``HYPER``)
+and its cost model in ``benchmarks.costs``.
 """
 
 from __future__ import annotations
@@ -89,17 +91,18 @@ HYPER = {
     },
 }
 
-# algorithm -> {preset: the reality section's own training budget}: randomised training is far from done at 100k
-# (docs/imperfections.md)
+# algorithm -> {preset: the reality section's own training budget}: randomised training is far from
+# done at 100k (docs/imperfections.md)
 REALITY_BUDGETS = {"sac": {"default": 300_000}}
 
-# sweep preset -> the lab-budget section's preset (benchmarks/budget/presets.py) that its budget section runs
+# sweep preset -> the lab-budget section's preset (benchmarks/budget/presets.py) that its budget
+# section runs
 BUDGET_PRESETS = {"quick": "quick", "default": "default", "paper": "full"}
 
 
 def preset(name: str) -> dict:
-    """The preset ``name`` with its algorithms' parts: ``algos``, ``budgets``, ``hyper`` and (where any)
-    ``reality_budgets`` (ValueError naming an algorithm that is not registered)."""
+    """The preset ``name`` with its algorithms' parts: ``algos``, ``budgets``, ``hyper`` and (where
+    any) ``reality_budgets`` (ValueError naming an algorithm that is not registered)."""
     from agents.registry import get
 
     if name not in PRESETS:

@@ -1,12 +1,12 @@
-"""The ``reality`` section of ``benchmarks.sweep``: every controller trained on the ideal system (the
-learners also with domain randomisation: lab imperfections, ``randomize=1``, i.e. 0 to 2x the lab
-errors per episode; the physics-informed controller also identifying the imperfections online, and
-identifying them while reading the length readout through its identified calibration) and
-tested at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
+"""The ``reality`` section of ``benchmarks.sweep``: every controller trained on the ideal system
+(the learners also with domain randomisation: lab imperfections, ``randomize=1``, i.e. 0 to 2x the
+lab errors per episode; the physics-informed controller also identifying the imperfections online,
+and identifying them while reading the length readout through its identified calibration) and tested
+at imperfection levels none / lab / 2x lab (5 stages, hard mode, phasor model; see
 docs/imperfections.md). Score: final P / P_best of 200-step test episodes (P_best: the best P
 reachable with the level's static optics). Its trainings and evaluations are cells of the sweep's
-store like every other section's (resumable, computed by the sweep's workers); this module holds
-the section (``Reality``: its cells and its report: reality.md / .csv / .json and reality.png).
+store like every other section's (resumable, computed by the sweep's workers); this module holds the
+section (``Reality``: its cells and its report: reality.md / .csv / .json and reality.png).
 
     python -m benchmarks.sweep --only reality
     python -m benchmarks.sweep --quick --only reality --out results/quick
@@ -31,7 +31,8 @@ RANDOMISED = dict(BASE_ENV, imperfections="lab", randomize=1.0)  # the learners'
 
 
 def level_env(scale: float) -> dict:
-    """The ``ops_jax.make`` options of an imperfection level (``scale`` x the lab preset; 0: ideal)."""
+    """The ``ops_jax.make`` options of an imperfection level (``scale`` x the lab preset; 0:
+    ideal)."""
     return (
         dict(BASE_ENV, imperfections="lab", imperfection_scale=scale)
         if scale > 0
@@ -42,8 +43,8 @@ def level_env(scale: float) -> dict:
 def trainings(algos, learners) -> list:
     """(algo, training, env options, hyperparameter overrides) of each controller of the section:
     every algorithm on the ideal system; the ``learners`` also randomised; the physics-informed
-    controller as the ideal model ("ideal": the "frames" preset), with online identification ("identify")
-    and, its default, with it reading the calibrated length readout ("readout")."""
+    controller as the ideal model ("ideal": the "frames" preset), with online identification
+    ("identify") and, its default, with it reading the calibrated length readout ("readout")."""
     out = []
     for algo in algos:
         out.append(
@@ -119,7 +120,8 @@ class Reality(Section):
         return units
 
     def results(self, sweep) -> dict:
-        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its test episodes)."""
+        """{"algo/training": {level: [final P / P_best per seed]}} (each seed: the mean over its
+        test episodes)."""
         ratios = best_ratios()
         res = {}
         for training, controller in self._trainings(sweep):
@@ -204,9 +206,9 @@ def _aggregate_lines(matrices: dict, command: str, wall_s: float | None) -> list
         "",
         robust.NOTE,
         "",
-        "Over the three levels (as tasks): IQM [95 % CI] and the probability of improvement "
-        "P(row > column), a seed of the row's controller above one of the column's at the same level (ties "
-        "count half), averaged over the levels. No bold.",
+        "Over the three levels (as tasks): IQM [95 % CI] and the probability of improvement P(row "
+        "> column), a seed of the row's controller above one of the column's at the same level "
+        "(ties count half), averaged over the levels. No bold.",
         "",
         *aggregate_table(matrices),
         "",
@@ -254,7 +256,8 @@ def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
 
 
 def _plot_levels(path: Path, results: dict, names: list) -> None:
-    """reality.png: each controller's final P / P_best (mean ± std) per level, a line style per training."""
+    """reality.png: each controller's final P / P_best (mean ± std) per level, a line style per
+    training."""
     from benchmarks.sweep.report import _plt
 
     plt = _plt()
@@ -290,8 +293,9 @@ def _plot_levels(path: Path, results: dict, names: list) -> None:
 def report(
     out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None
 ) -> None:
-    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv, reality.json,
-    reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
+    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv,
+    reality.json, reality.png and reality_profile.png (performance profile over the levels) in
+    ``out``."""
     from benchmarks import robust
     from benchmarks.sweep.report_table1 import performance_profile
 

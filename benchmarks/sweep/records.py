@@ -1,10 +1,11 @@
 """The sweep's typed records, from the plan (benchmarks/sweep/plan.py) through the Ray workers
-(benchmarks/sweep/executor.py) to the report: a stored ``Cell``, a ``Controller`` a section trains, an
-``Evaluation`` of one, and the work units ``TrainUnit``, ``EvalUnit`` and ``SectionUnit``.
+(benchmarks/sweep/executor.py) to the report: a stored ``Cell``, a ``Controller`` a section trains,
+an ``Evaluation`` of one, and the work units ``TrainUnit``, ``EvalUnit`` and ``SectionUnit``.
 
-Frozen dataclasses built by keyword (an unknown field is a TypeError), picklable (Ray ships the units).
-A cell's stored form is its ``config`` dict, keyed by ``Cell.key`` (``benchmarks.cells.config_hash``): the
-records carry it as it is, so the cells stored before these records existed keep their keys.
+Frozen dataclasses built by keyword (an unknown field is a TypeError), picklable (Ray ships the
+units). A cell's stored form is its ``config`` dict, keyed by ``Cell.key``
+(``benchmarks.cells.config_hash``): the records carry it as it is, so the cells stored before these
+records existed keep their keys.
 """
 
 from __future__ import annotations
@@ -17,28 +18,32 @@ from ops_jax import EnvSpec
 
 
 def seed_label(prefix: str, seed: int) -> str:
-    """The label of seed ``seed``'s cell among cells ``prefix`` (one controller or one of its tests)."""
+    """The label of seed ``seed``'s cell among cells ``prefix`` (one controller or one of its
+    tests)."""
     return f"{prefix}-s{seed}"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Cell:
-    """One stored cell: its readable ``label`` and its configuration ``config`` (the stored form, JSON-able)."""
+    """One stored cell: its readable ``label`` and its configuration ``config`` (the stored form,
+    JSON-able)."""
 
     label: str
     config: dict
 
     @property
     def key(self) -> str:
-        """The hash of ``config`` (16 hex digits): with the label, the cell's file name in the store."""
+        """The hash of ``config`` (16 hex digits): with the label, the cell's file name in the
+        store."""
         return config_hash(self.config)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Controller:
-    """A controller a section trains: ``algo`` on ``env`` (an ``EnvSpec``; a dict of ``ops_jax.make`` options is
-    converted), ``hyper`` overriding the preset's hyperparameters, ``steps`` its budget in env steps (None: the
-    preset's); its training cells are labelled ``<prefix>-s<seed>``."""
+    """A controller a section trains: ``algo`` on ``env`` (an ``EnvSpec``; a dict of
+    ``ops_jax.make`` options is converted), ``hyper`` overriding the preset's hyperparameters,
+    ``steps`` its budget in env steps (None: the preset's); its training cells are labelled
+    ``<prefix>-s<seed>``."""
 
     prefix: str
     algo: str
@@ -56,8 +61,8 @@ class Controller:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Evaluation:
-    """A test of a trained controller: cell ``label``, environment ``env`` (an ``EnvSpec``; a dict is converted)
-    and episode seed ``seed``."""
+    """A test of a trained controller: cell ``label``, environment ``env`` (an ``EnvSpec``; a dict
+    is converted) and episode seed ``seed``."""
 
     label: str
     env: EnvSpec
@@ -69,9 +74,9 @@ class Evaluation:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Unit:
-    """The work one worker does in one call: ``key`` (unique in a plan), ``algo`` (what its compiled programs
-    are for), its ``cells``, ``cost`` (estimated seconds) and ``deps`` (keys of the units whose checkpoints it
-    needs)."""
+    """The work one worker does in one call: ``key`` (unique in a plan), ``algo`` (what its compiled
+    programs are for), its ``cells``, ``cost`` (estimated seconds) and ``deps`` (keys of the units
+    whose checkpoints it needs)."""
 
     kind: ClassVar[str] = ""
     key: str
@@ -87,7 +92,8 @@ class Unit:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class TrainUnit(Unit):
-    """The training cells of ``controller``, one per seed, trained in one ``Sweep.trained_seeds`` call."""
+    """The training cells of ``controller``, one per seed, trained in one ``Sweep.trained_seeds``
+    call."""
 
     kind: ClassVar[str] = "train"
     controller: Controller

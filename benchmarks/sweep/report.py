@@ -20,14 +20,15 @@ MIN_BOLD_SEEDS = 3  # fewer seeds per cell cannot support a Welch's t-test verdi
 
 
 def quick_note(p: dict) -> list:
-    """The lines under a table's title that say a quick preset's budgets are too small to learn (none for the
-    other presets)."""
+    """The lines under a table's title that say a quick preset's budgets are too small to learn
+    (none for the other presets)."""
     if p["name"] != "quick":
         return []
     learners = ", ".join(f"{NAMES[a]} {n:,}" for a, n in p["budgets"].items() if n)
     return [
-        f"**Quick preset: its training budgets (env steps: {learners}) are far too small to learn.** These "
-        "numbers show that the sweep runs, not how well the learners control; the default preset's do.",
+        f"**Quick preset: its training budgets (env steps: {learners}) are far too small to "
+        "learn.** These numbers show that the sweep runs, not how well the learners control; "
+        "the default preset's do.",
         "",
     ]
 
@@ -35,10 +36,14 @@ def quick_note(p: dict) -> list:
 def bold_rule(seeds: int) -> str:
     """The bolding rule as stated under a table of ``seeds`` seeds per cell."""
     if seeds < MIN_BOLD_SEEDS:
-        return f"No bold: {seeds} seeds per cell are too few to tell values apart (bold needs {MIN_BOLD_SEEDS} or more)."
+        return (
+            f"No bold: {seeds} seeds per cell are too few to tell values apart (bold needs "
+            f"{MIN_BOLD_SEEDS} or more)."
+        )
     return (
-        "Bold: the best mean of the row and every value not significantly different from it (Welch's t-test, "
-        f"p >= 0.05 over the {seeds} seeds); nothing is bold with fewer than {MIN_BOLD_SEEDS} seeds."
+        "Bold: the best mean of the row and every value not significantly different from it "
+        f"(Welch's t-test, p >= 0.05 over the {seeds} seeds); nothing is bold with fewer than "
+        f"{MIN_BOLD_SEEDS} seeds."
     )
 
 
@@ -79,8 +84,8 @@ def _plt():
 
 
 def aggregate_table(scores: dict) -> list:
-    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the probability of
-    improvement over every other label (P(row > column), averaged over tasks)."""
+    """Markdown table lines: per label, the IQM of its (seeds, tasks) matrix [95 % CI] and the
+    probability of improvement over every other label (P(row > column), averaged over tasks)."""
     from benchmarks import robust
 
     labels = list(scores)
@@ -99,9 +104,10 @@ def aggregate_table(scores: dict) -> list:
 
 
 def convergence_step(steps, values, tol=0.02):
-    """First step from which the curve stays within ``tol`` (P/Pmax) of its final value (the mean
-    of its last three points): where it 'reaches its peak and stops changing'. NaN ("not reached")
-    for an empty curve or one that never left that band: it did not change, so it converged to nothing."""
+    """First step from which the curve stays within ``tol`` (P/Pmax) of its final value (the mean of
+    its last three points): where it 'reaches its peak and stops changing'. NaN ("not reached") for
+    an empty curve or one that never left that band: it did not change, so it converged to
+    nothing."""
     steps, values = np.asarray(steps, float), np.asarray(values, float)
     if len(values) == 0:
         return float("nan")
@@ -113,7 +119,8 @@ def convergence_step(steps, values, tol=0.02):
 
 
 def _steps_cell(values) -> str:
-    """Mean ± std of convergence steps, "not reached" where none is, the count where some are not."""
+    """Mean ± std of convergence steps, "not reached" where none is, the count where some are
+    not."""
     values = np.asarray(values, float)
     reached = values[~np.isnan(values)]
     if not reached.size:
@@ -129,13 +136,15 @@ def table2(out: Path, runs: dict, p: dict):
         "# Table 2: time usage, 5-stage hard (TPS = seconds per step)",
         "",
         *quick_note(p),
-        "Ours: this machine, batched JAX; per-step times are wall time divided by environment steps "
-        "(simulation = stepping the environment, optimisation = the rest of training). Convergence "
-        'step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final value; "not '
-        'reached": the curve never changed by more than that (nothing converged). '
-        "Inference TPS: one batched control step (policy, probes and environment) divided by the number of "
-        "test episodes. Test-time convergence step: the same rule on the mean test curve. Total control time "
-        "= test-time convergence steps x inference TPS (the paper adds its simulation TPS; ours is inside).",
+        "Ours: this machine, batched JAX; per-step times are wall time divided by environment "
+        "steps (simulation = stepping the environment, optimisation = the rest of training). "
+        "Convergence "
+        "step: first step from which the evaluation curve stays within 0.02 P/Pmax of its final "
+        'value; "not reached": the curve never changed by more than that (nothing converged). '
+        "Inference TPS: one batched control step (policy, probes and environment) divided by the "
+        "number of test episodes. Test-time convergence step: the same rule on the mean test "
+        "curve. Total control time = test-time convergence steps x inference TPS (the paper adds "
+        "its simulation TPS; ours is inside).",
         "",
         "| algo | simulation TPS | optimisation TPS | convergence step | total training time (s) | "
         "inference TPS | test-time convergence step | total control time (s) |",
@@ -166,7 +175,10 @@ def table2(out: Path, runs: dict, p: dict):
                 for r in recs
             ]
             total = [r["wall_time"].get("total", 0.0) for r in recs]
-            train_cols = f"{sim:.2e} | {opt:.2e} | {_steps_cell(conv)} | {np.mean(total):.1f} ± {np.std(total):.1f}"
+            train_cols = (
+                f"{sim:.2e} | {opt:.2e} | {_steps_cell(conv)} | "
+                f"{np.mean(total):.1f} ± {np.std(total):.1f}"
+            )
         else:  # no training (SPGD, physics-informed)
             train_cols = "– | – | – | –"
         lines.append(
@@ -196,7 +208,8 @@ def save_figure(fig, legend_ax, path: Path) -> None:
 def _per_mode_figure(
     out: Path, filename: str, title: str, xlabel: str, ylabel: str, draw, ylim=None
 ):
-    """One panel per mode (``draw(ax, mode)`` plots into it), shared y axis, written to ``out/filename``."""
+    """One panel per mode (``draw(ax, mode)`` plots into it), shared y axis, written to
+    ``out/filename``."""
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4), sharey=True)
     for ax, mode in zip(axes, MODES):
@@ -258,8 +271,8 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
         times += [
             "- then, in one process: " + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()),
             "",
-            f"The {len(workers)} workers ran at once, so the times per step in table2 were measured "
-            "beside the other workers' work.",
+            f"The {len(workers)} workers ran at once, so the times per step in table2 were "
+            "measured beside the other workers' work.",
         ]
     else:
         times = [f"- {k}: {v:.1f} s" for k, v in timing.items()]
@@ -275,15 +288,19 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
         f"# ops-jax sweep: preset {p['name']}",
         "",
         f"- sections: {', '.join(sections)}",
-        f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: {p['episodes']}",
-        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: {p['algo_config']}",
+        f"- algorithms: {', '.join(p['algos'])}; seeds per cell: {p['seeds']}; test episodes: "
+        f"{p['episodes']}",
+        f"- training budgets (env steps): {p['budgets']}; hyperparameter config: "
+        f"{p['algo_config']}",
         *(
             [f"- the reality section's own budgets: {p['reality_budgets']}"]
             if "reality" in sections and p.get("reality_budgets")
             else []
         ),
-        f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}",
-        f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices {jax.devices()}",
+        f"- machine: {platform.platform()}, {os.cpu_count()} CPUs, "
+        f"{platform.processor() or platform.machine()}",
+        f"- versions: python {platform.python_version()}, jax {jax.__version__}, devices "
+        f"{jax.devices()}",
         f"- XLA_FLAGS: {os.environ.get('XLA_FLAGS') or '(none)'}",
         f"- cells computed this run: {computed}, reused from earlier runs: {reused}",
         "",

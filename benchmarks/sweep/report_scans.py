@@ -13,8 +13,8 @@ from benchmarks.sweep.report import _plt, convergence_step, quick_note, save_fig
 
 
 def _stage_finals_panel(ax, res: dict, p: dict, ns: list, mode: str) -> list:
-    """Final testing P/Pmax vs stage count of each algorithm in ``mode`` (mean ± std over seeds) drawn on
-    ``ax``; the table's lines of ``mode``."""
+    """Final testing P/Pmax vs stage count of each algorithm in ``mode`` (mean ± std over seeds)
+    drawn on ``ax``; the table's lines of ``mode``."""
     for algo in p["stage_algos"]:
         finals = [
             [np.mean(res[n, mode, algo, s]["test_env"]["final"]) for s in range(p["stage_seeds"])]
@@ -46,7 +46,8 @@ def _stage_finals_panel(ax, res: dict, p: dict, ns: list, mode: str) -> list:
 
 
 def _stage_convergence_panel(ax, res: dict, p: dict, ns: list) -> None:
-    """Training convergence step (environment steps, mean over seeds) vs stage count in the hardest mode."""
+    """Training convergence step (environment steps, mean over seeds) vs stage count in the hardest
+    mode."""
     hardest = p["stage_modes"][-1]
     for algo in p["stage_algos"]:
         conv = [
@@ -69,8 +70,8 @@ def _stage_convergence_panel(ax, res: dict, p: dict, ns: list) -> None:
 
 
 def stages(out: Path, res: dict, p: dict):
-    """stages.md (final testing P/Pmax per stage count, mode and algorithm) and stages.png (a panel per mode
-    and one of the convergence steps)."""
+    """stages.md (final testing P/Pmax per stage count, mode and algorithm) and stages.png (a panel
+    per mode and one of the convergence steps)."""
     plt = _plt()
     ns = sorted({k[0] for k in res})
     fig, axes = plt.subplots(

@@ -1,5 +1,5 @@
-"""Table 1 of ``benchmarks.sweep``: table1.md / .csv (final P/Pmax per mode, evaluation environment and
-algorithm), its aggregate over the modes and the performance profile."""
+"""Table 1 of ``benchmarks.sweep``: table1.md / .csv (final P/Pmax per mode, evaluation environment
+and algorithm), its aggregate over the modes and the performance profile."""
 
 from __future__ import annotations
 
@@ -43,8 +43,8 @@ CSV_HEADER = [
 
 
 def _cell_rows(mode: str, env: str, runs: dict, p: dict, finals: dict) -> tuple[list, list]:
-    """The markdown lines (scores, IQM [95 % CI], paper) and csv rows of one mode and evaluation env; each
-    algorithm's per-seed finals appended to ``finals[env, algo]``."""
+    """The markdown lines (scores, IQM [95 % CI], paper) and csv rows of one mode and evaluation
+    env; each algorithm's per-seed finals appended to ``finals[env, algo]``."""
     from benchmarks import robust
 
     algos = p["algos"]
@@ -83,19 +83,20 @@ def _cell_rows(mode: str, env: str, runs: dict, p: dict, finals: dict) -> tuple[
 
 
 def _table1_text(p: dict, rows_md: list, finals: dict) -> str:
-    """table1.md: the per-mode table under its caption, the bolding rule and the aggregate tables."""
+    """table1.md: the per-mode table under its caption, the bolding rule and the aggregate
+    tables."""
     from benchmarks import robust
 
     algos = p["algos"]
     header = "| mode | evaluation env | " + " | ".join(NAMES[a] for a in algos) + " |"
     sep = "|" + "---|" * (len(algos) + 2)
     return (
-        f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test episodes, preset "
-        f"{p['name']})\n\n"
+        f"# Table 1: final P/Pmax, 5-stage OPS ({p['seeds']} seeds x {p['episodes']} test "
+        f"episodes, preset {p['name']})\n\n"
         + "".join(f"{line}\n" for line in quick_note(p))
-        + "Mean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), "
-        "and the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published values "
-        "(20 seeds, stable-baselines3).\n\n"
+        + "Mean ± std over seeds of each seed's mean final P/Pmax (200-step test episodes), and "
+        "the IQM over seeds with its 95 % confidence interval. The 'paper' rows are the published "
+        "values (20 seeds, stable-baselines3).\n\n"
         + "\n".join([header, sep, *rows_md])
         + "\n\n"
         + bold_rule(p["seeds"])
@@ -108,8 +109,8 @@ def _table1_text(p: dict, rows_md: list, finals: dict) -> str:
 
 
 def table1(out: Path, runs: dict, p: dict):
-    """table1.md / .csv (mean ± std, Welch bolding, IQM [95 % CI] per cell; per algorithm the IQM over modes;
-    the probability of improvement between algorithms) and performance_profile.png."""
+    """table1.md / .csv (mean ± std, Welch bolding, IQM [95 % CI] per cell; per algorithm the IQM
+    over modes; the probability of improvement between algorithms) and performance_profile.png."""
     rows_md, rows_csv = [], []
     finals = {}  # (env, algo): (seeds, modes) matrix of final P/Pmax
     for mode in MODES:
@@ -131,15 +132,16 @@ def table1(out: Path, runs: dict, p: dict):
 
 
 def robust_tables(finals: dict, algos) -> list:
-    """Markdown lines: per evaluation env, each algorithm's IQM over seeds x modes [95 % CI], and the
-    probability that a seed of the row's algorithm beats one of the column's on the same mode."""
+    """Markdown lines: per evaluation env, each algorithm's IQM over seeds x modes [95 % CI], and
+    the probability that a seed of the row's algorithm beats one of the column's on the same
+    mode."""
     lines = [
         "## Aggregate over the three modes",
         "",
-        "IQM over every seed and mode (the three modes as tasks of a stratified bootstrap), and the "
-        "probability of improvement P(row > column): the chance that a seed of the row's algorithm ends "
-        "above a seed of the column's on the same mode (ties count half), averaged over the modes. "
-        "No bold in these tables.",
+        "IQM over every seed and mode (the three modes as tasks of a stratified bootstrap), and "
+        "the probability of improvement P(row > column): the chance that a seed of the row's "
+        "algorithm ends above a seed of the column's on the same mode (ties count half), "
+        "averaged over the modes. No bold in these tables.",
         "",
     ]
     for env in ENVS:
@@ -148,8 +150,9 @@ def robust_tables(finals: dict, algos) -> list:
 
 
 def performance_profile(path: Path, scores: dict, xlabel: str, taus=None) -> None:
-    """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring above tau, with
-    its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks) matrix}."""
+    """A performance-profile figure: per algorithm, the fraction of runs (seeds x tasks) scoring
+    above tau, with its 95 % stratified-bootstrap band; ``scores``: {label: (seeds, tasks)
+    matrix}."""
     from benchmarks import robust
 
     taus = np.linspace(0.0, 1.0, 201) if taus is None else np.asarray(taus)

@@ -1,5 +1,5 @@
-"""How the sweep's executor schedules its units and projects the time left: which unit an idle worker
-takes, and a ledger of estimated against measured worker-seconds per kind of unit."""
+"""How the sweep's executor schedules its units and projects the time left: which unit an idle
+worker takes, and a ledger of estimated against measured worker-seconds per kind of unit."""
 
 from __future__ import annotations
 
@@ -13,30 +13,31 @@ IN_FLIGHT_CAP = 0.9  # a running unit counts as done up to this fraction of its 
 
 
 def unit_kind(unit: Unit) -> str:
-    """What a unit's cost is measured per: training per algorithm (its budget is the preset's), evaluation,
-    or a section's own cells."""
+    """What a unit's cost is measured per: training per algorithm (its budget is the preset's),
+    evaluation, or a section's own cells."""
     return {"train": f"train {unit.algo}", "eval": "eval"}.get(unit.kind, f"cell {unit.algo}")
 
 
 def projected_seconds(est_left: Counter, est_done: Counter, spent: Counter) -> float:
-    """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's measured
-    seconds (``spent``) per estimated second of its finished units (``est_done``), or by all kinds' ratio
-    for a kind not seen finish yet (1 before any)."""
+    """Worker-seconds of the work left: each kind's estimate (``est_left``) scaled by that kind's
+    measured seconds (``spent``) per estimated second of its finished units (``est_done``), or by
+    all kinds' ratio for a kind not seen finish yet (1 before any)."""
     return sum(left * cost_ratio(k, est_done, spent) for k, left in est_left.items())
 
 
 def cost_ratio(kind: str, est_done: Counter, spent: Counter) -> float:
-    """Measured seconds per estimated second of ``kind``'s finished units (all kinds' if none, 1 before any)."""
+    """Measured seconds per estimated second of ``kind``'s finished units (all kinds' if none, 1
+    before any)."""
     if est_done[kind]:
         return spent[kind] / est_done[kind]
     return sum(spent.values()) / sum(est_done.values()) if sum(est_done.values()) else 1.0
 
 
 class SmoothedTotal:
-    """The progress line's total worker-seconds: each new projection moves it by ``weight`` of the way
-    (an exponential moving average, so the remaining time does not jump with each finished unit's
-    correction; exactly the projection when nothing is left), and it is cut where needed so that the
-    fraction done never decreases."""
+    """The progress line's total worker-seconds: each new projection moves it by ``weight`` of the
+    way (an exponential moving average, so the remaining time does not jump with each finished
+    unit's correction; exactly the projection when nothing is left), and it is cut where needed so
+    that the fraction done never decreases."""
 
     def __init__(self, weight: float = 0.3):
         self.weight = weight
@@ -67,9 +68,9 @@ def _show(bar, smoothed: SmoothedTotal, spent: Counter, in_flight: float, left: 
 
 
 def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
-    """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran last
-    (warm programs), else of the algorithm with the most remaining cost that no other worker runs,
-    else of the one with the most remaining cost."""
+    """The unit an idle worker takes from ``ready`` (in plan order): one of the algorithm it ran
+    last (warm programs), else of the algorithm with the most remaining cost that no other worker
+    runs, else of the one with the most remaining cost."""
     if not ready:
         return None
     same = [u for u in ready if u.algo == last_algo]
@@ -82,8 +83,8 @@ def pick(ready: list, last_algo, running_algos: Counter, remaining: dict):
 @dataclasses.dataclass
 class Ledger:
     """Estimated and measured worker-seconds of the units: ``remaining`` estimate per algorithm,
-    ``est_left`` / ``est_done`` estimate per kind (``unit_kind``) not yet / already finished, ``spent``
-    measured seconds per kind."""
+    ``est_left`` / ``est_done`` estimate per kind (``unit_kind``) not yet / already finished,
+    ``spent`` measured seconds per kind."""
 
     remaining: Counter = dataclasses.field(default_factory=Counter)
     est_left: Counter = dataclasses.field(default_factory=Counter)
@@ -112,9 +113,9 @@ class Ledger:
         return projected_seconds(self.est_left, self.est_done, self.spent)
 
     def in_flight(self, unit: Unit, started: float, now: float) -> float:
-        """The seconds ``unit``, started at ``started`` (monotonic s), counts as done at ``now``: its
-        time so far, up to ``IN_FLIGHT_CAP`` of its projected cost (a unit running over its estimate
-        holds the line back instead of showing nothing left)."""
+        """The seconds ``unit``, started at ``started`` (monotonic s), counts as done at ``now``:
+        its time so far, up to ``IN_FLIGHT_CAP`` of its projected cost (a unit running over its
+        estimate holds the line back instead of showing nothing left)."""
         cap = IN_FLIGHT_CAP * unit.cost * cost_ratio(unit_kind(unit), self.est_done, self.spent)
         return min(now - started, cap)
 

@@ -2,9 +2,9 @@
 
 The plan (benchmarks/sweep/plan.py) is a list of sections; the unit list, the executor and the
 report pass all iterate the same objects. A section's ``units(sweep)`` declares its work (units of
-benchmarks/sweep/records.py: the one place its cells are declared), ``results(sweep)`` reads its cells back
-from the store (computing any that are missing) and ``report(sweep, results)`` writes its tables
-and figures. ``CellSection`` adapts a section of independent cells given as three functions.
+benchmarks/sweep/records.py: the one place its cells are declared), ``results(sweep)`` reads its
+cells back from the store (computing any that are missing) and ``report(sweep, results)`` writes its
+tables and figures. ``CellSection`` adapts a section of independent cells given as three functions.
 """
 
 from __future__ import annotations
@@ -14,8 +14,10 @@ from typing import Callable
 from benchmarks.sweep.records import Cell, SectionUnit
 
 TEST_SEED_OFFSET = 10_000  # the testing environment's seed: the training seed + this
-EVAL_S = 1.0  # seconds of a cell of a section that estimates none (algorithms: benchmarks.costs.CostModel)
-IMPERFECT_COST = 3.0  # a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
+# seconds of a cell of a section that estimates none (algorithms: benchmarks.costs.CostModel)
+EVAL_S = 1.0
+# a cell's cost factor with lab imperfections (docs/imperfections.md: 3.5-6x the ideal step)
+IMPERFECT_COST = 3.0
 
 
 class Section:
@@ -25,8 +27,9 @@ class Section:
     default: bool = True
 
     def units(self, sweep) -> list:
-        """The work units of this section's cells (``benchmarks.sweep.records.Unit``s, from ``Sweep.train_units``
-        and ``Sweep.eval_unit``; units shared with another section carry the same key and are computed once)."""
+        """The work units of this section's cells (``benchmarks.sweep.records.Unit``s, from
+        ``Sweep.train_units`` and ``Sweep.eval_unit``; units shared with another section carry the
+        same key and are computed once)."""
         raise NotImplementedError
 
     def results(self, sweep):
@@ -43,10 +46,11 @@ class Section:
 
 
 class CellSection(Section):
-    """A section of independent cells: ``cells(preset) -> [config dict]`` (each JSON-able; optional keys
-    ``label`` and ``cost``, estimated seconds), ``compute(config) -> result dict`` (run by a worker) and
-    ``report(records, out) -> str`` (records: [(config, result)]; returns the report's text); ``cost(config)``
-    (optional) estimates a cell's seconds without being part of its configuration."""
+    """A section of independent cells: ``cells(preset) -> [config dict]`` (each JSON-able; optional
+    keys ``label`` and ``cost``, estimated seconds), ``compute(config) -> result dict`` (run by a
+    worker) and ``report(records, out) -> str`` (records: [(config, result)]; returns the report's
+    text); ``cost(config)`` (optional) estimates a cell's seconds without being part of its
+    configuration."""
 
     def __init__(
         self,

@@ -1,7 +1,7 @@
-"""The sweep's work: the cells of the plan's sections (benchmarks/sweep/plan.py) as work units (records of
-benchmarks/sweep/records.py), their computation into the cell store, the report pass; compilation-cache setup
-of a worker process. The command line is benchmarks/sweep/command.py; the Ray executor benchmarks/sweep/executor.py
-(docs/sweep.md).
+"""The sweep's work: the cells of the plan's sections (benchmarks/sweep/plan.py) as work units
+(records of benchmarks/sweep/records.py), their computation into the cell store, the report pass;
+compilation-cache setup of a worker process. The command line is benchmarks/sweep/command.py; the
+Ray executor benchmarks/sweep/executor.py (docs/sweep.md).
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from benchmarks.sweep.section import IMPERFECT_COST, TEST_SEED_OFFSET
 
 
 def algo_entry(name: str):
-    """The ``agents.registry.Algo`` of ``name`` (imported here: jax loads after the sweep's settings)."""
+    """The ``agents.registry.Algo`` of ``name`` (imported here: jax loads after the sweep's
+    settings)."""
     from agents import registry
 
     return registry.get(name)
@@ -32,8 +33,8 @@ def is_learner(algo: str) -> bool:
 
 
 class Sweep:
-    """The sweep of ``preset`` into the folder ``out``: the store of its cells (``store``), the plan's units, their
-    computation and the report pass."""
+    """The sweep of ``preset`` into the folder ``out``: the store of its cells (``store``), the
+    plan's units, their computation and the report pass."""
 
     def __init__(self, preset: dict, out: Path, log, meta: dict | None = None):
         """``meta``: keys stored in each cell computed here (``CellStore``)."""
@@ -50,9 +51,9 @@ class Sweep:
 
     # -- trained controllers --------------------------------------------------------------------
     def train_cell(self, controller: Controller, seed: int) -> Cell:
-        """The training cell of ``controller``'s seed ``seed``: its configuration holds the environment in the dict
-        form of ``ops_jax.EnvSpec``, the preset's hyperparameters under the controller's and every setting they
-        resolve to (a changed preset is another cell)."""
+        """The training cell of ``controller``'s seed ``seed``: its configuration holds the
+        environment in the dict form of ``ops_jax.EnvSpec``, the preset's hyperparameters under the
+        controller's and every setting they resolve to (a changed preset is another cell)."""
         algo = controller.algo
         hyper = {"config": self.preset["algo_config"]} if is_learner(algo) else {}
         hyper.update(self.preset.get("hyper", {}).get(algo, {}))
@@ -78,12 +79,14 @@ class Sweep:
         return f"checkpoints/{cell.label}-{cell.key}"
 
     def _finished(self, cell: Cell, quiet: bool = True) -> bool:
-        """Whether the training cell is stored and its checkpoint loads (what is not is reported unless ``quiet``)."""
+        """Whether the training cell is stored and its checkpoint loads (what is not is reported
+        unless ``quiet``)."""
         record = self.store.load(cell.label, cell.config, quiet=quiet)
         return record is not None and self._loads(record, quiet=quiet)
 
     def _loads(self, record: dict, quiet: bool = False) -> bool:
-        """Whether a cell's checkpoint is there and loads (not truncated, corrupt or of an older format)."""
+        """Whether a cell's checkpoint is there and loads (not truncated, corrupt or of an older
+        format)."""
         import agents
 
         try:
@@ -95,15 +98,17 @@ class Sweep:
             return False
 
     def trained(self, controller: Controller, seed: int, result=None) -> dict:
-        """Train (or reuse) ``controller`` on seed ``seed``, evaluate it in its training and testing environment.
-        ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed call)."""
+        """Train (or reuse) ``controller`` on seed ``seed``, evaluate it in its training and testing
+        environment. ``result``: an already trained ``TrainResult`` for this cell (from a multi-seed
+        call)."""
         import agents
 
         cell, env = self.train_cell(controller, seed), controller.env
         config, checkpoint = cell.config, self.checkpoint(cell)
 
         # A controller with nothing to train records an evaluation as its curve: the same draws as
-        # the training-environment evaluation below (which computes them again, with the compiled program kept).
+        # the training-environment evaluation below (which computes them again, with the compiled
+        # program kept).
         curve = {} if is_learner(controller.algo) else {"curve_episodes": config["episodes"]}
 
         def compute():
@@ -143,7 +148,8 @@ class Sweep:
         return record
 
     def trained_seeds(self, controller: Controller, seeds) -> dict:
-        """{seed: ``trained`` record} of ``controller``; the unfinished seeds of an algorithm that vmaps seeds
+        """{seed: ``trained`` record} of ``controller``; the unfinished seeds of an algorithm that
+        vmaps seeds
         (TD3) train in one call first, then each seed's cell is written as it is evaluated."""
         import agents
 
@@ -173,7 +179,8 @@ class Sweep:
         return agents.load(self.out / record["checkpoint"])
 
     def eval_cell(self, checkpoint: str, evaluation: Evaluation) -> Cell:
-        """The cell of ``evaluation`` of the controller stored at ``checkpoint`` (relative to the output folder)."""
+        """The cell of ``evaluation`` of the controller stored at ``checkpoint`` (relative to the
+        output folder)."""
         return Cell(
             label=evaluation.label,
             config=dict(
@@ -186,7 +193,8 @@ class Sweep:
         )
 
     def evaluated(self, evaluation: Evaluation, record: dict) -> dict:
-        """The cell of ``evaluation`` of the controller of training ``record`` (computed unless stored)."""
+        """The cell of ``evaluation`` of the controller of training ``record`` (computed unless
+        stored)."""
         import agents
 
         cell = self.eval_cell(record["checkpoint"], evaluation)
@@ -205,8 +213,8 @@ class Sweep:
 
     # -- the plan's work units ---------------------------------------------------------------------
     def train_units(self, controller: Controller, seeds) -> list:
-        """Training units of ``controller``: one unit of all ``seeds`` for an algorithm that vmaps seeds, else one
-        per seed."""
+        """Training units of ``controller``: one unit of all ``seeds`` for an algorithm that vmaps
+        seeds, else one per seed."""
         entry = algo_entry(controller.algo)
         groups = [list(seeds)] if entry.vmaps_seeds else [[s] for s in seeds]
         factor = IMPERFECT_COST if controller.env.imperfections is not None else 1.0
@@ -233,8 +241,8 @@ class Sweep:
         return units
 
     def eval_unit(self, key: str, controller: Controller, seed: int, evals: list) -> EvalUnit:
-        """The unit of ``evals`` (``Evaluation``s) of ``controller``'s seed ``seed``; it needs that training cell's
-        unit (``deps``, resolved by ``units``)."""
+        """The unit of ``evals`` (``Evaluation``s) of ``controller``'s seed ``seed``; it needs that
+        training cell's unit (``deps``, resolved by ``units``)."""
         train = self.train_cell(controller, seed)
         cells = [self.eval_cell(self.checkpoint(train), e) for e in evals]
         factor = IMPERFECT_COST if any(e.env.imperfections is not None for e in evals) else 1.0
@@ -248,8 +256,9 @@ class Sweep:
         )
 
     def units(self, sections) -> list:
-        """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once, an
-        ``EvalUnit``'s ``deps`` naming the unit of its training cell (benchmarks/sweep/records.py)."""
+        """The work units of ``sections`` (names of ``sweep_plan.PLAN``), in plan order, each once,
+        an ``EvalUnit``'s ``deps`` naming the unit of its training cell
+        (benchmarks/sweep/records.py)."""
         units, producer = {}, {}
         for name, section in sweep_plan.PLAN.items():
             for unit in section.units(self) if name in sections else ():
@@ -264,7 +273,8 @@ class Sweep:
         ]
 
     def todo(self, unit: Unit):
-        """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all are."""
+        """``unit`` reduced to its cells not stored yet (a train unit's seeds), or None when all
+        are."""
         if not isinstance(unit, TrainUnit):
             return (
                 unit
@@ -291,10 +301,10 @@ class Sweep:
                 self.store.get(cell.label, cell.config, lambda c=cell.config: section.compute(c))
 
     def run(self, sections, workers=(), computed=0, started=float("nan")):
-        """Load every cell of ``sections`` (computing any not stored), then write each section's report
-        and the summary; returns (cells computed, cells reused). ``workers``: a record (algos, timing)
-        per worker that computed ``computed`` cells for this run before; ``started``: the command's
-        start (time.time()), if known."""
+        """Load every cell of ``sections`` (computing any not stored), then write each section's
+        report and the summary; returns (cells computed, cells reused). ``workers``: a record
+        (algos, timing) per worker that computed ``computed`` cells for this run before;
+        ``started``: the command's start (time.time()), if known."""
         from benchmarks.sweep import report as sweep_report
 
         t0 = time.perf_counter()
@@ -328,7 +338,8 @@ def _eval_record(ev) -> dict:
 
 def enable_compilation_cache():
     """Persist XLA compilations (``OPS_JAX_CACHE`` or ~/.cache/ops-jax/xla): the many trainings of a
-    sweep share programs that differ only in their seed, so later cells and re-runs skip compiling."""
+    sweep share programs that differ only in their seed, so later cells and re-runs skip
+    compiling."""
     import jax
 
     folder = Path(os.environ.get("OPS_JAX_CACHE", Path.home() / ".cache" / "ops-jax" / "xla"))

@@ -1,5 +1,6 @@
-"""gymnax adapter: ``make(stages, mode, **options) -> (env, env_params)`` as ``gymnax.make`` returns, for the
-gymnax generation installed (needs ``pip install -e ".[gymnax]"``; ``import ops_jax`` does not import gymnax)::
+"""gymnax adapter: ``make(stages, mode, **options) -> (env, env_params)`` as ``gymnax.make``
+returns, for the gymnax generation installed (needs ``pip install -e ".[gymnax]"``;
+``import ops_jax`` does not import gymnax)::
 
     from ops_jax.adapters import gymnax as gymnax_env
     env, env_params = gymnax_env.make(stages=5, mode="hard", model="phasor")
@@ -10,24 +11,26 @@ gymnax generation installed (needs ``pip install -e ".[gymnax]"``; ``import ops_
 - ``env`` is a ``gymnax.environments.environment.Environment`` (``OPSGymnax``); ``env_params`` an
   ``OPSGymnaxParams``, a gymnax ``EnvParams`` holding ``max_steps_in_episode`` (the truncation, from
   ``max_steps``; a dynamic field: ``env_params.replace(max_steps_in_episode=50)``) and ``ops``, the
-  ``ops_jax.EnvParams``. The state is the ``ops_jax.EnvState``. Spaces: gymnax ``Box`` (observation: the
-  Gymnasium adapter's bounds; action: [-1, 1]^N float32, 0.01 wl per unit by default).
-- gymnax >= 1.0: the six-value step ``(obs, state, reward, terminated, truncated, info)`` from ``step_env``
-  (the transition without reset), ``is_truncated`` (``t >= max_steps_in_episode`` and not terminated) and
-  the auto-reset; ``info`` has ``terminated``, ``truncated``, ``final_observation`` (the finished
-  episode's last observation) and the ``OPSEnv`` step's keys (``normalized_power``, ...).
-- gymnax 0.0.x: the five-value step ``(obs, state, reward, done, info)``, ``done = terminated or truncated``,
-  with ``info["terminated"]``, ``info["truncated"]`` and ``info["final_observation"]``.
-- auto-reset: ``OPSEnv.auto_reset``, not a fresh ``reset_env``: the next episode carries the episode count
-  (hard mode's drift ramps with it, as in every ops-jax adapter), and under ``jax.vmap`` the reset is
-  computed only on steps where some instance ends, so ``vmap(env.step)`` costs what ``OPSEnv.step_batch``
-  does.
-- transition gradients (gymnax >= 1.0, ``env.with_transition_gradients()``): the observation and state after
-  ``step`` are differentiable with respect to the action and the incoming state (offsets in wl, frames)
-  through the physics model, field or phasor; the PRNG draws are constants, the action's gradient is zero
-  where it is clipped to [-1, 1], and through an auto-reset the new episode's start carries no gradient.
-  Without it the observation and state are detached (gymnax's default); the reward is differentiable
-  with respect to the action either way.
+  ``ops_jax.EnvParams``. The state is the ``ops_jax.EnvState``. Spaces: gymnax ``Box`` (observation:
+  the Gymnasium adapter's bounds; action: [-1, 1]^N float32, 0.01 wl per unit by default).
+- gymnax >= 1.0: the six-value step ``(obs, state, reward, terminated, truncated, info)`` from
+  ``step_env`` (the transition without reset), ``is_truncated`` (``t >= max_steps_in_episode`` and
+  not terminated) and the auto-reset; ``info`` has ``terminated``, ``truncated``,
+  ``final_observation`` (the finished episode's last observation) and the ``OPSEnv`` step's keys
+  (``normalized_power``, ...).
+- gymnax 0.0.x: the five-value step ``(obs, state, reward, done, info)``,
+  ``done = terminated or truncated``, with ``info["terminated"]``, ``info["truncated"]`` and
+  ``info["final_observation"]``.
+- auto-reset: ``OPSEnv.auto_reset``, not a fresh ``reset_env``: the next episode carries the episode
+  count (hard mode's drift ramps with it, as in every ops-jax adapter), and under ``jax.vmap`` the
+  reset is computed only on steps where some instance ends, so ``vmap(env.step)`` costs what
+  ``OPSEnv.step_batch`` does.
+- transition gradients (gymnax >= 1.0, ``env.with_transition_gradients()``): the observation and
+  state after ``step`` are differentiable with respect to the action and the incoming state (offsets
+  in wl, frames) through the physics model, field or phasor; the PRNG draws are constants, the
+  action's gradient is zero where it is clipped to [-1, 1], and through an auto-reset the new
+  episode's start carries no gradient. Without it the observation and state are detached (gymnax's
+  default); the reward is differentiable with respect to the action either way.
 """
 
 from __future__ import annotations
@@ -59,14 +62,16 @@ SIX_VALUE_STEP = hasattr(environment.Environment, "is_truncated")  # gymnax >= 1
 
 @struct.dataclass
 class OPSGymnaxParams(environment.EnvParams):
-    """gymnax ``EnvParams``: ``max_steps_in_episode`` (steps) and ``ops``, the ``ops_jax.EnvParams``."""
+    """gymnax ``EnvParams``: ``max_steps_in_episode`` (steps) and ``ops``, the
+    ``ops_jax.EnvParams``."""
 
     max_steps_in_episode: int = 200
     ops: EnvParams = None
 
 
 class OPSGymnax(environment.Environment):
-    """N-stage optical pulse stacking as a gymnax ``Environment`` over ``OPSEnv`` (see the module docstring)."""
+    """N-stage optical pulse stacking as a gymnax ``Environment`` over ``OPSEnv`` (see the module
+    docstring)."""
 
     _supports_transition_gradients = True
 
@@ -124,8 +129,9 @@ class OPSGymnax(environment.Environment):
         return self.is_terminated(state, params) | self.is_truncated(state, params)
 
     def step_env(self, key: jax.Array, state: EnvState, action, params: OPSGymnaxParams):
-        """The transition without reset: (obs, state, reward, terminated, info) for gymnax >= 1.0, (obs,
-        state, reward, done, info) with ``info["terminated"]`` / ``info["truncated"]`` for gymnax 0.0.x."""
+        """The transition without reset: (obs, state, reward, terminated, info) for gymnax >= 1.0,
+        (obs, state, reward, done, info) with ``info["terminated"]`` / ``info["truncated"]`` for
+        gymnax 0.0.x."""
         self.ops_env.check_action(action)
         obs, state, reward, terminated, _, info = self.ops_env.step_env(
             key, state, action, params.ops
@@ -144,7 +150,8 @@ class OPSGymnax(environment.Environment):
 
     @partial(jax.jit, static_argnames=("self",))
     def step(self, key: jax.Array, state: EnvState, action, params: OPSGymnaxParams | None = None):
-        """One step with auto-reset: six values on gymnax >= 1.0, five on 0.0.x (module docstring)."""
+        """One step with auto-reset: six values on gymnax >= 1.0, five on 0.0.x (module
+        docstring)."""
         params = self.default_params if params is None else params
         k_step, k_reset = jax.random.split(key)
         obs_st, state_st, reward, done, info = self.step_env(k_step, state, action, params)
@@ -162,8 +169,8 @@ class OPSGymnax(environment.Environment):
 
 
 def make(stages: int = 5, mode: str = "hard", **options: Any) -> tuple[OPSGymnax, OPSGymnaxParams]:
-    """``(env, env_params)`` as ``gymnax.make`` returns; every ``ops_jax.make`` option is accepted (checked
-    there: a bad value raises naming the option and its range)."""
+    """``(env, env_params)`` as ``gymnax.make`` returns; every ``ops_jax.make`` option is accepted
+    (checked there: a bad value raises naming the option and its range)."""
     ops_env, ops_params = make_ops(stages, mode, **options)
     env = OPSGymnax(ops_env, ops_params)
     return env, env.default_params

@@ -1,6 +1,6 @@
 """Which optional extra of ops-jax installs a missing module, and the one-line message that the
-project's command-line programs print instead of a traceback when it is missing (or when a Ctrl-C reaches
-the top of one: ``interrupted: ...``, exit status 130)."""
+project's command-line programs print instead of a traceback when it is missing (or when a Ctrl-C
+reaches the top of one: ``interrupted: ...``, exit status 130)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ def install_command(extra: str) -> str:
 
 
 def _extras() -> list:
-    """(top-level module name, extra) of every requirement of an extra of ops-jax, in pyproject order."""
+    """(top-level module name, extra) of every requirement of an extra of ops-jax, in pyproject
+    order."""
     try:
         requirements = importlib.metadata.requires("ops-jax") or []
     except importlib.metadata.PackageNotFoundError:
@@ -35,7 +36,8 @@ def _extras() -> list:
 
 
 def extra_of(module: str) -> str | None:
-    """The first extra (in pyproject order) whose requirements install top-level ``module``; None if none does."""
+    """The first extra (in pyproject order) whose requirements install top-level ``module``; None if
+    none does."""
     return next((extra for name, extra in _extras() if name == module), None)
 
 
@@ -45,7 +47,8 @@ def modules_of(extra: str) -> list:
 
 
 def missing_module(exc: BaseException) -> str | None:
-    """The top-level name of the module whose absence raised ``exc`` (or its cause); None otherwise."""
+    """The top-level name of the module whose absence raised ``exc`` (or its cause); None
+    otherwise."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
@@ -56,8 +59,8 @@ def missing_module(exc: BaseException) -> str | None:
 
 
 def program() -> str | None:
-    """``python -m NAME`` when the running program is one of this project's modules, its name when it is one
-    of its commands (``ops-train``, ...: ``[project.scripts]``), else None."""
+    """``python -m NAME`` when the running program is one of this project's modules, its name when
+    it is one of its commands (``ops-train``, ...: ``[project.scripts]``), else None."""
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     name = getattr(spec, "name", None) or ""
     if (
@@ -101,9 +104,10 @@ def _excepthook(kind, exc, tb):
 
 
 def install_excepthook() -> None:
-    """Print one line naming the install command, not a traceback, when one of the project's programs
-    stops on a module that an extra installs, and one line with exit status 130 when a Ctrl-C stops it
-    where the program does not say what it kept (other programs keep their traceback)."""
+    """Print one line naming the install command, not a traceback, when one of the project's
+    programs stops on a module that an extra installs, and one line with exit status 130 when a
+    Ctrl-C stops it where the program does not say what it kept (other programs keep their
+    traceback)."""
     global _previous_hook
     if sys.excepthook is not _excepthook:
         _previous_hook, sys.excepthook = sys.excepthook, _excepthook
@@ -116,7 +120,7 @@ def install_excepthook() -> None:
 
 
 def started_as_program() -> bool:
-    """Whether this interpreter was started as ``python -m`` one of this project's modules (known while the
-    package still imports, before ``program`` can tell)."""
+    """Whether this interpreter was started as ``python -m`` one of this project's modules (known
+    while the package still imports, before ``program`` can tell)."""
     argv = list(getattr(sys, "orig_argv", ()))
     return "-m" in argv[:-1] and argv[argv.index("-m") + 1].split(".")[0] in PACKAGES

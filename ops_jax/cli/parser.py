@@ -1,6 +1,6 @@
 """The argument parser of the project's command-line programs: a mistyped option is reported in two
-lines (the error and where the options are listed), not under a screenful of usage; ``run``: a picture program's
-values out of range and its Ctrl-C in one line each."""
+lines (the error and where the options are listed), not under a screenful of usage; ``run``: a
+picture program's values out of range and its Ctrl-C in one line each."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\nthe options: {self.prog} --help\n")
 
     def check_least(self, args, **least) -> None:
-        """A parser error for the first of the options ``least`` names whose value lies under its least (an option
-        left unset, None, passes): ``check_least(args, steps=0, episodes=1)``."""
+        """A parser error for the first of the options ``least`` names whose value lies under its
+        least (an option left unset, None, passes): ``check_least(args, steps=0, episodes=1)``."""
         for name, low in least.items():
             value = getattr(args, name)
             if value is not None and value < low:
@@ -26,9 +26,9 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def run(prog: str, main) -> None:
-    """Run a picture-making program's ``main()``, which computes from its arguments alone: a ``ValueError`` (a
-    value out of its range, named by the function that refused it) is one line on stderr, exit status 2; a
-    Ctrl-C one line, exit status 130."""
+    """Run a picture-making program's ``main()``, which computes from its arguments alone: a
+    ``ValueError`` (a value out of its range, named by the function that refused it) is one line on
+    stderr, exit status 2; a Ctrl-C one line, exit status 130."""
     keep_ctrl_c()
     try:
         main()

@@ -164,10 +164,10 @@ def progress(
 
 
 class StepProgress:
-    """A training's progress as a ``progress_fn(step, metrics)``: env steps done, the latest evaluation P/Pmax,
-    "compiling" until the first report (the compilation and warm-up before it are timed and said), then the
-    remaining time from the rate since that report, so the compiling does not distort it. ``close()`` ends the
-    bar; ``n`` is the steps reported."""
+    """A training's progress as a ``progress_fn(step, metrics)``: env steps done, the latest
+    evaluation P/Pmax, "compiling" until the first report (the compilation and warm-up before it are
+    timed and said), then the remaining time from the rate since that report, so the compiling does
+    not distort it. ``close()`` ends the bar; ``n`` is the steps reported."""
 
     def __init__(self, total: int | None, desc: str, file=None):
         self.total = total or None
@@ -209,8 +209,8 @@ class StepProgress:
 
 @contextlib.contextmanager
 def reporting(show: bool | None, progress_fn, total: int | None, desc: str):
-    """A training's ``progress_fn``: ``progress_fn`` (may be None) and, with ``show`` (None: when stderr is a
-    terminal), a ``StepProgress`` bar, closed on the way out; None when neither."""
+    """A training's ``progress_fn``: ``progress_fn`` (may be None) and, with ``show`` (None: when
+    stderr is a terminal), a ``StepProgress`` bar, closed on the way out; None when neither."""
     if show is None:
         show = is_terminal(sys.stderr)
     if not show:
@@ -230,10 +230,11 @@ def reporting(show: bool | None, progress_fn, total: int | None, desc: str):
 
 
 def keep_ctrl_c() -> None:
-    """Make a Ctrl-C that lands in a garbage-collector callback (JAX registers one) or a ``__del__`` stop
-    the program: Python reports a ``KeyboardInterrupt`` raised there as unraisable and goes on; this hook
-    has it raised again 5 ms later, once the callback has returned. Other unraisable errors are reported
-    as before. Idempotent; for command-line programs that end on ``KeyboardInterrupt``."""
+    """Make a Ctrl-C that lands in a garbage-collector callback (JAX registers one) or a ``__del__``
+    stop the program: Python reports a ``KeyboardInterrupt`` raised there as unraisable and goes on;
+    this hook has it raised again 5 ms later, once the callback has returned. Other unraisable
+    errors are reported as before. Idempotent; for command-line programs that end on
+    ``KeyboardInterrupt``."""
     if getattr(sys.unraisablehook, "keeps_ctrl_c", False):
         return
     previous = sys.unraisablehook
@@ -260,9 +261,9 @@ def _interrupt_main_soon() -> None:
 
 
 def exit_interrupted(line: str, status: int = 130) -> None:
-    """Ctrl-C: print ``line`` (what was kept) and exit at once with ``status``, 130 (128 + SIGINT, as a shell
-    reports it; 143 for SIGTERM). ``os._exit``: XLA may be mid-computation in its own threads, and the normal
-    interpreter teardown then can crash."""
+    """Ctrl-C: print ``line`` (what was kept) and exit at once with ``status``, 130 (128 + SIGINT,
+    as a shell reports it; 143 for SIGTERM). ``os._exit``: XLA may be mid-computation in its own
+    threads, and the normal interpreter teardown then can crash."""
     sys.stdout.flush()
     print(f"interrupted: {line}", file=sys.stderr, flush=True)
     os._exit(status)

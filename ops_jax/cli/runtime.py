@@ -1,4 +1,5 @@
-"""Which CPU cores this process's threads run on, and how a latency-bound process starts JAX's CPU backend."""
+"""Which CPU cores this process's threads run on, and how a latency-bound process starts JAX's CPU
+backend."""
 
 from __future__ import annotations
 
@@ -6,11 +7,12 @@ import os
 
 
 def start_single_threaded() -> bool:
-    """Start JAX's CPU backend with its thread pools one thread each, the process's threads free to run on the
-    cores they could before (Linux; before JAX's first computation: later it changes nothing). For a process
-    whose calls are small and each waits for its result (a controller's step, the simulated bench's tick): with
-    a pool thread per core such a call spends CPU time in the pool's other threads as well. False where the
-    process cannot set its cores (the backend then starts as usual)."""
+    """Start JAX's CPU backend with its thread pools one thread each, the process's threads free to
+    run on the cores they could before (Linux; before JAX's first computation: later it changes
+    nothing). For a process whose calls are small and each waits for its result (a controller's
+    step, the simulated bench's tick): with a pool thread per core such a call spends CPU time in
+    the pool's other threads as well. False where the process cannot set its cores (the backend then
+    starts as usual)."""
     import jax
 
     if not hasattr(os, "sched_setaffinity"):
@@ -33,8 +35,9 @@ def threads() -> set:
 
 
 def set_cores(cores: set, tids: set | None = None) -> None:
-    """Let the threads ``tids`` (None: every thread of this process; 0: the calling one) run on CPU ``cores`` only
-    (Linux); a thread that has ended meanwhile, or that this process may not move, is skipped."""
+    """Let the threads ``tids`` (None: every thread of this process; 0: the calling one) run on CPU
+    ``cores`` only (Linux); a thread that has ended meanwhile, or that this process may not move, is
+    skipped."""
     for tid in threads() if tids is None else tids:
         try:
             os.sched_setaffinity(tid, cores)

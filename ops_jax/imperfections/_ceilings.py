@@ -1,5 +1,6 @@
-"""The ceilings of a bench: P_best (the best P reachable with the static optics imperfections), its offsets,
-and ``held_power`` (the mean P of lines held there under the vibration, with or without its prediction)."""
+"""The ceilings of a bench: P_best (the best P reachable with the static optics imperfections), its
+offsets, and ``held_power`` (the mean P of lines held there under the vibration, with or without its
+prediction)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ def best_power(config, lab: Imperfections):
 
 
 def best_offsets(config, lab: Imperfections):
-    """The offsets (..., N) wl where ``best_power`` reaches P_best (the ideal optimum, zeros, where nothing beats it)."""
+    """The offsets (..., N) wl where ``best_power`` reaches P_best (the ideal optimum, zeros, where
+    nothing beats it)."""
     return np.asarray(_best_power_and_offsets(config, lab)[1]).reshape(
         *np.shape(lab.pbs_leakage)[:-1], config.stages
     )
@@ -47,17 +49,18 @@ def _best_power_and_offsets(config, lab: Imperfections):
 def held_power(
     config, lab: Imperfections, key, samples: int = 4096, predict: bool = False
 ) -> float:
-    """Mean P (units of P) with the lines held at the ``best_offsets``, over ``samples`` draws of the vibration
-    and the input pulses from their stationary law: the most that a controller can hold which follows the drift
-    exactly but not the vibration. ``predict``: the lines held at those offsets less the
-    vibration's one-step prediction from its exact past, so that only its new innovation is left: the most
-    that a controller can hold which also predicts the vibration perfectly. The lines sit where they are put
-    (no actuator errors); the detector plays no part (P is the true stacked power). One bench: an unbatched
-    ``lab`` without randomisation."""
+    """Mean P (units of P) with the lines held at the ``best_offsets``, over ``samples`` draws of
+    the vibration and the input pulses from their stationary law: the most that a controller can
+    hold which follows the drift exactly but not the vibration. ``predict``: the lines held at those
+    offsets less the vibration's one-step prediction from its exact past, so that only its new
+    innovation is left: the most that a controller can hold which also predicts the vibration
+    perfectly. The lines sit where they are put (no actuator errors); the detector plays no part (P
+    is the true stacked power). One bench: an unbatched ``lab`` without randomisation."""
     n = config.stages
     if np.shape(lab.pbs_leakage) != (n,):
         raise ValueError(
-            f"lab must be one bench (per-stage leaves of shape ({n},)), got {np.shape(lab.pbs_leakage)}"
+            f"lab must be one bench (per-stage leaves of shape ({n},)), got "
+            f"{np.shape(lab.pbs_leakage)}"
         )
     if float(lab.randomize) or float(lab.randomize_layout):
         raise ValueError(
@@ -101,7 +104,8 @@ def _held_power_fn(config, predict):
 
 @functools.lru_cache(maxsize=None)
 def _best_power_fn(n, model, detector):
-    """The jitted P_best search over a batch of (rotation, leakage) (B, N): (P_best (B,), its offsets (B, N))."""
+    """The jitted P_best search over a batch of (rotation, leakage) (B, N): (P_best (B,), its
+    offsets (B, N))."""
     p_max = physics.p_max(n, detector)
 
     def one(rot, leak):

@@ -26,18 +26,18 @@ class Imperfections:
     Optics: waveplate_error_deg (N,) half-wave plate angle error (deg); pbs_leakage (N,) intensity
     fraction 1/ER into the wrong arm; pulse_amplitude_noise, pulse_phase_noise: relative amplitude
     and phase (rad) RMS of each input pulse, redrawn every step; readout_offset (N,) wl and
-    readout_gain_error (N,) of the length readout in the observation.
-    Actuators: actuator_gain_error (N,); backlash_wl (play width, wl); lag_steps (first-order time
-    constant, steps); dac_bits (0: exact) over actuator_span_wl.
-    Detector (P and oscilloscope samples, in units of P_max and the ideal peak): detector_offset,
-    detector_gain_error, detector_saturation (full scale), adc_bits (0: exact) over [0, full scale].
-    Vibration: vib_rms (wl RMS) of a 1/f^vib_alpha background; resonance_freq (R,) cycles per
-    step, resonance_q (R,), resonance_rms (R,) wl RMS.
-    p_best: the best P reachable with the static imperfections (set by ``ops_jax.make``: P_max without them).
-    randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``)
-    is multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
-    randomize_layout: probability in [0, 1] that an episode's signed per-stage error patterns (``LAYOUT``)
-    are each permuted over the stages, every entry's sign flipped at random (before ``randomize`` scales them).
+    readout_gain_error (N,) of the length readout in the observation. Actuators: actuator_gain_error
+    (N,); backlash_wl (play width, wl); lag_steps (first-order time constant, steps); dac_bits (0:
+    exact) over actuator_span_wl. Detector (P and oscilloscope samples, in units of P_max and the
+    ideal peak): detector_offset, detector_gain_error, detector_saturation (full scale), adc_bits
+    (0: exact) over [0, full scale]. Vibration: vib_rms (wl RMS) of a 1/f^vib_alpha background;
+    resonance_freq (R,) cycles per step, resonance_q (R,), resonance_rms (R,) wl RMS. p_best: the
+    best P reachable with the static imperfections (set by ``ops_jax.make``: P_max without them).
+    randomize: domain randomisation r in [0, 1]: at every reset each error magnitude (``SCALED``) is
+    multiplied by 1 + r u, u ~ U[-1, 1) per entry, for that episode (r = 1: 0 to 2x the values).
+    randomize_layout: probability in [0, 1] that an episode's signed per-stage error patterns
+    (``LAYOUT``) are each permuted over the stages, every entry's sign flipped at random (before
+    ``randomize`` scales them).
     """
 
     waveplate_error_deg: ArrayLike = ranged(
@@ -109,7 +109,8 @@ _LAB = dict(
 
 
 def preset(name: str, stages: int, scale: float = 1.0) -> dict:
-    """The overrides of preset ``name`` ("none" | "lab") for N stages, error magnitudes x ``scale``."""
+    """The overrides of preset ``name`` ("none" | "lab") for N stages, error magnitudes x
+    ``scale``."""
     physics._check_choice("imperfections", name, PRESETS)
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale >= 0):
         raise ValueError(f"imperfection_scale must be a finite number >= 0, got {scale!r}")
@@ -123,8 +124,8 @@ def preset(name: str, stages: int, scale: float = 1.0) -> dict:
 
 
 def build(stages: int, **values) -> Imperfections:
-    """Validated float32 ``Imperfections`` (per-stage leaves broadcast to (..., N)); ValueError names
-    a field out of range or of the wrong shape."""
+    """Validated float32 ``Imperfections`` (per-stage leaves broadcast to (..., N)); ValueError
+    names a field out of range or of the wrong shape."""
     lab = dataclasses.replace(Imperfections(), **values)
     out = {}
     for name in FIELDS:

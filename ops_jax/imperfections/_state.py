@@ -50,7 +50,8 @@ def _pulses(z, lab):
 
 
 def _layout(key, lab: Imperfections) -> dict:
-    """With probability ``randomize_layout``, each ``LAYOUT`` pattern permuted over the stages, signs flipped at random."""
+    """With probability ``randomize_layout``, each ``LAYOUT`` pattern permuted over the stages,
+    signs flipped at random."""
     keys = jax.random.split(jax.random.fold_in(key, _KEY_TAG + 2), 2 * len(LAYOUT) + 1)
     drawn = jax.random.uniform(keys[-1]) < lab.randomize_layout
     out = {}
@@ -62,8 +63,8 @@ def _layout(key, lab: Imperfections) -> dict:
 
 
 def episode_values(key, lab: Imperfections) -> Imperfections:
-    """This episode's imperfections: the ``LAYOUT`` patterns re-drawn (``randomize_layout``), then each
-    ``SCALED`` entry v becomes v (1 + randomize u)."""
+    """This episode's imperfections: the ``LAYOUT`` patterns re-drawn (``randomize_layout``), then
+    each ``SCALED`` entry v becomes v (1 + randomize u)."""
     lab = dataclasses.replace(lab, **_layout(key, lab))
     u = noise.draws(
         jax.random.fold_in(key, _KEY_TAG + 1),

@@ -1,5 +1,5 @@
-"""An episode's pictures: its oscilloscope frames (every k-th step and the last) and their animated GIF
-(Pillow, imported only when a GIF is written)."""
+"""An episode's pictures: its oscilloscope frames (every k-th step and the last) and their animated
+GIF (Pillow, imported only when a GIF is written)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ class Episode(NamedTuple):
 
 
 def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: int = 80) -> list:
-    """Oscilloscope frames of every ``every``-th step of an episode (the last step always included)."""
+    """Oscilloscope frames of every ``every``-th step of an episode (the last step always
+    included)."""
     from ops_jax.cli.progress import progress
 
     env, _ = make(**ep.env_config)
@@ -37,14 +38,15 @@ def episode_frames(ep: Episode, every: int = 1, figsize=DEFAULT_FIGSIZE, dpi: in
 
 
 def frame_steps(length: int, every: int = 1) -> list:
-    """The steps that ``episode_frames`` draws from an episode of ``length`` offsets: every ``every``-th, and the last."""
+    """The steps that ``episode_frames`` draws from an episode of ``length`` offsets: every
+    ``every``-th, and the last."""
     idx = list(range(0, length, every))
     return idx if idx[-1] == length - 1 else [*idx, length - 1]
 
 
 def write_gif(frames, path, fps: float = 10.0, comment: str = "") -> Path:
-    """Write RGB frames as an animated GIF (Pillow, one shared adaptive palette, looping; ``comment``: the
-    file's comment, e.g. the frames' titles)."""
+    """Write RGB frames as an animated GIF (Pillow, one shared adaptive palette, looping;
+    ``comment``: the file's comment, e.g. the frames' titles)."""
     from PIL import Image
 
     if len(frames) < 1:

@@ -1,5 +1,6 @@
-"""The objective landscape: P / P_max (exact field model) with one or two stages moved from the optimum,
-as numbers (``landscape``) and as a figure (``plot_landscape``: a line plot or a heat map)."""
+"""The objective landscape: P / P_max (exact field model) with one or two stages moved from the
+optimum, as numbers (``landscape``) and as a figure (``plot_landscape``: a line plot or a heat
+map)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def _check_stage(stage, stages):
     return int(stage) - 1
 
 
-LANDSCAPE_CHUNK = 16_384  # offsets per field-model call of ``landscape``: its memory (the field grid of each) bounded
+# offsets per field-model call of ``landscape``: its memory (the field grid of each) bounded
+LANDSCAPE_CHUNK = 16_384
 
 
 @functools.lru_cache(maxsize=None)

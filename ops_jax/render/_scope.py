@@ -1,6 +1,7 @@
-"""The oscilloscope frame of an N-stage output: the exact field measurement of offsets and its picture
-(intensity I(t) / I_peak on the 0.5 ps grid, the 2^N - 1 samples marked, P / P_max in the title), drawn on a
-matplotlib Agg canvas (no display needed; matplotlib imported only when a figure is made)."""
+"""The oscilloscope frame of an N-stage output: the exact field measurement of offsets and its
+picture (intensity I(t) / I_peak on the 0.5 ps grid, the 2^N - 1 samples marked, P / P_max in the
+title), drawn on a matplotlib Agg canvas (no display needed; matplotlib imported only when a figure
+is made)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ DEFAULT_DPI = 100
 
 @functools.lru_cache(maxsize=None)
 def _measure_fn(stages: int, detector: str):
-    """Jitted field measurement of a batch of offsets (B, N) -> (P / P_max (B,), I / I_peak (B, M))."""
+    """Jitted field measurement of a batch of offsets (B, N) -> (P / P_max (B,), I / I_peak (B,
+    M))."""
     p_max = physics.p_max(stages, detector)
     peak = physics.peak_intensity(stages)
 
@@ -30,7 +32,8 @@ def _measure_fn(stages: int, detector: str):
 
 
 def measure_frames(deltas_wl, stages: int, detector: str = "total"):
-    """Exact measurements of offsets ``deltas_wl`` (T, N) wl: (P / P_max (T,), I / I_peak (T, M))."""
+    """Exact measurements of offsets ``deltas_wl`` (T, N) wl: (P / P_max (T,), I / I_peak (T,
+    M))."""
     physics.check_stages(stages)
     physics._check_choice("detector", detector, physics.DETECTORS)
     x = np.asarray(deltas_wl, np.float32)

@@ -1,5 +1,5 @@
-"""``render_mode="human"``: an RGB frame shown in a matplotlib window, or one logged message where no
-display or interactive backend is there."""
+"""``render_mode="human"``: an RGB frame shown in a matplotlib window, or one logged message where
+no display or interactive backend is there."""
 
 from __future__ import annotations
 
@@ -50,8 +50,8 @@ def show(frame: np.ndarray, title: str = "ops_jax") -> bool:
             return True
     if not _human_window.get("warned"):
         logging.getLogger("ops_jax").warning(
-            "render_mode='human': no display or interactive matplotlib backend; frames are not shown "
-            "(use render_mode='rgb_array')"
+            "render_mode='human': no display or interactive matplotlib backend; frames are not "
+            "shown (use render_mode='rgb_array')"
         )
         _human_window["warned"] = True
     return False

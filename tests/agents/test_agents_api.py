@@ -54,7 +54,8 @@ def test_evaluate_is_the_same_on_two_devices(this_build):
     outs = []
     for count in (1, 2):
         path = f"/tmp/ops_eval_{count}_{os.getpid()}.npy"
-        flags = f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count={count}"  # this process's build
+        # this process's build
+        flags = f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count={count}"
         env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": flags}
         res = subprocess.run(
             [sys.executable, "-c", code, path], env=env, capture_output=True, text=True, check=True
@@ -143,8 +144,8 @@ def test_evaluate_compiles_once_per_policy_and_static_config(compiles):
 
 
 def test_repeated_evaluation_runs_the_program_again(compiles):
-    """Only the compiled program is kept: a repeated call runs it (the policy's host callback fires again)
-    without compiling, and gives the same numbers in a new result."""
+    """Only the compiled program is kept: a repeated call runs it (the policy's host callback fires
+    again) without compiling, and gives the same numbers in a new result."""
     runs = []
     inner = _dither_policy()
 
@@ -245,9 +246,9 @@ def test_training_cli_refuses_bad_arguments_in_one_line(argv, words, tmp_path):
     ],
 )
 def test_training_cli_refuses_a_budget_that_cannot_learn_in_one_line(argv, words, tmp_path):
-    """--steps for a controller with nothing to train, or one that ends within a learner's warm-up (no gradient
-    step): one error line before any other output, naming the budget to type instead; exit status 2, nothing
-    written."""
+    """--steps for a controller with nothing to train, or one that ends within a learner's warm-up
+    (no gradient step): one error line before any other output, naming the budget to type instead;
+    exit status 2, nothing written."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OPS_JAX_PROGRESS_INTERVAL": "0"}
     res = subprocess.run(
         [sys.executable, "-m", "agents", *argv, "--stages", "2", "--out", str(tmp_path / "run")],
@@ -322,8 +323,9 @@ def test_evaluate_reports_p_best_and_builds_the_environment_once(monkeypatch):
 
 
 def test_evaluate_summary_reports_the_lock_figures_over_its_episodes():
-    """The median lock step and RMS power noise after lock of the episodes that lock (``ops_jax.lock``),
-    beside the summary's other figures; a lock comes no earlier than P first reaches 0.9."""
+    """The median lock step and RMS power noise after lock of the episodes that lock
+    (``ops_jax.lock``), beside the summary's other figures; a lock comes no earlier than P first
+    reaches 0.9."""
     from ops_jax.lock import lock_figures
 
     result = agents.train("physics", ENV, starts=3, iters=2)

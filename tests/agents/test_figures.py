@@ -1,6 +1,6 @@
-"""The README's figures are what their commands draw: each command (collected from the README's Pictures
-block) re-draws its figure's first frame here, and the title it prints must read as the committed figure's
-(stored in the file: PNG text "Title", the GIF's comment, one line per frame)."""
+"""The README's figures are what their commands draw: each command (collected from the README's
+Pictures block) re-draws its figure's first frame here, and the title it prints must read as the
+committed figure's (stored in the file: PNG text "Title", the GIF's comment, one line per frame)."""
 
 import re
 import shlex
@@ -42,8 +42,8 @@ def test_figure_title_reads_what_its_command_draws(argv, tmp_path):
     args = argv[3:]
     args[args.index("--out") + 1] = str(tmp_path / committed.name)
     if argv[2] == "agents.episode" and "frame" not in args:
-        # The GIF's first frame is the reset, before the policy acts: the zero policy draws it without
-        # compiling the controller.
+        # The GIF's first frame is the reset, before the policy acts: the zero policy draws it
+        # without compiling the controller.
         args[args.index("--policy") + 1] = "zero"
         args[args.index("--steps") + 1] = "0"
     module = episode if argv[2] == "agents.episode" else render

@@ -1,7 +1,8 @@
 """A new learner is its module plus one registry entry: this test module is one (a proportional
 controller on the length readout whose "training" picks its gain), registered from inside the test
-and run through agents.train / evaluate and the command line's choices; joined to the benchmarks by their own
-presets and cost models (benchmarks/), a one-cell sweep plan and the lab-budget section."""
+and run through agents.train / evaluate and the command line's choices; joined to the benchmarks by
+their own presets and cost models (benchmarks/), a one-cell sweep plan and the lab-budget
+section."""
 
 import dataclasses
 import json
@@ -72,8 +73,9 @@ def train(env_config, *, seed=0, total_steps=None, progress_fn=None, config=None
 
 @pytest.fixture
 def tiny(monkeypatch):
-    """The tiny learner registered, and joined to the benchmarks: a budget and overrides in the sweep's quick
-    preset, its hyperparameters in the lab-budget section's quick preset and its cost model."""
+    """The tiny learner registered, and joined to the benchmarks: a budget and overrides in the
+    sweep's quick preset, its hyperparameters in the lab-budget section's quick preset and its cost
+    model."""
     from benchmarks import costs
     from benchmarks.budget import presets as budget_presets
     from benchmarks.sweep import presets as sweep_presets
@@ -170,7 +172,8 @@ def test_registered_learner_in_the_budget_section(tiny):
 
 
 def test_an_entry_declares_what_its_module_provides(tiny):
-    """The tiny module trains one seed per call: an entry declaring more is refused when it is loaded."""
+    """The tiny module trains one seed per call: an entry declaring more is refused when it is
+    loaded."""
     assert tiny.load() is base.algo_module("tiny")
     for declared in ({"vmaps_seeds": True}, {"off_policy": True}):
         with pytest.raises(TypeError, match="lacks .*train_seeds"):
@@ -178,8 +181,8 @@ def test_an_entry_declares_what_its_module_provides(tiny):
 
 
 def test_each_algorithm_is_registered_from_the_module_that_declares_it():
-    """``agents.algos`` registers each module's ``ALGO``, whose config type is declared beside it and exported by
-    ``agents``; a module that declares none is refused."""
+    """``agents.algos`` registers each module's ``ALGO``, whose config type is declared beside it
+    and exported by ``agents``; a module that declares none is refused."""
     import importlib
 
     for entry in registry.REGISTRY.values():

@@ -1,5 +1,5 @@
-"""TensorBoard scalars of a training curve (agents.tensorboard): written by tensorboardX, read back by
-tensorboard's own EventAccumulator with the values and env steps that went in."""
+"""TensorBoard scalars of a training curve (agents.tensorboard): written by tensorboardX, read back
+by tensorboard's own EventAccumulator with the values and env steps that went in."""
 
 import sys
 
@@ -10,7 +10,8 @@ from agents.tensorboard import TensorBoardLogger, tag
 
 
 def read_scalars(logdir) -> dict:
-    """{tag: (steps, values)} of the event files in ``logdir``, read by tensorboard's EventAccumulator."""
+    """{tag: (steps, values)} of the event files in ``logdir``, read by tensorboard's
+    EventAccumulator."""
     event_accumulator = pytest.importorskip(
         "tensorboard.backend.event_processing.event_accumulator"
     )
@@ -70,7 +71,8 @@ def test_missing_tensorboardx_names_the_extra(monkeypatch, tmp_path):
 
 
 def test_cli_logdir_without_tensorboardx_is_one_line(tmp_path):
-    """``python -m agents --logdir`` without the tensorboard extra stops before training, in one line."""
+    """``python -m agents --logdir`` without the tensorboard extra stops before training, in one
+    line."""
     import os
     import subprocess
     from pathlib import Path

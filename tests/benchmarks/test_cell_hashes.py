@@ -1,5 +1,6 @@
-"""Stored sweep cells are found by their label and ``config_hash``: these are keys of stored results, so the
-configurations a preset declares must hash as they did when those results were stored."""
+"""Stored sweep cells are found by their label and ``config_hash``: these are keys of stored
+results, so the configurations a preset declares must hash as they did when those results were
+stored."""
 
 import json
 from pathlib import Path
@@ -44,8 +45,9 @@ def test_stored_cells_keep_their_keys(name, tmp_path: Path):
 
 
 def test_units_are_frozen_picklable_records_of_the_stored_form(tmp_path: Path):
-    """A unit crosses to a Ray worker by pickle and comes back equal; a cell's key is the hash of its
-    configuration as stored (JSON); a misspelt field or environment option fails where the record is built."""
+    """A unit crosses to a Ray worker by pickle and comes back equal; a cell's key is the hash of
+    its configuration as stored (JSON); a misspelt field or environment option fails where the
+    record is built."""
     import dataclasses
     import pickle
 

@@ -1,6 +1,6 @@
-"""benchmarks.speed.device at test sizes on the CPU: the JSON's keys and statuses, a failing section recorded as
-failed while the others still write, sections skipped when the budget is spent, the default output path per
-platform; the sweep's workers sharing one GPU by memory fraction."""
+"""benchmarks.speed.device at test sizes on the CPU: the JSON's keys and statuses, a failing section
+recorded as failed while the others still write, sections skipped when the budget is spent, the
+default output path per platform; the sweep's workers sharing one GPU by memory fraction."""
 
 import json
 

@@ -1,7 +1,7 @@
 """benchmarks.learning: a run is stored, reused when asked for again with the same settings, and
 rerun when its hyperparameters (here: an older default) or episode count differ (a stale result is
-never passed off as the new one); a TD3 run stopped by Ctrl-C goes on from its checkpoint when the command is run
-again."""
+never passed off as the new one); a TD3 run stopped by Ctrl-C goes on from its checkpoint when the
+command is run again."""
 
 import json
 import os
@@ -61,8 +61,9 @@ def test_runs_are_reused_only_for_the_same_request(tmp_path):
 
 
 def test_a_run_stopped_by_ctrl_c_goes_on_from_its_checkpoint(tmp_path, monkeypatch, capsys):
-    """TD3's budget preset, 2,200 env steps: points at 1,000 (the warm-up), 1,600 and 2,200; Ctrl-C (a real SIGINT,
-    raised once the checkpoint at 1,600 is written) stops it there, one line; run again, it trains the last chunk."""
+    """TD3's budget preset, 2,200 env steps: points at 1,000 (the warm-up), 1,600 and 2,200; Ctrl-C
+    (a real SIGINT, raised once the checkpoint at 1,600 is written) stops it there, one line; run
+    again, it trains the last chunk."""
     argv = ["--algos", "td3", "--modes", "easy", "--seeds", "1", "--stages", "2", "--steps", "2200"]
     argv += [
         "--config",
@@ -129,7 +130,8 @@ def test_a_value_out_of_range_stops_before_any_run(argv, words, tmp_path, capsys
 
 
 def test_a_failed_run_is_the_commands_failure(tmp_path):
-    """A run its trainer refuses (TD3 with fewer steps than its warm-up) is recorded, and the command exits 1."""
+    """A run its trainer refuses (TD3 with fewer steps than its warm-up) is recorded, and the
+    command exits 1."""
     out = subprocess.run(
         [
             sys.executable,

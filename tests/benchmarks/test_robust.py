@@ -55,8 +55,8 @@ def test_probability_of_improvement_is_mann_whitney_over_pairs():
 
 
 def test_bootstrap_is_stratified_percentile_and_reproducible():
-    # Stratified: each task's runs are resampled within the task, so two constant tasks give no spread at all
-    # (resampling the runs of both together would mix them).
+    # Stratified: each task's runs are resampled within the task, so two constant tasks give no
+    # spread at all (resampling the runs of both together would mix them).
     point, lo, hi = robust.bootstrap_ci(
         np.array([[0.0, 1.0]] * 4), statistic=lambda m: float(m.mean())
     )
@@ -99,7 +99,8 @@ def test_performance_profile_and_its_band():
 
 
 def _runs(algos, finals_by_algo):
-    """table1's runs: (mode, algo, seed) -> record with per-seed final P/Pmax on both evaluation envs."""
+    """table1's runs: (mode, algo, seed) -> record with per-seed final P/Pmax on both evaluation
+    envs."""
     from benchmarks.sweep.paper import MODES
 
     return {

@@ -1,4 +1,5 @@
-"""benchmarks.speed.step_breakdown at a tiny batch: every part timed, the JSON written, bad sizes refused."""
+"""benchmarks.speed.step_breakdown at a tiny batch: every part timed, the JSON written, bad sizes
+refused."""
 
 import json
 

@@ -1,6 +1,6 @@
-"""Crash injection for the sweep's crash-recovery test (on PYTHONPATH of that test's processes only):
-with OPS_SWEEP_CRASH_AFTER=K, a process whose cell store has computed K cells kills itself with
-SIGSEGV, once per OPS_SWEEP_CRASH_MARKER file (created first)."""
+"""Crash injection for the sweep's crash-recovery test (on PYTHONPATH of that test's processes
+only): with OPS_SWEEP_CRASH_AFTER=K, a process whose cell store has computed K cells kills itself
+with SIGSEGV, once per OPS_SWEEP_CRASH_MARKER file (created first)."""
 
 import importlib.abc
 import os

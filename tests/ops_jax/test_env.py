@@ -116,8 +116,8 @@ def _scan_fn(step):
     return run
 
 
-# One instance alone and a batch are different programs; from JAX 0.10 XLA rounds them alike (tested bitwise),
-# older XLA may fuse them differently and round the last bit of a float32 apart.
+# One instance alone and a batch are different programs; from JAX 0.10 XLA rounds them alike (tested
+# bitwise), older XLA may fuse them differently and round the last bit of a float32 apart.
 SINGLE_EQUALS_BATCH_BITWISE = tuple(int(p) for p in jax.__version__.split(".")[:2]) >= (0, 10)
 
 
@@ -452,7 +452,10 @@ def test_import_does_not_pull_heavy_dependencies():
     import subprocess
     import sys
 
-    code = "import sys, ops_jax; print(any(m.split('.')[0] in ('brax', 'matplotlib') for m in sys.modules))"
+    code = (
+        "import sys, ops_jax; print(any(m.split('.')[0] in ('brax', 'matplotlib') for m in "
+        "sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 

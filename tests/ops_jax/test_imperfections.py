@@ -16,18 +16,21 @@ from ops_jax import hardware, imperfections, optics, physics, vibration
 def _hand_stage(p, s, D, leak, wp_err_deg):
     """One folded delay-line stage written out port by port (docs/imperfections.md): a symmetric
     lossless PBS (each polarisation: transmission t, reflection r = i |r|, unitary) passed twice, a
-    quarter-wave double pass swapping p and s in each arm, arm B delayed by D, then a half-wave plate
-    (a mirror matrix) and the turning mirror (diag(1, -1)). Returns p', s' and the (p, s) fields that
-    leave by the input port."""
+    quarter-wave double pass swapping p and s in each arm, arm B delayed by D, then a half-wave
+    plate (a mirror matrix) and the turning mirror (diag(1, -1)). Returns p', s' and the (p, s)
+    fields that leave by the input port."""
     a, l = np.sqrt(1 - leak), np.sqrt(leak)
     t_p, r_p, t_s, r_s = a, 1j * l, l, 1j * a  # p is transmitted, s reflected, each leaking l
-    # Split: port 1 -> arm A (transmitted) and arm B (reflected); each arm swaps p and s on its way back.
+    # Split: port 1 -> arm A (transmitted) and arm B (reflected); each arm swaps p and s on its way
+    # back.
     arm_a = (t_s * s, t_p * p)  # (p, s) back at the PBS from arm A
     arm_b = (D * r_s * s, D * r_p * p)  # from arm B, delayed
-    # Recombination: arm A's light reflects into the output port, arm B's transmits; the rest returns to port 1.
+    # Recombination: arm A's light reflects into the output port, arm B's transmits; the rest
+    # returns to port 1.
     out_p, out_s = r_p * arm_a[0] + t_p * arm_b[0], r_s * arm_a[1] + t_s * arm_b[1]
     back_p, back_s = t_p * arm_a[0] + r_p * arm_b[0], t_s * arm_a[1] + r_s * arm_b[1]
-    # The merged stage output: "P" is the output's s (arm A's p), "S" its p (arm B's s); the common phase i removed.
+    # The merged stage output: "P" is the output's s (arm A's p), "S" its p (arm B's s); the common
+    # phase i removed.
     P, S = -1j * out_s, -1j * out_p
     th = np.pi / 8 + np.deg2rad(wp_err_deg)
     hwp = np.array([[np.cos(2 * th), np.sin(2 * th)], [np.sin(2 * th), -np.cos(2 * th)]])
@@ -36,8 +39,9 @@ def _hand_stage(p, s, D, leak, wp_err_deg):
 
 
 def _hand_power(x, wp_err_deg, leak, weights, N):
-    """(P, energy in, energy out, energy lost) of N stages from the folded-stage model written out with
-    explicit ports per stage, merging the train entries pairwise (no shortcuts), float64 NumPy."""
+    """(P, energy in, energy out, energy lost) of N stages from the folded-stage model written out
+    with explicit ports per stage, merging the train entries pairwise (no shortcuts), float64
+    NumPy."""
     T, c, lam = 20.0, 0.299792458, 1030e-6
     n = 40 * 2**N
     W = 2**N * T
@@ -76,8 +80,9 @@ def _hand_power(x, wp_err_deg, leak, weights, N):
 
 @pytest.mark.parametrize("N", [1, 2])
 def test_field_model_matches_hand_written_folded_stages(N):
-    """The optics model is the folded stage written port by port; that stage loses exactly the light that
-    leaves by its input port (energy in = out + lost); leakage and wave plate errors change P."""
+    """The optics model is the folded stage written port by port; that stage loses exactly the light
+    that leaves by its input port (energy in = out + lost); leakage and wave plate errors change
+    P."""
     rng = np.random.default_rng(N)
     x = rng.uniform(-0.2, 0.2, N)
     err = rng.uniform(-3, 3, N)
@@ -331,9 +336,9 @@ def test_held_power_is_p_best_without_vibration_or_pulse_noise():
 
 
 def test_held_power_matches_lines_shaken_by_the_vibrations_law():
-    """Held lines: P averaged over each line displaced by the vibration's stationary Gaussian law (total RMS);
-    with the prediction taken off, by its one-step innovation alone (the background's first tap and each
-    resonance's innovation)."""
+    """Held lines: P averaged over each line displaced by the vibration's stationary Gaussian law
+    (total RMS); with the prediction taken off, by its one-step innovation alone (the background's
+    first tap and each resonance's innovation)."""
     env, params = _held_bench(vib_rms=0.02, resonance_rms=[0.015, 0.01])
     lab = params.lab
     x = jnp.asarray(imperfections.best_offsets(env.config, lab))
@@ -548,8 +553,9 @@ def test_imperfection_levels_share_one_compiled_step():
 
 
 def test_imperfection_groups_cover_every_scaled_error_and_remove_only_their_own():
-    """``benchmarks.imperfection_groups``: every error magnitude of the lab preset belongs to a group, and a bench
-    without a group has that group's fields at their ideal values and every other field as before."""
+    """``benchmarks.imperfection_groups``: every error magnitude of the lab preset belongs to a
+    group, and a bench without a group has that group's fields at their ideal values and every other
+    field as before."""
     from benchmarks.imperfection_groups import GROUPS, bench, without
 
     grouped = {k for fields in GROUPS.values() for k in fields}

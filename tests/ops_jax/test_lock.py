@@ -1,4 +1,5 @@
-"""ops_jax.lock on signals of known spectrum: a sine, white noise, a step response, a trace that never settles."""
+"""ops_jax.lock on signals of known spectrum: a sine, white noise, a step response, a trace that
+never settles."""
 
 import json
 import math

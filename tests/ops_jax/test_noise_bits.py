@@ -1,5 +1,5 @@
-"""ops_jax.noise: the unrolled Threefry hash gives jax.random.bits' words exactly, so every draw (and
-every documented trajectory) is unchanged."""
+"""ops_jax.noise: the unrolled Threefry hash gives jax.random.bits' words exactly, so every draw
+(and every documented trajectory) is unchanged."""
 
 import jax
 import jax.numpy as jnp

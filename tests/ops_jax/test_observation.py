@@ -1,5 +1,6 @@
 """The observation layout (``OPSEnv.layout``): slices, scales, stacking, with and without the length
-readouts, and the frames-only option ``observe_lengths=False`` through the environment and the controllers."""
+readouts, and the frames-only option ``observe_lengths=False`` through the environment and the
+controllers."""
 
 import jax
 import jax.numpy as jnp
@@ -62,8 +63,8 @@ def test_frames_only_observation():
 
 
 def test_controllers_on_frames_only():
-    """SPGD reads P through the layout; the physics controller reads the frames (traced here, not run), and
-    refuses to read lengths that the observation does not hold."""
+    """SPGD reads P through the layout; the physics controller reads the frames (traced here, not
+    run), and refuses to read lengths that the observation does not hold."""
     env = {"stages": 2, "mode": "easy", "model": "phasor", "observe_lengths": False}
     module = agents.api.algo_module
     ev = agents.evaluate((module("spgd").make_policy(env), None), env, episodes=4, seed=1, steps=40)

@@ -1,6 +1,6 @@
 """Physical invariants of the imperfect optics over every accepted range (seeded draws that put each
-parameter at its bounds a fifth of the time each): passive optics never create energy, P_best <= P_max,
-the ideal system at zero imperfection, the phasor model within its documented bound."""
+parameter at its bounds a fifth of the time each): passive optics never create energy, P_best <=
+P_max, the ideal system at zero imperfection, the phasor model within its documented bound."""
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +24,8 @@ def _uniform_with_corners(rng, rng_range, shape):
 
 
 def _configs(rng, stages, batch):
-    """Offsets (wl), rotations (rad), leakages and pulse weights (re, im) of ``batch`` random systems."""
+    """Offsets (wl), rotations (rad), leakages and pulse weights (re, im) of ``batch`` random
+    systems."""
     x = rng.uniform(-1.5 * WINDOW, 1.5 * WINDOW, (batch, stages))
     rot = np.asarray(
         optics.rotation(_uniform_with_corners(rng, R["waveplate_error_deg"], (batch, stages)))
@@ -51,8 +52,9 @@ def _energy(m):
 
 @pytest.mark.parametrize("stages", range(1, 8))
 def test_passive_optics_never_create_energy(stages):
-    """10^4 systems over N = 1..7 in float64: energy out <= energy in, the output of the same train through
-    lossless optics (which conserve it: test_imperfections' hand-written stage counts every port)."""
+    """10^4 systems over N = 1..7 in float64: energy out <= energy in, the output of the same train
+    through lossless optics (which conserve it: test_imperfections' hand-written stage counts every
+    port)."""
     rng = np.random.default_rng(100 + stages)
     x, rot, leak, pulses = _configs(rng, stages, 1430)
     with jax.enable_x64(True):
@@ -87,8 +89,9 @@ def test_no_offset_beats_p_max(model, detector):
 
 @pytest.mark.parametrize("detector", physics.DETECTORS)
 def test_p_best_never_exceeds_p_max(detector):
-    """The P_best search over random static optics (wave plates, leakage) in the accepted ranges, N = 1..5,
-    and their corners: P_best / P_max <= 1 (float32 rounding), and < 1 with imperfections."""
+    """The P_best search over random static optics (wave plates, leakage) in the accepted ranges, N
+    = 1..5, and their corners: P_best / P_max <= 1 (float32 rounding), and < 1 with
+    imperfections."""
     rng = np.random.default_rng(11)
     for stages in (1, 3, 5) if detector == "total" else (1, 2):
         _, rot, leak, _ = _configs(rng, stages, 24)
@@ -105,7 +108,8 @@ def test_p_best_never_exceeds_p_max(detector):
 @pytest.mark.parametrize("model", physics.MODELS)
 @pytest.mark.parametrize("detector", physics.DETECTORS)
 def test_zero_imperfection_is_the_ideal_system(model, detector):
-    """rot = pi/4, leak = 0, unit pulses: ``optics.measure`` is ``physics.measure`` (float64, N = 1, 4, 7)."""
+    """rot = pi/4, leak = 0, unit pulses: ``optics.measure`` is ``physics.measure`` (float64, N = 1,
+    4, 7)."""
     rng = np.random.default_rng(5)
     for stages in (1, 4, 7):
         x = rng.uniform(-WINDOW, WINDOW, (8, stages))
@@ -129,8 +133,9 @@ def test_zero_imperfection_is_the_ideal_system(model, detector):
 
 @pytest.mark.parametrize("detector", physics.DETECTORS)
 def test_phasor_within_its_documented_bound(detector):
-    """Phasor against field over the accepted ranges, N = 1..7 (split between the detectors), float64: within
-    ``optics.phasor_error_bound``, which the draws approach (the bound is not loose by orders of magnitude)."""
+    """Phasor against field over the accepted ranges, N = 1..7 (split between the detectors),
+    float64: within ``optics.phasor_error_bound``, which the draws approach (the bound is not loose
+    by orders of magnitude)."""
     rng = np.random.default_rng(17)
     worst = 0.0
     for stages in (1, 2, 3, 5, 7) if detector == "total" else (1, 2, 4, 6):

@@ -243,7 +243,8 @@ CONSTRUCTORS = {
 
 
 def _options(constructor) -> set:
-    """Named parameters of ``constructor`` plus, where it forwards ``**options`` to ``make``, make's."""
+    """Named parameters of ``constructor`` plus, where it forwards ``**options`` to ``make``,
+    make's."""
     sig = inspect.signature(constructor).parameters
     names = {n for n, p in sig.items() if p.kind is not p.VAR_KEYWORD and n != "self"}
     if any(p.kind is p.VAR_KEYWORD for p in sig.values()):

@@ -12,7 +12,8 @@ ALL_N = range(1, 8)
 
 
 def enable_x64():
-    """float64 inside a ``with`` block (``jax.enable_x64`` on current JAX, jax.experimental's before)."""
+    """float64 inside a ``with`` block (``jax.enable_x64`` on current JAX, jax.experimental's
+    before)."""
     if hasattr(jax, "enable_x64"):
         return jax.enable_x64(True)
     from jax.experimental import enable_x64 as experimental_enable_x64

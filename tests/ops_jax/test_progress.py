@@ -60,7 +60,10 @@ def test_format_seconds():
 
 
 def test_a_piped_command_writes_no_control_codes():
-    code = "from ops_jax.cli.progress import progress\nfor _ in progress(range(50), desc='w', interval=0.0): pass\n"
+    code = (
+        "from ops_jax.cli.progress import progress\nfor _ in progress(range(50), desc='w', "
+        "interval=0.0): pass\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "\x1b" not in out.stderr and "\r" not in out.stderr
     assert out.stderr.splitlines()[-1].startswith("w: 50/50")

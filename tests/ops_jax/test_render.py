@@ -132,7 +132,8 @@ def test_landscape_periodic_and_peaked():
 
 
 def test_landscape_in_chunks_equals_one_call(monkeypatch):
-    """The offsets computed a chunk at a time (the last one padded) give what one call gives, to float32 rounding."""
+    """The offsets computed a chunk at a time (the last one padded) give what one call gives, to
+    float32 rounding."""
     x = np.linspace(-1.0, 1.0, 23)
     whole = render.landscape(3, [1, 2], x)
     landscape_module = sys.modules[render.landscape.__module__]  # where landscape reads the chunk
@@ -167,7 +168,8 @@ def test_landscape_bad_input_and_png(tmp_path):
 
 
 def test_episode_frames_progress_is_plain_lines_off_a_terminal(capsys):
-    """Under pytest stderr is no terminal: the frame progress is plain lines, no carriage returns."""
+    """Under pytest stderr is no terminal: the frame progress is plain lines, no carriage
+    returns."""
     policy, params, cfg = episode.get_policy("zero", dict(stages=3, mode="easy"))
     ep = episode.run_episode(cfg, policy, params, steps=3)
     frames = render.episode_frames(ep)

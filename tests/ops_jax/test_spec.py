@@ -1,5 +1,5 @@
-"""``ops_jax.EnvSpec``: every ``make`` option, validated when built, frozen and hashable, a stable key, and
-taken by ``agents.train`` / ``evaluate`` beside a dict."""
+"""``ops_jax.EnvSpec``: every ``make`` option, validated when built, frozen and hashable, a stable
+key, and taken by ``agents.train`` / ``evaluate`` beside a dict."""
 
 import dataclasses
 import inspect

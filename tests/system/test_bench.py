@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parents[2]
 START_S = 240  # an IOC or runner start-up on a loaded 2-core machine (JAX import and compile)
 
 
-# -- mapping, devices, controller protocol (no Channel Access) --------------------------------------
+# -- mapping, devices, controller protocol (no Channel Access)
+# --------------------------------------
 
 
 @pytest.mark.parametrize(
@@ -61,7 +62,8 @@ def test_bad_mapping_fails_naming_the_key(edit, needle):
 
 
 def test_docs_mapping_example_is_the_simulated_benchs():
-    """docs/lab.md's mapping file, every key written out, is what the runner builds for --prefix OPS:."""
+    """docs/lab.md's mapping file, every key written out, is what the runner builds for --prefix
+    OPS:."""
     text = (ROOT / "docs" / "lab.md").read_text()
     example = json.loads(text.split("```json\n", 1)[1].split("```", 1)[0])
     assert check_mapping(example) == check_mapping(sim_mapping("OPS:", 2))
@@ -143,7 +145,8 @@ def test_detector_wait_blocks_for_a_new_frame_and_fails_after_the_watchdog():
 
 
 def run_flyer(flyer, callback):
-    """Run ``flyer`` under ``fly`` in a fresh RunEngine, every document to ``callback(name, doc)``."""
+    """Run ``flyer`` under ``fly`` in a fresh RunEngine, every document to
+    ``callback(name, doc)``."""
     import bluesky.preprocessors as bpp
     from bluesky import RunEngine
 
@@ -155,8 +158,8 @@ def run_flyer(flyer, callback):
 
 
 def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
-    """A RunEngine kicks the flyer off and collects while it runs: every step an event, in pages of plain
-    values; a step that raises fails the run, every step before it kept."""
+    """A RunEngine kicks the flyer off and collects while it runs: every step an event, in pages of
+    plain values; a step that raises fails the run, every step before it kept."""
     from bluesky.utils import FailedStatus
 
     from agents.bench.flyer import LoopFlyer
@@ -198,8 +201,9 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
 
 
 def test_lean_page_checks_pass_what_the_schema_passes_and_reject_pages_that_do_not_line_up():
-    """Within ``lean_page_checks`` the flyer's pages are checked by their shape; each still passes event_model's
-    full JSON schema, a page whose lists do not line up fails, and the schema is back afterwards."""
+    """Within ``lean_page_checks`` the flyer's pages are checked by their shape; each still passes
+    event_model's full JSON schema, a page whose lists do not line up fails, and the schema is back
+    afterwards."""
     from event_model import DocumentNames, EventModelValidationError, schema_validators
 
     from agents.bench.flyer import LoopFlyer, lean_page_checks
@@ -257,7 +261,8 @@ def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
 
 
 def xla_pool_threads(pid) -> tuple[int, set]:
-    """(threads of XLA's Eigen pool in process ``pid``, the distinct sets of cores its threads may run on) (Linux)."""
+    """(threads of XLA's Eigen pool in process ``pid``, the distinct sets of cores its threads may
+    run on) (Linux)."""
     tasks = Path(f"/proc/{pid}/task").iterdir()
     names_cores = [
         ((t / "comm").read_text().strip(), frozenset(os.sched_getaffinity(int(t.name))))
@@ -269,16 +274,17 @@ def xla_pool_threads(pid) -> tuple[int, set]:
 
 
 def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_free():
-    """``ops_jax.cli.runtime.start_single_threaded``: XLA's Eigen pool has one thread (several without it); every
-    thread of the process may then run on all the cores it could before."""
+    """``ops_jax.cli.runtime.start_single_threaded``: XLA's Eigen pool has one thread (several
+    without it); every thread of the process may then run on all the cores it could before."""
     allowed = frozenset(os.sched_getaffinity(0))
     if len(allowed) < 2:
         pytest.skip("needs two CPU cores")
     code = (
-        "import os, sys, jax; from ops_jax import runtime\n"
-        "started = runtime.start_single_threaded() if sys.argv[1] == 'single' else jax.devices() and None\n"
-        "jax.jit(lambda x: x @ x)(jax.numpy.ones((64, 64))).block_until_ready()\n"
-        "print(started, sys.argv[1]); sys.stdout.flush(); sys.stdin.read()"
+        "import os, sys, jax; from ops_jax import runtime\nstarted = "
+        "runtime.start_single_threaded() if sys.argv[1] == 'single' else jax.devices() and "
+        "None\njax.jit(lambda x: x @ x)(jax.numpy.ones((64, "
+        "64))).block_until_ready()\nprint(started, sys.argv[1]); sys.stdout.flush(); "
+        "sys.stdin.read()"
     )
     pools = {}
     for mode in ("usual", "single"):
@@ -299,7 +305,8 @@ def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_fr
 
 
 def test_settle_s_sets_the_detectors_settle_and_is_checked(tmp_path):
-    """``--settle-s``: the mapping's ``detector.settle_s`` for the run; out of [0, 10] s it fails naming it."""
+    """``--settle-s``: the mapping's ``detector.settle_s`` for the run; out of [0, 10] s it fails
+    naming it."""
     args = runner.parser().parse_args(
         ["--prefix", "X:", "--controller", "spgd", "--settle-s", "-0.001", "--out", str(tmp_path)]
     )
@@ -312,8 +319,8 @@ def test_settle_s_sets_the_detectors_settle_and_is_checked(tmp_path):
 
 
 def test_loop_flyer_pages_are_collected_between_steps():
-    """A page is due after the step that ends its period: the RunEngine collects it while the loop waits for
-    its next frame, not while a step works."""
+    """A page is due after the step that ends its period: the RunEngine collects it while the loop
+    waits for its next frame, not while a step works."""
     from agents.bench.flyer import LoopFlyer
 
     keys = {"x": {"source": "loop", "dtype": "number", "shape": []}}
@@ -344,8 +351,8 @@ def test_loop_flyer_pages_are_collected_between_steps():
 
 
 def test_loop_flyer_keeps_the_steps_that_end_during_a_collection():
-    """A loop that ends while the RunEngine still handles a page (a slow document callback): its last steps are
-    collected too."""
+    """A loop that ends while the RunEngine still handles a page (a slow document callback): its
+    last steps are collected too."""
     from agents.bench.flyer import LoopFlyer
 
     keys = {"x": {"source": "loop", "dtype": "number", "shape": []}}
@@ -369,8 +376,9 @@ def test_loop_flyer_keeps_the_steps_that_end_during_a_collection():
 
 
 def test_lines_wrap_by_one_period_near_a_soft_limit_and_never_back_and_forth():
-    """With wrap_wl a line following a drift stays within its soft range for ever: each time it would come within
-    a period of a limit it is taken one period back (a move of up to max_step_wl + wrap_wl, not clipped)."""
+    """With wrap_wl a line following a drift stays within its soft range for ever: each time it
+    would come within a period of a limit it is taken one period back (a move of up to max_step_wl +
+    wrap_wl, not clipped)."""
     bench, lines = fake_bench(max_step_wl=0.3, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
     sent, target = [], np.zeros(3)
     for _ in range(3000):  # line 1 drifts up, line 2 down, line 3 still: 30 wl in 0.01-wl moves
@@ -393,8 +401,9 @@ def test_lines_wrap_by_one_period_near_a_soft_limit_and_never_back_and_forth():
 
 
 def test_closing_channel_access_drops_only_caprotos_network_errors():
-    """While the circuits close, a caproto thread's send on the socket closed under it is dropped (it would
-    print a traceback after the runner's one line); any other thread's error still reaches the hook before."""
+    """While the circuits close, a caproto thread's send on the socket closed under it is dropped
+    (it would print a traceback after the runner's one line); any other thread's error still reaches
+    the hook before."""
     from agents.bench.devices import _closing_socket_hook
 
     seen = []
@@ -422,8 +431,8 @@ def test_closing_channel_access_drops_only_caprotos_network_errors():
 
 
 def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
-    """The rate cap's deadlines are one period apart, so a late wake-up does not delay the next step; after a
-    stall of more than a period the schedule starts again."""
+    """The rate cap's deadlines are one period apart, so a late wake-up does not delay the next
+    step; after a stall of more than a period the schedule starts again."""
     loop = runner.Loop.__new__(runner.Loop)
     loop.period, loop.deadline = 0.01, None
     start = time.perf_counter()
@@ -440,8 +449,8 @@ def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
 
 
 def test_length_readouts_a_controller_reads_must_be_mapped():
-    """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a controller
-    reading them fails before it is compiled, naming itself and the missing entries."""
+    """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a
+    controller reading them fails before it is compiled, naming itself and the missing entries."""
     from agents.bench import loop as bench_loop
 
     assert not bench_loop.reads_lengths("spgd", None) and bench_loop.reads_lengths("sac", {})
@@ -476,7 +485,8 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
 
 
 def test_bench_reset_is_a_fresh_start():
-    """Bench.reset: the lines back near the optimum (a new reset draw of their offsets), the tick count going on."""
+    """Bench.reset: the lines back near the optimum (a new reset draw of their offsets), the tick
+    count going on."""
     sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
     first = sim.frame
     for _ in range(3):
@@ -495,7 +505,8 @@ def test_bench_reset_is_a_fresh_start():
 
 
 def test_bench_without_length_readouts_serves_no_length_pvs():
-    """observe_lengths=False: the frame has no lengths, the PV group no LINEi:LEN, and a tick still publishes."""
+    """observe_lengths=False: the frame has no lengths, the PV group no LINEi:LEN, and a tick still
+    publishes."""
     import asyncio
 
     sim = ioc.Bench(
@@ -510,8 +521,8 @@ def test_bench_without_length_readouts_serves_no_length_pvs():
 
 
 def test_ioc_reports_its_ticks_host_time(monkeypatch, capsys):
-    """Every TICK_REPORT ticks the IOC prints one line: the ticks covered, the step's and the writes' median and
-    99th percentile (ms), and the overruns; the ticks are those of the bench."""
+    """Every TICK_REPORT ticks the IOC prints one line: the ticks covered, the step's and the
+    writes' median and 99th percentile (ms), and the overruns; the ticks are those of the bench."""
     import asyncio
     import re
 
@@ -536,8 +547,8 @@ def test_ioc_reports_its_ticks_host_time(monkeypatch, capsys):
 
 
 def test_ioc_tick_log_names_each_tick_and_the_setpoints_it_applied():
-    """``--tick-log``: a JSON line per tick, its number, its time stamp (that of the tick's PVs) and the setpoints
-    read at its start."""
+    """``--tick-log``: a JSON line per tick, its number, its time stamp (that of the tick's PVs) and
+    the setpoints read at its start."""
     import asyncio
     import io
 
@@ -564,7 +575,8 @@ def test_ioc_tick_log_names_each_tick_and_the_setpoints_it_applied():
 
 
 def test_ioc_socket_sends_without_nagle_delay():
-    """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle on)."""
+    """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle
+    on)."""
     import asyncio
     import socket
 
@@ -597,8 +609,8 @@ def test_ioc_batch_window_is_a_tenth_of_the_tick(monkeypatch):
 
 
 def test_ioc_sends_a_batch_once_no_update_is_queued(monkeypatch):
-    """The server's circuits take queued updates without waiting, answer None at once on an empty queue (the batch
-    goes out), and wait for an update only where caproto asks for no timeout."""
+    """The server's circuits take queued updates without waiting, answer None at once on an empty
+    queue (the batch goes out), and wait for an update only where caproto asks for no timeout."""
     import asyncio
 
     import caproto.asyncio.server
@@ -640,7 +652,8 @@ def test_ioc_sends_a_batch_once_no_update_is_queued(monkeypatch):
 
 
 def test_agent_replays_a_controller_step_probe_by_probe():
-    """Agent's probe protocol gives the policy's own offsets and, with the measured results, its action."""
+    """Agent's probe protocol gives the policy's own offsets and, with the measured results, its
+    action."""
     env_config = {"stages": 3, "model": "phasor"}
     policy = agents.api.algo_module("spgd").make_policy(env_config, None)
     env, _ = ops_jax.make(**env_config)
@@ -663,7 +676,8 @@ def test_agent_replays_a_controller_step_probe_by_probe():
 
 
 def test_agent_leaves_out_the_probes_a_controller_leaves_out():
-    """A probe made with ``active`` False is no probe on the bench: ``offsets`` gives None (no move, no frame)."""
+    """A probe made with ``active`` False is no probe on the bench: ``offsets`` gives None (no move,
+    no frame)."""
     env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
     from agents.controllers import trim
 
@@ -697,8 +711,9 @@ def test_agent_leaves_out_the_probes_a_controller_leaves_out():
 
 
 def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_move():
-    """The loop counts a step whose action the safety limits cut and tells the physics-informed fit the move
-    sent (``Policy.sent``), less a wrap (a whole period); a move within the limits, or a wrap alone, tells nothing."""
+    """The loop counts a step whose action the safety limits cut and tells the physics-informed fit
+    the move sent (``Policy.sent``), less a wrap (a whole period); a move within the limits, or a
+    wrap alone, tells nothing."""
     env_config = {"stages": 3, "model": "phasor", "imperfections": "lab"}
     env, params = ops_jax.make(**env_config)
     scale = float(params.action_scale)
@@ -739,10 +754,10 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
 
 
 def test_bench_ports_lie_outside_the_range_the_kernel_auto_binds_from():
-    """The IOC's Channel Access port is never one the kernel can hand to a client's socket: caproto binds the
-    IOC's UDP port and its client sockets with SO_REUSEADDR and SO_REUSEPORT, and a client socket auto-bound to
-    the IOC's port takes the IOC's replies for itself, so its search times out. Each port is free for TCP and UDP
-    when drawn; the IOC warns of a port inside that range."""
+    """The IOC's Channel Access port is never one the kernel can hand to a client's socket: caproto
+    binds the IOC's UDP port and its client sockets with SO_REUSEADDR and SO_REUSEPORT, and a client
+    socket auto-bound to the IOC's port takes the IOC's replies for itself, so its search times out.
+    Each port is free for TCP and UDP when drawn; the IOC warns of a port inside that range."""
     import socket
 
     first, last = ioc.ephemeral_ports()
@@ -792,8 +807,8 @@ def test_ioc_options_come_from_make():
 
 def test_light_imports_stay_light():
     code = (
-        "import sys, ops_jax, agents; heavy = [m for m in ('caproto', 'ophyd', 'bluesky') if m in sys.modules];"
-        "assert not heavy, heavy"
+        "import sys, ops_jax, agents; heavy = [m for m in ('caproto', 'ophyd', 'bluesky') if m in "
+        "sys.modules];assert not heavy, heavy"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=START_S, cwd=ROOT)
 
@@ -803,7 +818,8 @@ def test_light_imports_stay_light():
 
 @pytest.fixture(scope="module")
 def iocs(tmp_path_factory):
-    """Simulated benches started together: lockstep (lab), free-running, one to kill, one to reset, one to read."""
+    """Simulated benches started together: lockstep (lab), free-running, one to kill, one to reset,
+    one to read."""
     tmp = tmp_path_factory.mktemp("iocs")
     common = ["--stages", "3", "--mode", "hard", "--model", "phasor"]
     args = {
@@ -856,7 +872,8 @@ def documents(tmp: Path) -> list:
     return [json.loads(line) for line in (tmp / "out" / "documents.jsonl").read_text().splitlines()]
 
 
-# The lockstep bench's simulator replaying the setpoints sent, tick by tick, in a process of the IOC's build.
+# The lockstep bench's simulator replaying the setpoints sent, tick by tick, in a process of the
+# IOC's build.
 REPLAY = """import json, sys
 from ops_jax import ioc
 sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor", "imperfections": "lab"}, seed=0)
@@ -866,7 +883,8 @@ print(json.dumps([float(sim.frame["p_pmax"])] + [float(sim.tick(s)["p_pmax"]) fo
 
 
 def test_the_ioc_runs_xla_with_one_pool_thread(iocs):
-    """The simulated bench's ticks are small calls: its XLA pool has one thread, its threads every core."""
+    """The simulated bench's ticks are small calls: its XLA pool has one thread, its threads every
+    core."""
     threads, cores = xla_pool_threads(iocs["free"].proc.pid)
     assert (threads, cores) == (1, {frozenset(os.sched_getaffinity(0))})
 
@@ -914,8 +932,9 @@ def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
 
 
 def test_each_frame_is_checked_against_the_setpoints_its_tick_applied(iocs, tmp_path):
-    """The IOC's ``--tick-log`` names each tick's setpoints; ``benchmarks.lab.early_frames`` finds no early frame in a
-    lockstep run (each tick follows the step's writes) and, against a log one tick late, every moved step early."""
+    """The IOC's ``--tick-log`` names each tick's setpoints; ``benchmarks.lab.early_frames`` finds
+    no early frame in a lockstep run (each tick follows the step's writes) and, against a log one
+    tick late, every moved step early."""
     from benchmarks import lab
 
     steps = 15
@@ -958,15 +977,16 @@ def test_each_frame_is_checked_against_the_setpoints_its_tick_applied(iocs, tmp_
     sent = [
         d["doc"]["data"]["control_setpoint_wl"] for d in documents(tmp_path) if d["name"] == "event"
     ]
-    # event k + 1's frame checked against the setpoints of the tick before it: step k - 1's move (k >= 1)
+    # event k + 1's frame checked against the setpoints of the tick before it: step k - 1's move (k
+    # >= 1)
     moved = sum(not np.allclose(a, b, rtol=0, atol=1e-9) for a, b in zip(sent[1:-1], sent[:-2]))
     early, checked = lab.early_frames(docs, late)
     assert moved >= steps // 2 and moved <= early <= moved + 1 and checked == steps - 1
 
 
 def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
-    """SPGD over Channel Access for a few seconds, with a soft range tight enough to clip its probes, the runner
-    on one core; every document it wrote passes event_model's schema."""
+    """SPGD over Channel Access for a few seconds, with a soft range tight enough to clip its
+    probes, the runner on one core; every document it wrote passes event_model's schema."""
     from event_model import DocumentNames, schema_validators
 
     mapping = {
@@ -1010,7 +1030,8 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
         np.abs(np.diff(sent, axis=0)) <= 2 * 0.03 + 1e-9
     )
     assert (tmp_path / "out" / "power.png").stat().st_size > 0
-    # the lock figures of the run's P / P_best (ops_jax.lock) at its achieved rate; null with a reason if unlocked
+    # the lock figures of the run's P / P_best (ops_jax.lock) at its achieved rate; null with a
+    # reason if unlocked
     assert summary["lock_band"] == 0.02 and 0 < summary["held_level"] <= 1.5
     if summary["lock_step"] is not None:
         assert 1 <= summary["lock_step"] <= summary["steps"] and summary["lock_reason"] is None
@@ -1023,7 +1044,8 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert width == 11 * 120  # the trace and, beside it, the PSD after lock
 
 
-# Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length readout's).
+# Each line of the bench under prefix argv[1] moved to 0.1 wl from its optimum (its length
+# readout's).
 OFF_OPTIMUM = """
 import sys
 from caproto.sync.client import read, write
@@ -1035,8 +1057,9 @@ for i in (1, 2, 3):
 
 
 def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
-    """The physics-informed controller, which reads its own last move, on a bench whose step limit its moves
-    exceed: the run ends cleanly, counting as cut exactly the steps whose setpoints moved by less than asked."""
+    """The physics-informed controller, which reads its own last move, on a bench whose step limit
+    its moves exceed: the run ends cleanly, counting as cut exactly the steps whose setpoints moved
+    by less than asked."""
     _, params = ops_jax.make(stages=3, mode="hard", model="phasor")  # the free bench's
     scale = float(params.action_scale)  # wl per unit of action
     max_step = 0.5 * scale
@@ -1087,7 +1110,8 @@ def test_a_cut_action_is_counted_and_told_over_channel_access(iocs, tmp_path):
 
 
 def test_run_with_the_trim_probes_once_more_per_step(iocs, tmp_path):
-    """SPGD wrapped in the extremum-seeking trim (agents.controllers.trim) over Channel Access: two probes per step."""
+    """SPGD wrapped in the extremum-seeking trim (agents.controllers.trim) over Channel Access: two
+    probes per step."""
     rc, log = finish(
         bench_run(
             iocs["free"],
@@ -1146,7 +1170,8 @@ def test_unknown_pv_fails_at_once_naming_it(iocs, tmp_path):
 
 
 def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
-    """SIGKILL the IOC: the watchdog names a lost PV at once, nothing is written after, data kept."""
+    """SIGKILL the IOC: the watchdog names a lost PV at once, nothing is written after, data
+    kept."""
     victim = iocs["victim"]
     proc = bench_run(
         victim,
@@ -1189,7 +1214,8 @@ def test_ioc_killed_mid_run_stops_the_runner(iocs, tmp_path):
 
 
 def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
-    """SIGINT: the run ends after the current step, exit status 130 (the user's stop), everything written."""
+    """SIGINT: the run ends after the current step, exit status 130 (the user's stop), everything
+    written."""
     proc = bench_run(
         iocs["free"],
         tmp_path,
@@ -1220,9 +1246,10 @@ def test_ctrl_c_ends_the_run_cleanly(iocs, tmp_path):
 
 
 def test_a_burst_of_ctrl_c_stops_at_once_as_the_user_and_loses_nothing(iocs, tmp_path):
-    """SIGINT every 50 ms: the first ends the run after its step, a second still within the run stops it at once,
-    counted as the user's (exit 130, no watchdog line); those that land after the run ended, while its files are
-    written, are ignored: the summary, the plot and the documents are all there, and no traceback."""
+    """SIGINT every 50 ms: the first ends the run after its step, a second still within the run
+    stops it at once, counted as the user's (exit 130, no watchdog line); those that land after the
+    run ended, while its files are written, are ignored: the summary, the plot and the documents are
+    all there, and no traceback."""
     proc = bench_run(
         iocs["free"],
         tmp_path,
@@ -1256,8 +1283,8 @@ def test_a_burst_of_ctrl_c_stops_at_once_as_the_user_and_loses_nothing(iocs, tmp
 
 
 def test_ctrl_c_while_the_runner_starts_prints_one_line_and_records_nothing(tmp_path):
-    """SIGINT once the runner has said it is starting (building its controller, or waiting for PVs that never
-    answer): exit 130, one line, no traceback, nothing written to --out."""
+    """SIGINT once the runner has said it is starting (building its controller, or waiting for PVs
+    that never answer): exit 130, one line, no traceback, nothing written to --out."""
     mapping = {**sim_mapping("NOBODY:", 3, lengths=False), "safety": {"connect_s": 120.0}}
     (tmp_path / "map.json").write_text(json.dumps(mapping))
     proc = Process(
@@ -1373,9 +1400,10 @@ def test_controller_reading_lengths_fails_at_start_without_them(iocs, tmp_path):
 
 
 def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path):
-    """``benchmarks.lab --frames-only --wrap --idle-s --seeds --cpu --trims``: a bench serving no length readouts, a
-    runner mapping none, started after the idle time, on a core of its own, its controller wrapped in the trim; the row
-    names the bench's seed, the trim and the tick of the first step."""
+    """``benchmarks.lab --frames-only --wrap --idle-s --seeds --cpu --trims``: a bench serving no
+    length readouts, a runner mapping none, started after the idle time, on a core of its own, its
+    controller wrapped in the trim; the row names the bench's seed, the trim and the tick of the
+    first step."""
     from benchmarks import lab
 
     result = lab.main(
@@ -1425,7 +1453,8 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
         "| spgd + trim bench (settle 3 ms) | 3 |" in lab.table(result["rows"])
         and row["trim"] == "bench"
     )
-    # each step's frame checked against the IOC's tick log (free-running: some may come before the move)
+    # each step's frame checked against the IOC's tick log (free-running: some may come before the
+    # move)
     assert (tmp_path / "spgd-trim-bench-100hz-settle3ms-seed3" / lab.TICK_LOG).exists()
     assert (
         row["early_frames_checked"] >= row["steps"] - 2
@@ -1434,8 +1463,8 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
 
 
 def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):
-    """``benchmarks.lab --cpu CORE``: a started process (the IOC) runs on the other cores; a core out of reach fails
-    naming ``--cpu``."""
+    """``benchmarks.lab --cpu CORE``: a started process (the IOC) runs on the other cores; a core
+    out of reach fails naming ``--cpu``."""
     from benchmarks import lab
 
     cores = os.sched_getaffinity(0)
@@ -1460,7 +1489,8 @@ def test_lab_puts_the_bench_on_the_cores_the_runner_leaves(tmp_path):
 
 
 def test_unseen_bench_reaches_the_ioc_as_the_budget_section_draws_it():
-    """``benchmarks.lab --unseen``: the IOC's options give the bench of ``benchmarks.budget.plan.unseen_bench``."""
+    """``benchmarks.lab --unseen``: the IOC's options give the bench of
+    ``benchmarks.budget.plan.unseen_bench``."""
     from benchmarks.budget.plan import unseen_bench
     from benchmarks.lab import IOC_ARGS, unseen_args
 

@@ -1,7 +1,7 @@
-"""A lab's first hour on the bench: what the runner chooses on a bench without length readouts (and says so in its
-first line), the template mapping and its check against a live IOC, a controller's progress line and readable
-summary. The end-to-end tests start a real IOC (frames only: no length readouts) on a free localhost port, and
-runner subprocesses against it, every wait bounded."""
+"""A lab's first hour on the bench: what the runner chooses on a bench without length readouts (and
+says so in its first line), the template mapping and its check against a live IOC, a controller's
+progress line and readable summary. The end-to-end tests start a real IOC (frames only: no length
+readouts) on a free localhost port, and runner subprocesses against it, every wait bounded."""
 
 import json
 import threading
@@ -23,7 +23,8 @@ PREFIX = "FO:"
 
 
 def chosen(argv: list, mapping: dict) -> tuple:
-    """``defaults.choose`` of the runner's arguments ``argv`` on ``mapping``: (--set items, wrap (wl), line)."""
+    """``defaults.choose`` of the runner's arguments ``argv`` on ``mapping``: (--set items, wrap
+    (wl), line)."""
     args = runner.parser().parse_args([*argv, "--out", "unused"])
     if args.wrap is not None:
         mapping = {**mapping, "safety": {**mapping.get("safety", {}), "wrap_wl": args.wrap}}
@@ -31,7 +32,8 @@ def chosen(argv: list, mapping: dict) -> tuple:
     return items, resolved["safety"]["wrap_wl"], line
 
 
-# -- the defaults (no Channel Access) ---------------------------------------------------------------
+# -- the defaults (no Channel Access)
+# ---------------------------------------------------------------
 
 
 def test_a_bench_without_length_readouts_chooses_the_frames_configurations_and_the_wrap():
@@ -60,8 +62,9 @@ def test_an_explicit_setting_or_wrap_wins_over_the_defaults():
 
 
 def test_the_wrap_is_left_out_where_it_would_not_be_safe():
-    """With the length readouts a controller reads (they jump at a wrap), on a soft range under three periods, or
-    without a declared period: no wrap, and the line says why (nothing to say without a period)."""
+    """With the length readouts a controller reads (they jump at a wrap), on a soft range under
+    three periods, or without a declared period: no wrap, and the line says why (nothing to say
+    without a period)."""
     lengths = sim_mapping("T:", 3)
     items, wrap, line = chosen(["--controller", "physics"], lengths)
     assert items == [] and wrap is None and "physics reads the length readouts" in line, line
@@ -85,7 +88,8 @@ def test_the_template_is_the_simulated_benchs_mapping_with_notes():
         check_mapping({**written, "perod_wl": 0.5})
 
 
-# -- a live bench ------------------------------------------------------------------------------------
+# -- a live bench
+# ------------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
@@ -106,8 +110,9 @@ def runner_lines(text: str) -> list:
 
 
 def test_physics_on_a_frames_only_bench_runs_its_frames_configuration_and_says_so(ioc, tmp_path):
-    """No --set, no --wrap: the first line names the frames configuration and the wrap, the run's start document
-    records them, a progress line shows the steps, and the run ends with a readable summary (no JSON dump)."""
+    """No --set, no --wrap: the first line names the frames configuration and the wrap, the run's
+    start document records them, a progress line shows the steps, and the run ends with a readable
+    summary (no JSON dump)."""
     env = {**ioc.env, "OPS_JAX_PROGRESS_INTERVAL": "1"}
     args = ["--prefix", PREFIX, "--stages", "3", "--no-lengths", "--controller", "physics"]
     args += ["--set", "starts=2", "--seconds", "4", "--stale-s", "5", "--out", tmp_path / "out"]
@@ -154,8 +159,8 @@ def test_a_template_checked_against_the_live_bench_reads_every_pv_and_moves_noth
 
 
 def test_the_check_names_the_pvs_that_do_not_answer_at_once(ioc, tmp_path, monkeypatch, capsys):
-    """A mapping that names length readouts the bench does not serve: exit status 2 within its connect_s (1 s),
-    one line naming each missing PV and no other."""
+    """A mapping that names length readouts the bench does not serve: exit status 2 within its
+    connect_s (1 s), one line naming each missing PV and no other."""
     for key in ("EPICS_CA_SERVER_PORT", "EPICS_CA_REPEATER_PORT", "EPICS_CA_ADDR_LIST"):
         monkeypatch.setenv(key, ioc.env[key])
     monkeypatch.setenv("EPICS_CA_AUTO_ADDR_LIST", "NO")
@@ -180,7 +185,8 @@ def test_the_check_names_the_pvs_that_do_not_answer_at_once(ioc, tmp_path, monke
 
 
 def test_a_learner_from_scratch_on_a_frames_only_bench_takes_its_bench_preset(ioc, tmp_path):
-    """``--learn droq`` alone: the bench preset (the fit's residual) and the wrap, said in the first line."""
+    """``--learn droq`` alone: the bench preset (the fit's residual) and the wrap, said in the first
+    line."""
     args = ["--prefix", PREFIX, "--stages", "3", "--no-lengths", "--learn", "droq", "--steps", "60"]
     args += ["--stale-s", "5", "--rate", "50", "--out", tmp_path / "out"]
     args += ["--set", "hidden=[16,16]", "--set", "critic_hidden=[16,16]", "--set", "batch_size=16"]

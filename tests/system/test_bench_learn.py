@@ -1,6 +1,7 @@
-"""Learning on the bench (``agents.bench --learn``, ``agents.bench.learning``): a DroQ learner with tiny networks
-against a real simulated bench (a caproto IOC on a free localhost port, frames only), its checkpoint run as a
-controller, a run SIGKILLed and resumed, and the command line's refusals. Every wait is bounded."""
+"""Learning on the bench (``agents.bench --learn``, ``agents.bench.learning``): a DroQ learner with
+tiny networks against a real simulated bench (a caproto IOC on a free localhost port, frames only),
+its checkpoint run as a controller, a run SIGKILLed and resumed, and the command line's refusals.
+Every wait is bounded."""
 
 import json
 import time
@@ -82,8 +83,9 @@ def counts_of(tmp) -> dict | None:
 
 
 def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
-    """300 env steps of DroQ on the bench: every step an event, gradient steps at most the ratio's, the
-    checkpoint's counts the summary's; then ``--controller DIR/checkpoint`` runs what it learned."""
+    """300 env steps of DroQ on the bench: every step an event, gradient steps at most the ratio's,
+    the checkpoint's counts the summary's; then ``--controller DIR/checkpoint`` runs what it
+    learned."""
     rc, log = finish(
         bench_run(
             ioc,
@@ -160,8 +162,8 @@ def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
 
 
 def test_sigkill_then_resume_ends_with_every_step(ioc, tmp_path):
-    """SIGKILL mid-run after a checkpoint: ``--resume`` takes the run on from the checkpoint to all its steps, the
-    counts add up, and documents.jsonl keeps every line written before the kill."""
+    """SIGKILL mid-run after a checkpoint: ``--resume`` takes the run on from the checkpoint to all
+    its steps, the counts add up, and documents.jsonl keeps every line written before the kill."""
     steps, every = 400, 100
     args = [
         *BENCH,
@@ -204,8 +206,9 @@ def test_sigkill_then_resume_ends_with_every_step(ioc, tmp_path):
 
 
 def test_the_lab_benchmark_kills_a_learning_run_past_its_first_checkpoint_and_resumes_it(tmp_path):
-    """``benchmarks.lab --learn ... --kill-learner-after 0``: the learning run SIGKILLed once its first checkpoint is
-    written, resumed to all its steps, and its checkpoint then run as a controller on the same bench."""
+    """``benchmarks.lab --learn ... --kill-learner-after 0``: the learning run SIGKILLed once its
+    first checkpoint is written, resumed to all its steps, and its checkpoint then run as a
+    controller on the same bench."""
     from benchmarks import lab
 
     learned, ran = lab.run_learning(
@@ -276,7 +279,8 @@ def _saved_policy(path, stages: int, lengths: bool):
     ],
 )
 def test_bad_learning_arguments_fail_in_one_line(tmp_path, capsys, extra, needle):
-    """Refused before any PV is touched (no bench runs here): exit status 2, one line naming the parameter."""
+    """Refused before any PV is touched (no bench runs here): exit status 2, one line naming the
+    parameter."""
     policies = {"LENGTHS": (3, True), "TWO": (2, False), "FRAMES": (3, False)}
     extra = [str(_saved_policy(tmp_path / x, *policies[x])) if x in policies else x for x in extra]
     assert (
@@ -303,7 +307,8 @@ def test_bad_learning_arguments_fail_in_one_line(tmp_path, capsys, extra, needle
 
 
 def test_a_checkpoint_in_out_is_continued_or_kept(tmp_path, capsys):
-    """A learning run's checkpoint in --out: a new run refuses to write over it; --resume refuses new settings."""
+    """A learning run's checkpoint in --out: a new run refuses to write over it; --resume refuses
+    new settings."""
     (tmp_path / "out" / "checkpoint").mkdir(parents=True)
     (tmp_path / "out" / "checkpoint" / "learner.json").write_text("{}")
     base_args = [
@@ -322,7 +327,8 @@ def test_a_checkpoint_in_out_is_continued_or_kept(tmp_path, capsys):
     assert "continue it with --resume" in capsys.readouterr().err
     assert runner.main([*base_args, "--resume", "--set", "utd_ratio=1"]) == 2
     assert "drop --from, --set and --env" in capsys.readouterr().err
-    # --steps at or under the checkpoint's count: refused from its learner.json, before anything is loaded
+    # --steps at or under the checkpoint's count: refused from its learner.json, before anything is
+    # loaded
     (tmp_path / "out" / "checkpoint" / "learner.json").write_text(
         json.dumps({"counts": {"env_steps": 9}})
     )
@@ -331,8 +337,8 @@ def test_a_checkpoint_in_out_is_continued_or_kept(tmp_path, capsys):
 
 
 def test_a_run_that_ends_within_the_warm_up_is_told_so(tmp_path, capsys):
-    """--steps that end before ``learning_starts`` transitions are stored: a warning naming both; two steps past
-    them: none (the first step stores no transition)."""
+    """--steps that end before ``learning_starts`` transitions are stored: a warning naming both;
+    two steps past them: none (the first step stores no transition)."""
     _learning(tmp_path / "short", 32, resume=False)
     assert (
         "--steps 32 ends within the learner's warm-up (learning_starts=32"
@@ -343,7 +349,8 @@ def test_a_run_that_ends_within_the_warm_up_is_told_so(tmp_path, capsys):
 
 
 def test_replace_dir_leaves_one_whole_folder(tmp_path):
-    """A kill between replace_dir's two renames leaves PATH.old, which kept_dir finds; the next write cleans up."""
+    """A kill between replace_dir's two renames leaves PATH.old, which kept_dir finds; the next
+    write cleans up."""
     from agents.io import replace_dir, temp_dir
 
     path = tmp_path / "checkpoint"
@@ -373,8 +380,8 @@ def test_resume_ends_the_last_line_of_the_documents(tmp_path):
 
 
 def _learning(out, steps: int, resume: bool, **extra):
-    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench; ``extra``: more
-    hyperparameters."""
+    """A tiny DroQ ``Learning`` on a 3-stage frames-only bench mapping, without a bench; ``extra``:
+    more hyperparameters."""
     from types import SimpleNamespace
 
     from agents.bench.devices import check_mapping, sim_mapping
@@ -411,8 +418,9 @@ def _learning(out, steps: int, resume: bool, **extra):
 
 
 def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
-    """A run from scratch learns with DroQ's ``budget`` preset (the learner alone), or with ``--set config=bench``
-    with the bench preset's correction to the fit's move, other ``--set`` values kept."""
+    """A run from scratch learns with DroQ's ``budget`` preset (the learner alone), or with
+    ``--set config=bench`` with the bench preset's correction to the fit's move, other ``--set``
+    values kept."""
     from types import SimpleNamespace
 
     from agents.bench.devices import check_mapping, sim_mapping
@@ -441,8 +449,8 @@ def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
 
 
 def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, compiles):
-    """200 steps of acting, storing, gradient steps and checkpoints compile nothing after setup; --resume restores
-    every saved leaf of the training state bit for bit, and the counts."""
+    """200 steps of acting, storing, gradient steps and checkpoints compile nothing after setup;
+    --resume restores every saved leaf of the training state bit for bit, and the counts."""
     learning = _learning(tmp_path, 200, resume=False)
     obs = (
         np.random.default_rng(0)
@@ -479,11 +487,11 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
 def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_frames(
     tmp_path, compiles, kind
 ):
-    """With ``observer=fit`` the loop's frames get the fit's offsets before the learner sees them (stored
-    transitions hold both), nothing compiles after setup, and the checkpoint's policy acts on raw frames. The
-    stored actions are the moves sent; with ``fit-residual`` they are the learner's corrections, not the moves
-    sent (the fit's move added). A move the bench's limits cut is told to the fit, and stored where the action is
-    the move."""
+    """With ``observer=fit`` the loop's frames get the fit's offsets before the learner sees them
+    (stored transitions hold both), nothing compiles after setup, and the checkpoint's policy acts
+    on raw frames. The stored actions are the moves sent; with ``fit-residual`` they are the
+    learner's corrections, not the moves sent (the fit's move added). A move the bench's limits cut
+    is told to the fit, and stored where the action is the move."""
     learning = _learning(tmp_path, 120, resume=False, observer=kind)
     d = learning.env.observation_size
     assert (

@@ -1,5 +1,5 @@
-"""A mistyped option of the project's programs: two lines (the error, where the options are listed), exit 2; a value
-out of its range: one line, exit 2."""
+"""A mistyped option of the project's programs: two lines (the error, where the options are listed),
+exit 2; a value out of its range: one line, exit 2."""
 
 import os
 import subprocess
@@ -66,7 +66,8 @@ REPO = Path(__file__).resolve().parents[2]
     ],
 )
 def test_a_value_out_of_range_is_one_line(argv, words, tmp_path):
-    """The picture programs, as run from a shell: the refusing function's message, one line, no traceback."""
+    """The picture programs, as run from a shell: the refusing function's message, one line, no
+    traceback."""
     out = subprocess.run(
         [sys.executable, *argv, "--out", str(tmp_path / "x.png")],
         cwd=tmp_path,

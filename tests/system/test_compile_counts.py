@@ -1,5 +1,6 @@
-"""The suite's own tooling: the run's persistent XLA cache, shared with the processes the tests start, and the
-``compiles`` counter, which counts a program loaded from that cache as a compilation."""
+"""The suite's own tooling: the run's persistent XLA cache, shared with the processes the tests
+start, and the ``compiles`` counter, which counts a program loaded from that cache as a
+compilation."""
 
 import os
 import subprocess

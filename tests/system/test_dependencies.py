@@ -35,8 +35,9 @@ def test_import_ops_jax_loads_no_learner_or_plotting_library():
 
 
 def test_import_agents_loads_no_learner_or_plotting_library():
-    """``import agents`` imports every algorithm's module (each declares its config and registry entry beside its
-    code): their brax, flax and optax imports stay inside the functions that build and train the networks."""
+    """``import agents`` imports every algorithm's module (each declares its config and registry
+    entry beside its code): their brax, flax and optax imports stay inside the functions that build
+    and train the networks."""
     code = (
         "import sys, agents; "
         "heavy = ('brax', 'flax', 'optax', 'matplotlib', 'gymnax', 'tensorboardX'); "

@@ -1,10 +1,10 @@
-"""Every command and snippet in README.md and docs/*.md at least starts, collected from the markdown so
-that none rots: each ``python -m MODULE ...`` / ``python SCRIPT ...`` (fenced ``bash`` blocks and inline
-code) parses its arguments and imports (run with ``--help`` appended), ``pip install`` names existing
-extras, YAML blocks parse, and each ``python`` block runs in a fresh interpreter (with the sizes in
-``SHRINK`` made small). A few long-running commands (``STARTED``) run for real until their first output.
-Skip rule: a command or snippet that stops on a module that an extra of ops-jax installs, and that extra is
-not installed here, is skipped naming the extra."""
+"""Every command and snippet in README.md and docs/*.md at least starts, collected from the markdown
+so that none rots: each ``python -m MODULE ...`` / ``python SCRIPT ...`` (fenced ``bash`` blocks and
+inline code) parses its arguments and imports (run with ``--help`` appended), ``pip install`` names
+existing extras, YAML blocks parse, and each ``python`` block runs in a fresh interpreter (with the
+sizes in ``SHRINK`` made small). A few long-running commands (``STARTED``) run for real until their
+first output. Skip rule: a command or snippet that stops on a module that an extra of ops-jax
+installs, and that extra is not installed here, is skipped naming the extra."""
 
 import json
 import os
@@ -26,14 +26,16 @@ FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
 INLINE = re.compile(r"(?<!`)`((?:python\s+(?:-m\s|examples/)|pip\s+install\s)[^`]+)`")
 # Placeholders of inline commands in prose, and a value each takes here.
 PLACEHOLDERS = {"ALGO": "td3", "ADDRESS": "auto", "PORT": "6379", "X": "out", "...": "out"}
-# Sizes in python blocks that would take minutes, and what they become here (each must occur somewhere).
+# Sizes in python blocks that would take minutes, and what they become here (each must occur
+# somewhere).
 SHRINK = {
     "total_steps=300_000": "total_steps=5_000",
     "episodes=50": "episodes=2",
     "1024, 200)": "64, 20)",
     "total_steps=20_000": "total_steps=1_000",
 }  # the last: DroQ's budget run cut to its random warm-up
-# Long-running commands that run for real (in a temporary folder) until their output shows this text.
+# Long-running commands that run for real (in a temporary folder) until their output shows this
+# text.
 STARTED = {"python -m agents --algo td3 --stages 5 --mode hard --out runs/td3": " step"}
 TIMEOUT_S = 240
 
@@ -56,7 +58,8 @@ def fenced(lang: str) -> list:
 
 
 def shell_commands() -> list:
-    """(where, argv) of every simple command in bash blocks (comments dropped, ``&&`` split) and inline code."""
+    """(where, argv) of every simple command in bash blocks (comments dropped, ``&&`` split) and
+    inline code."""
     found = []
     for where, body in fenced("bash"):
         for line in body.replace("\\\n", " ").splitlines():
@@ -114,7 +117,8 @@ print(json.dumps(results))
 
 @pytest.fixture(scope="module")
 def help_outputs():
-    """``--help`` of every documented python command, all in one fresh interpreter (imports paid once)."""
+    """``--help`` of every documented python command, all in one fresh interpreter (imports paid
+    once)."""
     argvs = sorted({_name(argv): argv for _, argv in python_commands()}.values())
     out = subprocess.run(
         [sys.executable, "-c", RUNNER, json.dumps(argvs)],
@@ -132,7 +136,8 @@ def _skip_if_extra_missing(module: str) -> None:
     extra = extras.extra_of(module)
     if extra is not None:
         pytest.skip(
-            f"needs {module} from the {extra} extra, not installed here: {extras.install_command(extra)}"
+            f"needs {module} from the {extra} extra, not installed here: "
+            f"{extras.install_command(extra)}"
         )
 
 
@@ -142,7 +147,8 @@ def _prose(path: Path) -> str:
 
 
 def _anchors(path: Path) -> set:
-    """The anchors GitHub gives the page's headings: lower case, punctuation dropped, spaces to dashes, repeats -1, -2."""
+    """The anchors GitHub gives the page's headings: lower case, punctuation dropped, spaces to
+    dashes, repeats -1, -2."""
     seen, out = {}, set()
     for m in re.finditer(r"^#{1,6} (.+)$", _prose(path), re.M):
         slug = re.sub(r"[^\w\- ]", "", m.group(1).replace("`", "").strip().lower()).replace(
@@ -215,8 +221,9 @@ def test_documented_command_parses(where, argv, help_outputs):
     ids=lambda v: v if isinstance(v, str) else _name(v),
 )
 def test_documented_pip_install_names_existing_extras(where, argv):
-    """Each requirement of the command is the project (a clone ``.`` or ``ops-jax``) with extras it declares,
-    or another package's name (with extras and versions): every case asserts on every word it installs."""
+    """Each requirement of the command is the project (a clone ``.`` or ``ops-jax``) with extras it
+    declares, or another package's name (with extras and versions): every case asserts on every word
+    it installs."""
     import tomllib
 
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
@@ -266,7 +273,8 @@ def test_documented_python_block_runs(where, body, tmp_path, this_build):
 
 @pytest.mark.parametrize("command", sorted(STARTED))
 def test_long_running_command_starts(command, tmp_path, this_build):
-    """Runs for real in a temporary folder until its first progress output, then is stopped (process group)."""
+    """Runs for real in a temporary folder until its first progress output, then is stopped (process
+    group)."""
     log = tmp_path / "output.log"
     with open(log, "w") as f:
         proc = subprocess.Popen(

@@ -24,7 +24,8 @@ def _load(name):
 @pytest.mark.parametrize("mode, episodes", [("vector_entry_point", [12, 12]), ("sync", [8, 12])])
 def test_cleanrl_loop_runs_a_few_iterations(mode, episodes):
     """4 envs x 30 steps per iteration, episodes of 10 steps: same-step autoreset ends 12 per
-    iteration; next-step autoreset spends one step per episode on the reset (10, 21 | 32, 43, 54)."""
+    iteration; next-step autoreset spends one step per episode on the reset (10, 21 | 32, 43,
+    54)."""
     cleanrl = _load("cleanrl_vector")
     history = cleanrl.train(
         mode, num_envs=4, iterations=2, num_steps=30, seed=1, log=None, max_steps=10
@@ -37,7 +38,8 @@ def test_cleanrl_loop_runs_a_few_iterations(mode, episodes):
 
 
 def test_gae_matches_a_direct_sum():
-    """With lam = 1 and no episode ends, GAE + V is the discounted return bootstrapped by V(next)."""
+    """With lam = 1 and no episode ends, GAE + V is the discounted return bootstrapped by
+    V(next)."""
     gae = _load("cleanrl_vector").gae
     rng = np.random.default_rng(0)
     r, v = rng.normal(size=(5, 2)), rng.normal(size=(5, 2))

@@ -1,5 +1,6 @@
-"""The exit statuses of the project's commands (README, "Exit status"), each provoked in a real subprocess:
-0 done, 1 failed, 2 bad arguments, 3 the bench's watchdog (safety) stop, 130 interrupted (SIGINT)."""
+"""The exit statuses of the project's commands (README, "Exit status"), each provoked in a real
+subprocess: 0 done, 1 failed, 2 bad arguments, 3 the bench's watchdog (safety) stop, 130 interrupted
+(SIGINT)."""
 
 import json
 import os
@@ -52,7 +53,8 @@ def test_done_0_failed_1_bad_arguments_2(tmp_path):
 
 
 def _ioc(prefix: str, env: dict, log: Path) -> subprocess.Popen:
-    """``python -m ops_jax.ioc`` with SIGINT at its default (as a shell starts it), output to ``log``."""
+    """``python -m ops_jax.ioc`` with SIGINT at its default (as a shell starts it), output to
+    ``log``."""
     with open(log, "w") as out:
         return subprocess.Popen(
             [

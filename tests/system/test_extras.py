@@ -1,5 +1,6 @@
 """A missing extra: the project's programs stop with one line naming the install command, in a real
-subprocess whose ``sitecustomize`` makes the module unimportable (as in an install without the extra)."""
+subprocess whose ``sitecustomize`` makes the module unimportable (as in an install without the
+extra)."""
 
 import os
 import re
@@ -74,8 +75,8 @@ def test_other_programs_keep_their_traceback(tmp_path):
 
 
 def test_the_benchs_learner_without_the_agents_extra_names_it_and_what_it_installs(tmp_path):
-    """``.[lab]`` alone: learning on the bench (DroQ: flax networks, optax optimisers, brax's replay buffer)
-    stops with a last line naming the agents extra and the modules it brings."""
+    """``.[lab]`` alone: learning on the bench (DroQ: flax networks, optax optimisers, brax's replay
+    buffer) stops with a last line naming the agents extra and the modules it brings."""
     learn = ["--prefix", "NOONE:", "--stages", "3", "--learn", "droq", "--steps", "100"]
     out = _run_without(
         ["brax", "flax", "optax", "scipy", "ray"],
@@ -85,7 +86,8 @@ def test_the_benchs_learner_without_the_agents_extra_names_it_and_what_it_instal
     assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
     last = out.stderr.strip().splitlines()[-1]
     assert re.fullmatch(
-        r"python -m agents\.bench needs (brax|flax|optax), which the agents extra installs \(with [a-z, ]+\): "
+        r"python -m agents\.bench needs (brax|flax|optax), which the agents extra installs \(with "
+        r"[a-z, ]+\): "
         r'pip install -e "\.\[agents\]"',
         last,
     ), last

@@ -1,5 +1,6 @@
-"""Ctrl-C on the training command (TD3: its checkpoint written), the throughput benchmark and the GIF command, in real subprocesses under a watchdog:
-one line saying what was kept, exit status 130, no traceback."""
+"""Ctrl-C on the training command (TD3: its checkpoint written), the throughput benchmark and the
+GIF command, in real subprocesses under a watchdog: one line saying what was kept, exit status 130,
+no traceback."""
 
 import json
 import os
@@ -17,7 +18,8 @@ WATCHDOG_S = 150
 
 
 def _interrupt_after(args, ready: str, cwd: Path) -> subprocess.CompletedProcess:
-    """Run ``python ARGS``, send SIGINT once ``ready`` appears in its output, and wait (killed at the watchdog)."""
+    """Run ``python ARGS``, send SIGINT once ``ready`` appears in its output, and wait (killed at
+    the watchdog)."""
     env = {
         **os.environ,
         "PYTHONPATH": str(REPO),

@@ -1,4 +1,5 @@
-"""A batched rollout sharded over 2 JAX processes (jax.distributed, gloo) equals the one-process run."""
+"""A batched rollout sharded over 2 JAX processes (jax.distributed, gloo) equals the one-process
+run."""
 
 import numpy as np
 

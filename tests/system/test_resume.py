@@ -1,8 +1,9 @@
-"""Training that never loses work, in real subprocesses of ``python -m agents``: TD3 stopped by SIGINT and DroQ
-killed by SIGKILL mid-run, after a checkpoint, then resumed, end with the same env steps, curve, parameters and
-testing score as the run never stopped (bit for bit); a run stopped after its training, before its evaluation was
-written, is evaluated by --resume; a second run into the same --out is refused and leaves the
-first run's files byte for byte; --overwrite replaces it. The refusals of the other algorithms, in process."""
+"""Training that never loses work, in real subprocesses of ``python -m agents``: TD3 stopped by
+SIGINT and DroQ killed by SIGKILL mid-run, after a checkpoint, then resumed, end with the same env
+steps, curve, parameters and testing score as the run never stopped (bit for bit); a run stopped
+after its training, before its evaluation was written, is evaluated by --resume; a second run into
+the same --out is refused and leaves the first run's files byte for byte; --overwrite replaces it.
+The refusals of the other algorithms, in process."""
 
 import json
 import os
@@ -89,7 +90,8 @@ def _checkpointed_step(out: Path) -> int:
 
 
 def _stopped_after_a_checkpoint(argv, cwd: Path, sig: int) -> subprocess.CompletedProcess:
-    """Run ``python -m agents ARGV``, send ``sig`` once it has written a checkpoint past the warm-up, and wait."""
+    """Run ``python -m agents ARGV``, send ``sig`` once it has written a checkpoint past the
+    warm-up, and wait."""
     log = cwd / "output.log"
     with open(log, "w") as out:
         proc = subprocess.Popen(
@@ -121,7 +123,8 @@ def _files(out: Path) -> dict:
 
 
 def _refused(argv, cwd: Path, words: str) -> None:
-    """``argv`` into the run in ``cwd/run``: exit 2, one line naming ``words``, the run's files byte for byte."""
+    """``argv`` into the run in ``cwd/run``: exit 2, one line naming ``words``, the run's files byte
+    for byte."""
     before = _files(cwd / "run")
     out = _run(argv, cwd)
     assert out.returncode == 2 and out.stdout == "", (out.returncode, out.stdout, out.stderr)
@@ -131,14 +134,16 @@ def _refused(argv, cwd: Path, words: str) -> None:
 
 
 def _score(files: dict) -> dict:
-    """The testing score of a finished run's ``summary.json``: all of its evaluation but a wall time."""
+    """The testing score of a finished run's ``summary.json``: all of its evaluation but a wall
+    time."""
     evaluation = json.loads(files["summary.json"])["evaluation"]
     return {k: v for k, v in evaluation.items() if k != "inference_s_per_step"}
 
 
 def _the_same_as_never_stopped(argv, cwd: Path) -> None:
-    """The finished run in ``cwd/run`` is refused a second time, then ``--overwrite`` trains it again from
-    the start without a stop: the same steps, curve, parameters and testing score, bit for bit."""
+    """The finished run in ``cwd/run`` is refused a second time, then ``--overwrite`` trains it
+    again from the start without a stop: the same steps, curve, parameters and testing score, bit
+    for bit."""
     _refused(argv, cwd, "give --resume to continue it or --overwrite to replace it")
     resumed = _files(cwd / "run")
     again = _run([*argv, "--overwrite"], cwd)

@@ -1,7 +1,8 @@
-"""docs/scale.md's test-cluster recipe, run as written on the Ray that the agents extra installs: the token
-exported, a head and a second node started with real ``ray start`` on 127.0.0.1, ``ray status``, a small
-sweep on that cluster. Each ``ray start`` gets ``--block`` and its own process group, which the test kills
-(``ray stop`` would stop every Ray process of this user on the machine, other jobs' included)."""
+"""docs/scale.md's test-cluster recipe, run as written on the Ray that the agents extra installs:
+the token exported, a head and a second node started with real ``ray start`` on 127.0.0.1,
+``ray status``, a small sweep on that cluster. Each ``ray start`` gets ``--block`` and its own
+process group, which the test kills (``ray stop`` would stop every Ray process of this user on the
+machine, other jobs' included)."""
 
 import os
 import re

@@ -1,6 +1,7 @@
-"""Every JSON file the package writes is strict JSON (no NaN, Infinity): a tiny training through the command
-line (its summary and checkpoint), ``agents.save``, a sweep cell; each parsed with ``parse_constant`` refusing
-the constants Python's ``json`` would otherwise accept. Numbers that were not finite read back as NaN."""
+"""Every JSON file the package writes is strict JSON (no NaN, Infinity): a tiny training through the
+command line (its summary and checkpoint), ``agents.save``, a sweep cell; each parsed with
+``parse_constant`` refusing the constants Python's ``json`` would otherwise accept. Numbers that
+were not finite read back as NaN."""
 
 import json
 import math
@@ -44,8 +45,9 @@ def test_nan_and_inf_become_null_with_a_reason_and_read_back():
 
 
 def test_a_tiny_training_on_the_command_line_writes_strict_json(tmp_path):
-    """TD3 past its warm-up by one evaluation chunk: its first curve point has no loss yet (NaN), and few
-    evaluation episodes reach 0.9 (the median steps NaN). The budget's warning comes before any work."""
+    """TD3 past its warm-up by one evaluation chunk: its first curve point has no loss yet (NaN),
+    and few evaluation episodes reach 0.9 (the median steps NaN). The budget's warning comes before
+    any work."""
     sets = ["eval_every=100", "eval_episodes=2", "hidden=(16,16)", "batch_size=32"]
     argv = [
         "--algo",

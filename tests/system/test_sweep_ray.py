@@ -1,6 +1,6 @@
-"""The sweep on a real two-node Ray cluster (two raylets on this machine), one worker killed mid-run. The sweep
-is the quick preset's Table 1 (SPGD and TD3) and budget section: Table 1's batched TD3 seeds, protocol (b) end to
-end, and reports from cells computed on both nodes."""
+"""The sweep on a real two-node Ray cluster (two raylets on this machine), one worker killed
+mid-run. The sweep is the quick preset's Table 1 (SPGD and TD3) and budget section: Table 1's
+batched TD3 seeds, protocol (b) end to end, and reports from cells computed on both nodes."""
 
 import argparse
 import csv
@@ -48,7 +48,8 @@ def _cmdline(pid: int) -> str:
 
 
 def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
-    """``ray start ARGS --block`` in its own process group; returns once it reports the node started."""
+    """``ray start ARGS --block`` in its own process group; returns once it reports the node
+    started."""
     proc = subprocess.Popen(
         ["ray", "start", *args, "--num-cpus", "1", "--block", "--disable-usage-stats"],
         stdout=open(log, "w"),
@@ -66,8 +67,8 @@ def _ray_start(args, log: Path, env: dict) -> subprocess.Popen:
 
 @pytest.fixture
 def two_node_cluster():
-    """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn down
-    by process group (SIGTERM, then SIGKILL), never by name."""
+    """A head and a second raylet, 1 CPU each, on 127.0.0.1; yields (address, environment); torn
+    down by process group (SIGTERM, then SIGKILL), never by name."""
     assert shutil.which("ray"), 'the ray command is missing: pip install -e ".[agents]"'
     tmp = Path(
         tempfile.mkdtemp(prefix="ojr-", dir="/tmp")

@@ -7,10 +7,10 @@ brax 0.14.2's PPO and SAC trainers (``brax.training.agents.{ppo,sac}.train``) an
 device along a new leading axis, one slice per device, which is what ``jax.pmap`` expects as a
 replicated argument. It changes nothing on JAX versions that still have the function.
 
-The mesh axis is named ``PMAP_AXIS`` = brax's own pmap axis name (``"i"``): on JAX 0.10 ``pmap`` returns
-arrays sharded over a mesh axis of that name, and a jitted function (brax's evaluation unroll, its
-training step) compiles anew for every distinct input sharding; with any other name each of them compiles
-once for the replicated start state and again for the trained state.
+The mesh axis is named ``PMAP_AXIS`` = brax's own pmap axis name (``"i"``): on JAX 0.10 ``pmap``
+returns arrays sharded over a mesh axis of that name, and a jitted function (brax's evaluation
+unroll, its training step) compiles anew for every distinct input sharding; with any other name each
+of them compiles once for the replicated start state and again for the trained state.
 
 Importing this module imports brax through ``ops_jax.adapters.brax``, which keeps mujoco's
 optional-backend messages ("Failed to import warp") off stdout: the agents modules that use
@@ -30,7 +30,8 @@ PMAP_AXIS = "i"  # brax.training.agents.{ppo,sac}.train._PMAP_AXIS_NAME
 
 
 def device_put_replicated(x, devices):
-    """``x`` (a pytree) stacked ``len(devices)`` times on a new leading axis, slice i on devices[i]."""
+    """``x`` (a pytree) stacked ``len(devices)`` times on a new leading axis, slice i on
+    devices[i]."""
     devices = list(devices)
     if not devices:
         raise ValueError("devices must name at least one device")
@@ -45,7 +46,8 @@ def device_put_replicated(x, devices):
 
 
 def ensure_device_put_replicated() -> bool:
-    """Install ``jax.device_put_replicated`` if this JAX lacks it; returns True when it installed it."""
+    """Install ``jax.device_put_replicated`` if this JAX lacks it; returns True when it installed
+    it."""
     if hasattr(jax, "device_put_replicated"):
         return False
     jax.device_put_replicated = device_put_replicated

@@ -1,5 +1,6 @@
-"""PPO: ``brax.training.agents.ppo.train`` on the Brax adapter (``ops_jax.adapters.brax.OPSBraxEnv``),
-unchanged; this module only chooses hyperparameters, records the curve and wraps the result.
+"""PPO: ``brax.training.agents.ppo.train`` on the Brax adapter
+(``ops_jax.adapters.brax.OPSBraxEnv``), unchanged; this module only chooses hyperparameters, records
+the curve and wraps the result.
 
 Presets of ``PPOConfig`` (below) (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 PPO (Table 5): 2 x 256 tanh networks, lr 3e-4, gamma 0.99, GAE lambda
@@ -45,7 +46,8 @@ from agents.registry import Algo
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig(AlgoConfig):
-    """PPO (``agents.learners.brax.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and "fast"."""
+    """PPO (``agents.learners.brax.ppo``, brax's trainer): presets "paper" (the paper's Table 5) and
+    "fast"."""
 
     NAME: ClassVar[str] = "PPO"
     PRESETS: ClassVar[dict] = {
@@ -129,8 +131,8 @@ class PPOConfig(AlgoConfig):
         return budgets.brax_units(self.num_evals, units)
 
     def updates_per_step(self) -> float:
-        """Per training step brax collects ``batch_size * num_minibatches * unroll_length`` env steps and
-        takes ``num_updates_per_batch * num_minibatches`` gradient steps."""
+        """Per training step brax collects ``batch_size * num_minibatches * unroll_length`` env
+        steps and takes ``num_updates_per_batch * num_minibatches`` gradient steps."""
         return self.num_updates_per_batch / (self.batch_size * self.unroll_length)
 
     def check(self):
@@ -161,7 +163,8 @@ def _networks(env_config: dict, c: PPOConfig):
 
 
 def params_template(env_config: dict, hyper: dict):
-    """brax's PPO params tuple (normalizer state, policy params, value params), freshly initialised."""
+    """brax's PPO params tuple (normalizer state, policy params, value params), freshly
+    initialised."""
     net, d = _networks(env_config, PPOConfig.from_hyper(hyper))
     key = jax.random.PRNGKey(0)
     return (
@@ -171,7 +174,8 @@ def params_template(env_config: dict, hyper: dict):
     )
 
 
-# brax's inference function; deterministic actions: the mode of the tanh-Gaussian; carry and probe ignored
+# brax's inference function; deterministic actions: the mode of the tanh-Gaussian; carry and probe
+# ignored
 make_policy = brax_training.policy_maker("brax.training.agents.ppo.networks", _networks, PPOConfig)
 
 
@@ -184,7 +188,8 @@ def train(
     config: PPOConfig | str | None = None,
     **hyper,
 ) -> base.TrainResult:
-    """Train PPO with ``brax.training.agents.ppo.train`` (arguments and progress metrics: ``agents.train``)."""
+    """Train PPO with ``brax.training.agents.ppo.train`` (arguments and progress metrics:
+    ``agents.train``)."""
     env_config, c = brax_training.training_config(PPOConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.ppo import train as ppo_train
 

@@ -1,6 +1,7 @@
-"""SAC: ``brax.training.agents.sac.train`` on the Brax adapter (``ops_jax.adapters.brax.OPSBraxEnv``),
-unchanged; this module only chooses hyperparameters, records the curve and wraps the result
-(curve, wall-time split and evaluation as in ``agents.learners.brax.ppo``; shared helpers: ``agents.learners.brax.training``).
+"""SAC: ``brax.training.agents.sac.train`` on the Brax adapter
+(``ops_jax.adapters.brax.OPSBraxEnv``), unchanged; this module only chooses hyperparameters, records
+the curve and wraps the result (curve, wall-time split and evaluation as in
+``agents.learners.brax.ppo``; shared helpers: ``agents.learners.brax.training``).
 
 Presets of ``SACConfig`` (below) (``config="paper" | "fast"``; any field may be overridden):
 - "paper": the paper's SB3 SAC (Table 6): 2 x 256 ReLU networks, lr 3e-4, gamma 0.99, tau 0.002,
@@ -36,8 +37,9 @@ from agents.registry import Algo
 
 @dataclasses.dataclass(frozen=True)
 class SACConfig(AlgoConfig):
-    """SAC (``agents.learners.brax.sac``, brax's trainer): presets "paper" (the paper's Table 6), "fast" and "budget"
-    (<= 20k env steps). Its update-to-data ratio is ``grad_updates_per_step / num_envs`` (brax's)."""
+    """SAC (``agents.learners.brax.sac``, brax's trainer): presets "paper" (the paper's Table 6),
+    "fast" and "budget" (<= 20k env steps). Its update-to-data ratio is
+    ``grad_updates_per_step / num_envs`` (brax's)."""
 
     NAME: ClassVar[str] = "SAC"
     PRESETS: ClassVar[dict] = {
@@ -114,7 +116,8 @@ class SACConfig(AlgoConfig):
     num_eval_envs: int = field(COUNT)
 
     def budget_layout(self) -> tuple[int, int, str]:
-        """The replay prefill, then steps of ``num_envs`` env steps (``agents.learners.budgets``)."""
+        """The replay prefill, then steps of ``num_envs`` env steps
+        (``agents.learners.budgets``)."""
         why = f"the replay prefill (min_replay_size = {self.min_replay_size:,})"
         return budgets.ceil_to(self.min_replay_size, self.num_envs), self.num_envs, why
 
@@ -156,7 +159,8 @@ def params_template(env_config: dict, hyper: dict):
     return (brax_training.normalizer_template(d), net.policy_network.init(jax.random.PRNGKey(0)))
 
 
-# brax's inference function; deterministic actions: tanh of the Gaussian mean; carry and probe ignored
+# brax's inference function; deterministic actions: tanh of the Gaussian mean; carry and probe
+# ignored
 make_policy = brax_training.policy_maker("brax.training.agents.sac.networks", _networks, SACConfig)
 
 
@@ -169,7 +173,8 @@ def train(
     config: SACConfig | str | None = None,
     **hyper,
 ) -> base.TrainResult:
-    """Train SAC with ``brax.training.agents.sac.train`` (arguments and progress metrics: ``agents.train``)."""
+    """Train SAC with ``brax.training.agents.sac.train`` (arguments and progress metrics:
+    ``agents.train``)."""
     env_config, c = brax_training.training_config(SACConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.sac import train as sac_train
 

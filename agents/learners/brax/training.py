@@ -1,7 +1,7 @@
-"""What brax's trainers (``agents.learners.brax.ppo``, ``agents.learners.brax.sac``) share: the Brax adapter of a training
-configuration, activations, the observation spec, the deterministic inference policy, the recorded
-curve and the wall-time split (simulation estimated by timing the wrapped env alone; see
-``agents.learners.brax.ppo``)."""
+"""What brax's trainers (``agents.learners.brax.ppo``, ``agents.learners.brax.sac``) share: the Brax
+adapter of a training configuration, activations, the observation spec, the deterministic inference
+policy, the recorded curve and the wall-time split (simulation estimated by timing the wrapped env
+alone; see ``agents.learners.brax.ppo``)."""
 
 from __future__ import annotations
 
@@ -40,7 +40,8 @@ def obs_spec(size: int):
 
 
 def networks(env_config: dict, factory, normalize_observations: bool):
-    """(brax's networks of ``factory`` for the training environment of ``env_config``, observation size)."""
+    """(brax's networks of ``factory`` for the training environment of ``env_config``, observation
+    size)."""
     from brax.training.acme import running_statistics
 
     from agents.envs import built
@@ -73,8 +74,9 @@ def trained(
     num_evals: int,
     **options,
 ) -> base.TrainResult:
-    """The TrainResult of brax's ``train_fn`` (its own ``options``) with config ``c`` on the Brax adapter of
-    ``env_config``, evaluated deterministically from ``EVAL_FIRST_EPISODE``, its curve recorded."""
+    """The TrainResult of brax's ``train_fn`` (its own ``options``) with config ``c`` on the Brax
+    adapter of ``env_config``, evaluated deterministically from ``EVAL_FIRST_EPISODE``, its curve
+    recorded."""
     env = make_brax_env(env_config)
     eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
     rec = Recorder(progress_fn)
@@ -136,8 +138,8 @@ def _time_env_steps(env, num_envs: int, steps: int, seed: int) -> float:
 
 class Recorder:
     """brax ``progress_fn``: collects the evaluation curve and passes each evaluation on to
-    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s and brax's training losses,
-    e.g. policy_loss, v_loss for PPO; actor_loss, critic_loss for SAC)."""
+    ``progress_fn(step, metrics)`` (metrics normalized_power, reward, elapsed_s and brax's training
+    losses, e.g. policy_loss, v_loss for PPO; actor_loss, critic_loss for SAC)."""
 
     def __init__(self, progress_fn=None):
         self.t0 = time.perf_counter()
@@ -178,7 +180,8 @@ class Recorder:
     def result(
         self, algo: str, env, env_config: dict, c, params, total: float, seed: int
     ) -> base.TrainResult:
-        """The TrainResult of a brax training call of ``total`` seconds (wall time split as above)."""
+        """The TrainResult of a brax training call of ``total`` seconds (wall time split as
+        above)."""
         curve = self.curve()
         steps = int(curve["step"][-1]) if curve["step"].size else 0
         eval_steps = len(self.rows) * c.num_eval_envs * env.max_steps
@@ -196,10 +199,11 @@ class Recorder:
 
 def fit_budget(algo: str, total: int, fixed: int, unit: int, num_evals: int) -> tuple[int, int]:
     """``(num_timesteps, num_evals)`` for a brax trainer that runs ``fixed`` env steps first (SAC's
-    replay prefill) and then ``num_evals - 1`` epochs of a whole number of ``unit``-step training steps:
-    the most env steps <= ``total`` it can run, with at most the requested evaluations. brax rounds
-    ``num_timesteps`` up to whole epochs; given these numbers it runs exactly ``num_timesteps``. When
-    ``total`` cannot hold one training step, one step is run and a warning says so."""
+    replay prefill) and then ``num_evals - 1`` epochs of a whole number of ``unit``-step training
+    steps: the most env steps <= ``total`` it can run, with at most the requested evaluations. brax
+    rounds ``num_timesteps`` up to whole epochs; given these numbers it runs exactly
+    ``num_timesteps``. When ``total`` cannot hold one training step, one step is run and a warning
+    says so."""
     units = (total - fixed) // unit
     if units < 1:
         warnings.warn(
@@ -219,8 +223,9 @@ def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
 
 
 def training_config(config_type, env_config: dict, config, total_steps: int | None, hyper: dict):
-    """``(env_config checked, config)`` of a brax training: ``config`` (a preset name or a ``config_type``)
-    with the ``hyper`` overrides and ``total_steps`` (None: the config's); brax made runnable on this JAX."""
+    """``(env_config checked, config)`` of a brax training: ``config`` (a preset name or a
+    ``config_type``) with the ``hyper`` overrides and ``total_steps`` (None: the config's); brax
+    made runnable on this JAX."""
     from agents.learners.brax import compat as brax_compat
 
     brax_compat.prepare_brax()
@@ -232,7 +237,8 @@ def training_config(config_type, env_config: dict, config, total_steps: int | No
 
 def policy_maker(networks_module: str, networks_of: Callable, config_type) -> Callable:
     """A brax trainer's ``make_policy(env_config, hyper)``: ``make_inference_fn`` of the module
-    ``networks_module`` at the networks ``networks_of(env_config, config)``, with deterministic actions."""
+    ``networks_module`` at the networks ``networks_of(env_config, config)``, with deterministic
+    actions."""
 
     def make_policy(env_config: dict, hyper: dict) -> base.Policy:
         module = importlib.import_module(networks_module)

@@ -1,5 +1,6 @@
-"""The seed-vmapped, jitted training functions of an off-policy learner (``agents.learners.offpolicy.driver``),
-built once per learner, static environment configuration and hyperparameters in a process."""
+"""The seed-vmapped, jitted training functions of an off-policy learner
+(``agents.learners.offpolicy.driver``), built once per learner, static environment configuration and
+hyperparameters in a process."""
 
 from __future__ import annotations
 
@@ -91,7 +92,8 @@ _BUILDS: dict = {}
 def cached_build(learner, env_config: dict, h: dict, num_seeds: int) -> dict:
     """Seed-vmapped jitted training functions, built once per (learner, static env config,
     hyperparameters) in this process, so that other seeds or modes (their ``EnvParams`` are
-    arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument signature."""
+    arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument
+    signature."""
     env, env_params = built(train_env_config(env_config, h["train_reward"]))
     sharding = evaluation.split_over_devices(num_seeds, "seeds")
     key = (
@@ -112,8 +114,8 @@ def cached_build(learner, env_config: dict, h: dict, num_seeds: int) -> dict:
         compiled = {}
 
         def get_compiled(name, *args):
-            """``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts, length); "evaluate":
-            its args) compiled."""
+            """``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts, length);
+            "evaluate": its args) compiled."""
             static = args[1:] if name in ("warmup", "train_chunk") else None
             arrays = args[:1] if static is not None else args
             sig = (

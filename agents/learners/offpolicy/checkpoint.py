@@ -1,17 +1,19 @@
-"""Checkpoints of an off-policy run while it trains (``agents.learners.offpolicy.driver.train_seeds``'s
-``checkpoints``), and a run continued from one.
+"""Checkpoints of an off-policy run while it trains
+(``agents.learners.offpolicy.driver.train_seeds``'s ``checkpoints``), and a run continued from one.
 
-The folder (``Checkpoints.folder``, e.g. ``runs/td3/checkpoint``) is an ``agents.save`` checkpoint of the policy
-trained so far (``agents.load`` reads it) plus ``training.npz`` (every leaf of the training state between two
-training chunks: networks, targets, optimiser states, replay buffer, environment states, PRNG keys, gradient
-step count; and the curve so far) and ``training.json`` (the run's learner, env_config, hyperparameters and seeds,
-env steps and chunks done, seconds by part). It is written every ``every`` env steps, rounded up to whole chunks,
-and when SIGINT or SIGTERM asks the run to stop (at the end of the current chunk), into a temporary folder then
-renamed into place (``agents.io.replace_dir``): a kill leaves the last whole one.
+The folder (``Checkpoints.folder``, e.g. ``runs/td3/checkpoint``) is an ``agents.save`` checkpoint
+of the policy trained so far (``agents.load`` reads it) plus ``training.npz`` (every leaf of the
+training state between two training chunks: networks, targets, optimiser states, replay buffer,
+environment states, PRNG keys, gradient step count; and the curve so far) and ``training.json`` (the
+run's learner, env_config, hyperparameters and seeds, env steps and chunks done, seconds by part).
+It is written every ``every`` env steps, rounded up to whole chunks, and when SIGINT or SIGTERM asks
+the run to stop (at the end of the current chunk), into a temporary folder then renamed into place
+(``agents.io.replace_dir``): a kill leaves the last whole one.
 
-A call of ``train_seeds`` with the same learner, env_config, hyperparameters (``total_steps`` included) and seeds
-continues the stored run from it: the same chunks, so it ends with the same env steps, curve and parameters as
-the run that was never stopped (bitwise on the same host and JAX version; only the wall times differ).
+A call of ``train_seeds`` with the same learner, env_config, hyperparameters (``total_steps``
+included) and seeds continues the stored run from it: the same chunks, so it ends with the same env
+steps, curve and parameters as the run that was never stopped (bitwise on the same host and JAX
+version; only the wall times differ).
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ CURVE = ("step", "normalized_power", "final_normalized_power", "critic_loss", "a
 
 
 class Stopped(KeyboardInterrupt):
-    """The run stopped on a signal (``signum``) after writing its checkpoint at env step ``step``."""
+    """The run stopped on a signal (``signum``) after writing its checkpoint at env step
+    ``step``."""
 
     def __init__(self, signum: int, step: int):
         super().__init__(f"stopped by signal {signum} at env step {step}, checkpoint written")
@@ -49,9 +52,10 @@ class Stopped(KeyboardInterrupt):
 
 @dataclasses.dataclass
 class Run:
-    """A run between two training chunks: the seed-batched training state ``ts``, env steps trained, training
-    chunks done, the curve so far (``CURVE`` names -> one entry per point: the step, or per-seed arrays), seconds
-    by part (``timing``) and the warm-up's simulation seconds per iteration."""
+    """A run between two training chunks: the seed-batched training state ``ts``, env steps trained,
+    training chunks done, the curve so far (``CURVE`` names -> one entry per point: the step, or
+    per-seed arrays), seconds by part (``timing``) and the warm-up's simulation seconds per
+    iteration."""
 
     ts: Any
     step: int
@@ -80,7 +84,8 @@ def identity(algo: str, env_config: dict, hyper: dict, seeds) -> dict:
 
 
 def stored_meta(folder: Path) -> dict | None:
-    """``training.json`` of the checkpoint in ``folder`` (or the ``.old`` one a kill left), None without one."""
+    """``training.json`` of the checkpoint in ``folder`` (or the ``.old`` one a kill left), None
+    without one."""
     kept = kept_dir(folder)
     if kept is None or not (kept / META).exists() or not (kept / STATE).exists():
         return None
@@ -91,7 +96,8 @@ def stored_meta(folder: Path) -> dict | None:
 
 
 def differences(stored: dict, wanted: dict) -> list[str]:
-    """Each setting in which ``wanted`` differs from ``stored`` (both ``identity``), with both values."""
+    """Each setting in which ``wanted`` differs from ``stored`` (both ``identity``), with both
+    values."""
     diffs = []
     for part, value in wanted.items():
         was = stored.get(part)
@@ -107,8 +113,8 @@ def differences(stored: dict, wanted: dict) -> list[str]:
 
 
 def check_fits(folder: Path, wanted: dict) -> dict | None:
-    """The stored ``training.json`` in ``folder`` (None without one); ValueError naming each setting in which
-    ``wanted`` (``identity``) differs from it."""
+    """The stored ``training.json`` in ``folder`` (None without one); ValueError naming each setting
+    in which ``wanted`` (``identity``) differs from it."""
     meta = stored_meta(folder)
     if meta is None:
         return None
@@ -121,9 +127,9 @@ def check_fits(folder: Path, wanted: dict) -> dict | None:
 
 
 class Checkpoints:
-    """Where and how often a run checkpoints (module docstring); ``saved_step``: the env steps of the checkpoint
-    on disk (restored or written by this run), None before one; ``stop_signal``: the signal that asked the run
-    to stop, None before one."""
+    """Where and how often a run checkpoints (module docstring); ``saved_step``: the env steps of
+    the checkpoint on disk (restored or written by this run), None before one; ``stop_signal``: the
+    signal that asked the run to stop, None before one."""
 
     def __init__(self, folder, every: int = EVERY):
         if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
@@ -132,11 +138,13 @@ class Checkpoints:
         self.saved_step, self.stop_signal = None, None
 
     def due(self, step: int) -> bool:
-        """Whether a checkpoint is due at env step ``step`` (``every`` steps or more since the last one)."""
+        """Whether a checkpoint is due at env step ``step`` (``every`` steps or more since the last
+        one)."""
         return step - (self.saved_step or 0) >= self.every
 
     def restore(self, template, wanted: dict) -> Run | None:
-        """The stored run in the structure of the fresh training state ``template``, or None without one."""
+        """The stored run in the structure of the fresh training state ``template``, or None without
+        one."""
         for stale in self.folder.parent.glob(
             f"{self.folder.name}.*.tmp"
         ):  # what a kill left half-written
@@ -190,9 +198,9 @@ class Checkpoints:
 
     @contextlib.contextmanager
     def stop_requests(self):
-        """While the run trains (in the main thread): SIGINT or SIGTERM asks it to stop at the end of the current
-        chunk (``stop_signal``; a line on stderr says so), a second one raises KeyboardInterrupt at once. The
-        previous handlers are restored after."""
+        """While the run trains (in the main thread): SIGINT or SIGTERM asks it to stop at the end
+        of the current chunk (``stop_signal``; a line on stderr says so), a second one raises
+        KeyboardInterrupt at once. The previous handlers are restored after."""
         if threading.current_thread() is not threading.main_thread():
             yield
             return

@@ -1,11 +1,12 @@
-"""The training driver of the off-policy learners (``agents.learners.offpolicy.td3``, ``agents.learners.offpolicy.droq``): seeds vmapped, the
-warm-up and the training chunks (their building blocks: ``agents.learners.offpolicy.replay``), the curve, snapshots and continued runs.
+"""The training driver of the off-policy learners (``agents.learners.offpolicy.td3``,
+``agents.learners.offpolicy.droq``): seeds vmapped, the warm-up and the training chunks (their
+building blocks: ``agents.learners.offpolicy.replay``), the curve, snapshots and continued runs.
 
-A learner is a ``Learner``: its name, config type, ``build(env, h)`` (its networks, exploration
-and update, wired through ``agents.learners.offpolicy.replay.replay_loop``), ``networks`` and ``greedy`` (its policy and params
-template). Its training state is a NamedTuple with at least the fields ``actor`` (a flax TrainState) and
-``agents.learners.offpolicy.replay.STATE``'s (``obs_norm``, ``buffer``, ...); the stored policy params are
-``{"actor": actor params, "obs_norm": {mean, std}}``.
+A learner is a ``Learner``: its name, config type, ``build(env, h)`` (its networks, exploration and
+update, wired through ``agents.learners.offpolicy.replay.replay_loop``), ``networks`` and ``greedy``
+(its policy and params template). Its training state is a NamedTuple with at least the fields
+``actor`` (a flax TrainState) and ``agents.learners.offpolicy.replay.STATE``'s (``obs_norm``,
+``buffer``, ...); the stored policy params are ``{"actor": actor params, "obs_norm": {mean, std}}``.
 
 One training *iteration* = ``unroll`` batched env steps of ``num_envs`` instances (exploration
 actions), their insertion into brax's ``UniformSamplingQueue``, then ``updates_per_iter``
@@ -14,24 +15,25 @@ field ``utd_ratio``). Time-outs bootstrap: the stored discount is ``1 - terminat
 next observation is ``info["final_observation"]`` (the pre-reset one).
 
 Observations are standardised with a mean / std frozen after the random warm-up, computed over the
-warm-up's observations that the buffer holds (the last ``buffer_size``); they are part of the policy params.
+warm-up's observations that the buffer holds (the last ``buffer_size``); they are part of the policy
+params.
 
-Continued training (``start_from``: TrainResults of the same learner and network sizes, one per seed):
-the run starts from their networks, targets, optimiser states and observation statistics (kept
-frozen) with an empty replay buffer, and its warm-up collects ``learning_starts`` steps with the
-policy's own exploration instead of uniform random actions.
+Continued training (``start_from``: TrainResults of the same learner and network sizes, one per
+seed): the run starts from their networks, targets, optimiser states and observation statistics
+(kept frozen) with an empty replay buffer, and its warm-up collects ``learning_starts`` steps with
+the policy's own exploration instead of uniform random actions.
 
 Wall time: ``total`` is everything; ``compile`` the jit compilations; ``evaluation`` the periodic
-evaluation rollouts; ``simulation`` is the warm-up (a jitted env-only scan: uniform random
-actions, ``step_batch`` and buffer insertion, no updates) plus, for the training chunks, the
-warm-up's time per iteration (the faster of two timed runs) times the number of training
-iterations (an estimate: it leaves out the actor's forward pass used for exploration);
-``optimisation`` = training-chunk time - that estimate. The warm-up is ``ceil(learning_starts / (num_envs * unroll))``
-iterations.
+evaluation rollouts; ``simulation`` is the warm-up (a jitted env-only scan: uniform random actions,
+``step_batch`` and buffer insertion, no updates) plus, for the training chunks, the warm-up's time
+per iteration (the faster of two timed runs) times the number of training iterations (an estimate:
+it leaves out the actor's forward pass used for exploration); ``optimisation`` = training-chunk
+time - that estimate. The warm-up is ``ceil(learning_starts / (num_envs * unroll))`` iterations.
 
 Checkpoints (``checkpoints``, one seed): the whole training state between two chunks, written every
-``Checkpoints.every`` env steps and on SIGINT or SIGTERM; a later call with the same settings continues from it
-through the same chunks, to the same result (``agents.learners.offpolicy.checkpoint``).
+``Checkpoints.every`` env steps and on SIGINT or SIGTERM; a later call with the same settings
+continues from it through the same chunks, to the same result
+(``agents.learners.offpolicy.checkpoint``).
 
 Curve (one point after the warm-up and after every training chunk of about ``eval_every`` env
 steps): 'step', 'normalized_power' (mean P/Pmax over the last 10 of 200 steps of
@@ -57,8 +59,9 @@ from agents.envs import built, train_env_config
 
 class Learner(NamedTuple):
     """An off-policy learner: ``build(env, h) -> dict(init, warmup, fit_norm, train_chunk)``, its
-    ``networks(h, num_actions) -> (actor, critic)`` (flax modules) and ``greedy(actor, params, obs) -> action``
-    (its deterministic action at standardised observations)."""
+    ``networks(h, num_actions) -> (actor, critic)`` (flax modules) and
+    ``greedy(actor, params, obs) -> action`` (its deterministic action at standardised
+    observations)."""
 
     name: str
     config_type: type
@@ -83,7 +86,8 @@ class Learner(NamedTuple):
         )
 
     def params_template(self, env_config: dict, hyper: dict):
-        """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean, std}}."""
+        """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean,
+        std}}."""
         actor, d, _ = self._actor(env_config, hyper)
         return {
             "actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
@@ -91,9 +95,9 @@ class Learner(NamedTuple):
         }
 
     def make_policy(self, env_config: dict, hyper: dict) -> base.Policy:
-        """The deterministic actor at observations standardised by the params' ``obs_norm``; ignores key, carry
-        and probe. With an observer (``agents.learners.offpolicy.observer``), the observer's estimate is appended first (its
-        carry is the policy's)."""
+        """The deterministic actor at observations standardised by the params' ``obs_norm``; ignores
+        key, carry and probe. With an observer (``agents.learners.offpolicy.observer``), the
+        observer's estimate is appended first (its carry is the policy's)."""
         actor, _, seen = self._actor(env_config, hyper)
 
         def greedy(params, obs):
@@ -110,12 +114,14 @@ class Learner(NamedTuple):
 
     @staticmethod
     def _observer(env_config: dict, h: dict):
-        """The observer of the stored hyperparameters ``h`` on the learner's training environment, or None."""
+        """The observer of the stored hyperparameters ``h`` on the learner's training environment,
+        or None."""
         return observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
 
     def training_env(self, env, env_config: dict, h: dict):
-        """The batched env the learner trains on: ``env`` (of ``train_env_config(env_config, h["train_reward"])``),
-        wrapped by ``agents.learners.offpolicy.observer.Observed`` with an observer."""
+        """The batched env the learner trains on: ``env`` (of
+        ``train_env_config(env_config, h["train_reward"])``), wrapped by
+        ``agents.learners.offpolicy.observer.Observed`` with an observer."""
         seen = self._observer(env_config, h)
         return env if seen is None else observer.Observed(env, seen)
 
@@ -127,17 +133,17 @@ def check_seed(seed):
 
 
 def schedule(h: dict) -> tuple[int, int, int]:
-    """(warm-up iterations, training chunks, iterations per chunk) of ``h["total_steps"]`` env steps:
-    the warm-up collects at least ``learning_starts`` steps, then chunks of about ``eval_every`` steps
-    run whole iterations of ``num_envs * unroll`` steps, never past ``total_steps`` (the remainder of
-    less than one iteration per chunk is not run)."""
+    """(warm-up iterations, training chunks, iterations per chunk) of ``h["total_steps"]`` env
+    steps: the warm-up collects at least ``learning_starts`` steps, then chunks of about
+    ``eval_every`` steps run whole iterations of ``num_envs * unroll`` steps, never past
+    ``total_steps`` (the remainder of less than one iteration per chunk is not run)."""
     per_iter = h["num_envs"] * h["unroll"]
     warm_iters = -(-h["learning_starts"] // per_iter)
     if warm_iters * per_iter > h["total_steps"]:
         raise ValueError(
-            f"total_steps must be >= the warm-up of learning_starts = {h['learning_starts']} rounded up "
-            f"to whole iterations of num_envs * unroll = {per_iter} ({warm_iters * per_iter}), "
-            f"got {h['total_steps']}"
+            f"total_steps must be >= the warm-up of learning_starts = {h['learning_starts']} "
+            f"rounded up to whole iterations of num_envs * unroll = {per_iter} "
+            f"({warm_iters * per_iter}), got {h['total_steps']}"
         )
     train_iters = max(0, (h["total_steps"] - warm_iters * per_iter) // per_iter)
     n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
@@ -166,8 +172,9 @@ _FRESH = ("buffer", "env_state", "obs", "key", "updates", "env_params")
 
 
 def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
-    """``ts`` (fresh, seed-batched) with the learned arrays of ``start_from`` (one TrainResult per seed, or
-    one TrainResult for one seed) in its own structure (this run's optimisers and settings)."""
+    """``ts`` (fresh, seed-batched) with the learned arrays of ``start_from`` (one TrainResult per
+    seed, or one TrainResult for one seed) in its own structure (this run's optimisers and
+    settings)."""
     if isinstance(start_from, base.TrainResult):
         start_from = [start_from]
     start_from = list(start_from)
@@ -178,8 +185,8 @@ def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
     for r in start_from:
         if not isinstance(r, base.TrainResult) or r.algo != learner.name or r.state is None:
             raise ValueError(
-                f"start_from must hold {learner.name} TrainResults trained in this process (with their "
-                f"training state), got {getattr(r, 'algo', type(r).__name__)!r}"
+                f"start_from must hold {learner.name} TrainResults trained in this process (with "
+                f"their training state), got {getattr(r, 'algo', type(r).__name__)!r}"
             )
     stacked = jax.tree.map(lambda *xs: np.stack(xs), *[r.state for r in start_from])
     fields = {}
@@ -188,8 +195,8 @@ def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
         leaves, shapes = jax.tree.leaves(value), [x.shape for x in jax.tree.leaves(fresh)]
         if [x.shape for x in leaves] != shapes:
             raise ValueError(
-                f"start_from's {name} does not fit this run: network sizes must match (and alpha_lr "
-                "be 0 in both runs or in neither)"
+                f"start_from's {name} does not fit this run: network sizes must match (and "
+                "alpha_lr be 0 in both runs or in neither)"
             )
         fields[name] = jax.tree.unflatten(jax.tree.structure(fresh), leaves)
     return ts._replace(**jax.device_put(fields, sharding))
@@ -209,14 +216,15 @@ def train_seeds(
     **hyper,
 ) -> list[base.TrainResult]:
     """Train ``learner`` for several seeds at once: one jitted call vmapped over the seeds (sharded
-    over the local devices when they divide the seed count). See ``agents.learners.offpolicy.td3.train_seeds``.
-    ``snapshot_fn(step, params)`` (optional) gets each seed's policy params (host copies) after the
-    warm-up and after every training chunk: a run of ``total_steps`` T passes through the states of
-    the shorter runs whose budgets end a chunk (multiples of ``eval_every`` after the warm-up).
-    ``start_from`` (optional): one TrainResult of this learner per seed, continued (module docstring).
-    ``checkpoints`` (optional; one seed, no ``start_from``): an ``agents.learners.offpolicy.checkpoint.Checkpoints``:
-    the run checkpoints as it trains, continues the run stored there, and stops on SIGINT or SIGTERM at the end of
-    the current chunk with a checkpoint (raising ``checkpoint.Stopped``)."""
+    over the local devices when they divide the seed count). See
+    ``agents.learners.offpolicy.td3.train_seeds``. ``snapshot_fn(step, params)`` (optional) gets
+    each seed's policy params (host copies) after the warm-up and after every training chunk: a run
+    of ``total_steps`` T passes through the states of the shorter runs whose budgets end a chunk
+    (multiples of ``eval_every`` after the warm-up). ``start_from`` (optional): one TrainResult of
+    this learner per seed, continued (module docstring). ``checkpoints`` (optional; one seed, no
+    ``start_from``): an ``agents.learners.offpolicy.checkpoint.Checkpoints``: the run checkpoints as
+    it trains, continues the run stored there, and stops on SIGINT or SIGTERM at the end of the
+    current chunk with a checkpoint (raising ``checkpoint.Stopped``)."""
     env_config = base.check_env_config(env_config)
     seeds, h = _run_settings(learner, seeds, total_steps, config, hyper)
     if checkpoints is not None and (len(seeds) > 1 or start_from is not None):
@@ -242,7 +250,8 @@ def train_seeds(
 
 
 class _Session:
-    """One call of ``train_seeds``: its evaluation, reports, checkpoints and training chunks around a ``Run``."""
+    """One call of ``train_seeds``: its evaluation, reports, checkpoints and training chunks around
+    a ``Run``."""
 
     progress_fn = snapshot_fn = checkpoints = None
 
@@ -257,7 +266,8 @@ class _Session:
             self.k_init, self.k_eval = jax.device_put((self.k_init, self.k_eval), fns["sharding"])
 
     def start(self, ts, warm_iters: int, random: bool):
-        """The ``Run`` after the warm-up of the fresh (or continued) state ``ts``, its evaluation compiled."""
+        """The ``Run`` after the warm-up of the fresh (or continued) state ``ts``, its evaluation
+        compiled."""
         timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
         ts, sim_per_iter = _warm_up(self.fns, ts, warm_iters, timing, random)
         curve = {k: [] for k in checkpoint.CURVE}
@@ -272,8 +282,8 @@ class _Session:
         run.timing["compile"] += time.perf_counter() - t0
 
     def record(self, run, m, last: bool) -> None:
-        """Evaluate the run's state, add the curve point, report it; then a checkpoint when due or asked for
-        (``checkpoint.Stopped`` after the latter)."""
+        """Evaluate the run's state, add the curve point, report it; then a checkpoint when due or
+        asked for (``checkpoint.Stopped`` after the latter)."""
         t0 = time.perf_counter()
         npow = self.evaluate(policy_params(run.ts), self.env_params, self.k_eval, self.eval_ids)[0]
         npow = np.asarray(npow)  # (seeds, steps, episodes)
@@ -292,8 +302,8 @@ class _Session:
         self.keep(run, last)
 
     def keep(self, run, last: bool) -> None:
-        """A checkpoint of ``run`` when one is due (not at the ``last`` point: the caller saves the result) or a
-        signal asked the run to stop (``checkpoint.Stopped`` raised after it)."""
+        """A checkpoint of ``run`` when one is due (not at the ``last`` point: the caller saves the
+        result) or a signal asked the run to stop (``checkpoint.Stopped`` raised after it)."""
         ck = self.checkpoints
         if ck is not None and (ck.stop_signal is not None or (ck.due(run.step) and not last)):
             if ck.saved_step != run.step:
@@ -360,7 +370,8 @@ class _Session:
 
 
 def run_with_total(run, t_start: float):
-    """``run`` with its seconds' ``total`` (from ``t_start``, perf_counter) added to a copy of its timing."""
+    """``run`` with its seconds' ``total`` (from ``t_start``, perf_counter) added to a copy of its
+    timing."""
     return dataclasses.replace(run, timing=dict(run.timing, total=time.perf_counter() - t_start))
 
 
@@ -381,8 +392,8 @@ def _chunk_metrics(m) -> dict:
 
 
 def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> tuple[list, dict]:
-    """(the checked seeds, the run's stored hyperparameters: ``config`` and ``hyper`` resolved, ``total_steps``
-    over the preset's)."""
+    """(the checked seeds, the run's stored hyperparameters: ``config`` and ``hyper`` resolved,
+    ``total_steps`` over the preset's)."""
     seeds = [check_seed(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")

@@ -1,5 +1,6 @@
 """DroQ (Hiraoka et al., ICLR 2022): SAC whose twin critics carry dropout and LayerNorm, trained at
-a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.learners.offpolicy.driver``'s replay loop.
+a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.learners.offpolicy.driver``'s
+replay loop.
 
 - Actor: tanh-squashed Gaussian, an MLP ``hidden`` giving the mean and log std (clipped to
   [-5, 2]); the evaluated policy is deterministic, tanh(mean).
@@ -11,11 +12,11 @@ a high update-to-data ratio, in pure JAX (flax, optax) on ``agents.learners.offp
   ``alpha_lr``; 0 keeps it fixed) tuned to the entropy ``target_entropy`` per action dimension.
 - Exploration: actions sampled from the policy; uniform random during the warm-up.
 
-Preset "budget" of ``DroQConfig`` (below): one env, 10 gradient steps per env step, 2 x 64
-networks, LayerNorm critics without dropout (dropout doubled the cost of a step for no measured
-gain), gamma 0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md). Preset "bench": the same,
-learning a bounded correction to the physics-informed fit's move (``observer="fit-residual"``), for learning on a
-bench from its frames (docs/lab.md).
+Preset "budget" of ``DroQConfig`` (below): one env, 10 gradient steps per env step, 2 x 64 networks,
+LayerNorm critics without dropout (dropout doubled the cost of a step for no measured gain), gamma
+0.97, the linear reward (``train_reward``), 20k env steps (docs/learners.md). Preset "bench": the
+same, learning a bounded correction to the physics-informed fit's move
+(``observer="fit-residual"``), for learning on a bench from its frames (docs/lab.md).
 """
 
 from __future__ import annotations
@@ -47,8 +48,8 @@ from ops_jax.ranges import Range
 
 @dataclasses.dataclass(frozen=True)
 class DroQConfig(ReplayConfig):
-    """DroQ (``agents.learners.offpolicy.droq``): SAC with dropout + LayerNorm critics at a high update-to-data
-    ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
+    """DroQ (``agents.learners.offpolicy.droq``): SAC with dropout + LayerNorm critics at a high
+    update-to-data ratio; preset "budget" (<= 20k env steps). Gradient steps as in ``TD3Config``."""
 
     NAME: ClassVar[str] = "DroQ"
     DEFAULT_PRESET: ClassVar[str] = "budget"
@@ -80,8 +81,9 @@ class DroQConfig(ReplayConfig):
             train_reward="linear",
         )
     }
-    # learning on a bench from its frames (``agents.bench --learn droq``): a correction, a quarter of the action
-    # range at most, added to the physics-informed fit's move, the fit at 4 starts x 6 iterations (a bench's pace)
+    # learning on a bench from its frames (``agents.bench --learn droq``): a correction, a quarter
+    # of the action range at most, added to the physics-informed fit's move, the fit at 4 starts x 6
+    # iterations (a bench's pace)
     PRESETS["bench"] = dict(
         PRESETS["budget"], observer="fit-residual", residual_scale=0.25, fit_starts=4, fit_iters=6
     )
@@ -271,10 +273,11 @@ def train(
     config: DroQConfig | str | None = None,
     **hyper,
 ) -> base.TrainResult:
-    """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
-    steps (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
-    overrides of its fields; ``progress_fn`` and the curve as in ``agents.learners.offpolicy.td3.train``; ``start_from=result``
-    continues from an earlier run in this process (``agents.learners.offpolicy.driver``), ``checkpoints=Checkpoints(folder)``
+    """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env steps
+    (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
+    overrides of its fields; ``progress_fn`` and the curve as in
+    ``agents.learners.offpolicy.td3.train``; ``start_from=result`` continues from an earlier run in
+    this process (``agents.learners.offpolicy.driver``), ``checkpoints=Checkpoints(folder)``
     checkpoints it as it trains (``agents.learners.offpolicy.checkpoint``)."""
     return train_seeds(
         env_config,
@@ -295,7 +298,8 @@ def train_seeds(
     config: DroQConfig | str | None = None,
     **hyper,
 ) -> list[base.TrainResult]:
-    """``train`` for several seeds in one vmapped call (as ``agents.learners.offpolicy.td3.train_seeds``)."""
+    """``train`` for several seeds in one vmapped call (as
+    ``agents.learners.offpolicy.td3.train_seeds``)."""
     return offpolicy.train_seeds(
         LEARNER,
         env_config,

@@ -1,14 +1,17 @@
-"""The fit observer (``observer="fit"`` of the off-policy learners, ``agents.learners.offpolicy.driver``): the line offsets that the
-physics-informed controller's fit reads from the detector's frames (``agents.controllers.physics_informed``, preset "frames",
-its state estimation alone) appended to the learner's observation, so that a learner without length readouts
-(``observe_lengths=False``) sees an estimate of the state instead of a sign-ambiguous frame. With
-``observer="fit-residual"`` the learner's action is also a correction added to the fit's own move.
+"""The fit observer (``observer="fit"`` of the off-policy learners,
+``agents.learners.offpolicy.driver``): the line offsets that the physics-informed controller's fit
+reads from the detector's frames (``agents.controllers.physics_informed``, preset "frames", its
+state estimation alone) appended to the learner's observation, so that a learner without length
+readouts (``observe_lengths=False``) sees an estimate of the state instead of a sign-ambiguous
+frame. With ``observer="fit-residual"`` the learner's action is also a correction added to the fit's
+own move.
 
-The appended entries: the fitted stages' offsets from the nearest optimum (wl, in [-0.25, 0.25)), estimated from
-the newest frame and, through the move the learner commanded before it, the frame before (``fit_history`` H: the H
-frames before, through the moves since each). On the first frame of an episode (or of a bench run) the fit has no
-history. Training (``Observed``) and the stored policy
-(``Learner.make_policy``) run the same estimate, so a checkpoint acts on the raw observation of the env or bench.
+The appended entries: the fitted stages' offsets from the nearest optimum (wl, in [-0.25, 0.25)),
+estimated from the newest frame and, through the move the learner commanded before it, the frame
+before (``fit_history`` H: the H frames before, through the moves since each). On the first frame of
+an episode (or of a bench run) the fit has no history. Training (``Observed``) and the stored policy
+(``Learner.make_policy``) run the same estimate, so a checkpoint acts on the raw observation of the
+env or bench.
 """
 
 from __future__ import annotations
@@ -24,9 +27,10 @@ from agents.envs import built
 
 
 class Observer(NamedTuple):
-    """``size``: entries appended; ``init(key, obs (B, D)) -> carry``; ``observe(params, carry, obs, key) ->
-    (obs (B, D + size), carry)``; ``command(carry, action (B, N)) -> (B, N)`` the move sent for the learner's
-    action; ``moved(params, carry, command (B, N)) -> carry`` records the move sent. ``params``:
+    """``size``: entries appended; ``init(key, obs (B, D)) -> carry``;
+    ``observe(params, carry, obs, key) -> (obs (B, D + size), carry)``;
+    ``command(carry, action (B, N)) -> (B, N)`` the move sent for the learner's action;
+    ``moved(params, carry, command (B, N)) -> carry`` records the move sent. ``params``:
     ``physics_informed.policy_params`` (None: those of the env_config)."""
 
     size: int
@@ -44,10 +48,11 @@ def fit_observer(
     iters: int | None = None,
     history: int | None = None,
 ) -> Observer:
-    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with ``residual``,
-    ``residual_scale`` times the learner's action is a correction added to the fitted model's own move (the
-    physics-informed controller's, clipped to [-1, 1] after the sum). ``starts``, ``iters``, ``history``: the fit's
-    random starts, Levenberg-Marquardt iterations per start and earlier frames compared (None: the "frames" preset's)."""
+    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with
+    ``residual``, ``residual_scale`` times the learner's action is a correction added to the fitted
+    model's own move (the physics-informed controller's, clipped to [-1, 1] after the sum).
+    ``starts``, ``iters``, ``history``: the fit's random starts, Levenberg-Marquardt iterations per
+    start and earlier frames compared (None: the "frames" preset's)."""
     sizes = {
         k: v
         for k, v in (("starts", starts), ("iters", iters), ("history", history))
@@ -81,9 +86,9 @@ def fit_observer(
 
 
 def of_learner(env_config: dict, h: dict) -> Observer | None:
-    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual"; None for
-    "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``, ``h["fit_history"]``) on its training
-    environment ``env_config``."""
+    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual";
+    None for "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``,
+    ``h["fit_history"]``) on its training environment ``env_config``."""
     kind = h.get("observer", "none")
     return (
         None
@@ -100,7 +105,8 @@ def of_learner(env_config: dict, h: dict) -> Observer | None:
 
 
 def policy(observer: Observer, act: Callable):
-    """``agents.api.Policy`` that observes, then acts by ``act(params, obs (B, D + size)) -> action (B, N)``."""
+    """``agents.api.Policy`` that observes, then acts by
+    ``act(params, obs (B, D + size)) -> action (B, N)``."""
 
     def act_observed(params, carry, obs, key, probe):
         del probe
@@ -114,10 +120,10 @@ def policy(observer: Observer, act: Callable):
 
 
 class Observed:
-    """The batched environment a learner with the fit observer trains on: ``reset_batch`` and ``step_batch`` of
-    ``env`` with the observer's entries appended (the final observation's too) and its carry in the state
-    (``(env state, carry)``); the estimate's random starts are drawn from the first instance's step key. Other
-    attributes are ``env``'s."""
+    """The batched environment a learner with the fit observer trains on: ``reset_batch`` and
+    ``step_batch`` of ``env`` with the observer's entries appended (the final observation's too) and
+    its carry in the state (``(env state, carry)``); the estimate's random starts are drawn from the
+    first instance's step key. Other attributes are ``env``'s."""
 
     def __init__(self, env, observer: Observer):
         self.env, self.observer = env, observer

@@ -1,6 +1,7 @@
-"""The building blocks that an off-policy learner's ``build`` wires (``agents.learners.offpolicy.td3``, ``agents.learners.offpolicy.droq``; the
-training driver is ``agents.learners.offpolicy.driver``): observation statistics, train states, brax's replay queue, the
-jitted exploration / update loop, the MLP and the fields every training state holds."""
+"""The building blocks that an off-policy learner's ``build`` wires
+(``agents.learners.offpolicy.td3``, ``agents.learners.offpolicy.droq``; the training driver is
+``agents.learners.offpolicy.driver``): observation statistics, train states, brax's replay queue,
+the jitted exploration / update loop, the MLP and the fields every training state holds."""
 
 from __future__ import annotations
 
@@ -23,21 +24,25 @@ OBSERVER = choice("none", "fit", "fit-residual")
 
 @dataclasses.dataclass(frozen=True)
 class ReplayConfig(AlgoConfig):
-    """Base of the off-policy learners' configs (``agents.learners.offpolicy.driver``): gradient steps per iteration are
-    ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the two); the observer's fields
-    (``agents.learners.offpolicy.observer``), keyword-only, are common to them."""
+    """Base of the off-policy learners' configs (``agents.learners.offpolicy.driver``): gradient
+    steps per iteration are ``updates_per_iter``, or ``utd_ratio`` per env step (exactly one of the
+    two); the observer's fields (``agents.learners.offpolicy.observer``), keyword-only, are common
+    to them."""
 
     observer: str = field(OBSERVER, default="none", kw_only=True)
     # with observer="fit-residual": the fit's move plus this times the learner's action is sent
     residual_scale: float = field(UNIT, default=1.0, kw_only=True)
-    # with an observer: the fit's random starts and iterations per start (None: the physics "frames" preset's)
+    # with an observer: the fit's random starts and iterations per start (None: the physics "frames"
+    # preset's)
     fit_starts: int | None = field(optional(COUNT), default=None, kw_only=True)
     fit_iters: int | None = field(optional(COUNT), default=None, kw_only=True)
-    # with an observer: the earlier frames its fit compares with the latest (None: the "frames" preset's, 1)
+    # with an observer: the earlier frames its fit compares with the latest (None: the "frames"
+    # preset's, 1)
     fit_history: int | None = field(optional(HISTORY), default=None, kw_only=True)
 
     def budget_layout(self) -> tuple[int, int, str]:
-        """The random warm-up, then iterations of ``num_envs * unroll`` env steps (``agents.learners.budgets``)."""
+        """The random warm-up, then iterations of ``num_envs * unroll`` env steps
+        (``agents.learners.budgets``)."""
         per_iter = self.num_envs * self.unroll
         warm = budgets.ceil_to(self.learning_starts, per_iter)
         rounded = (
@@ -59,8 +64,8 @@ class ReplayConfig(AlgoConfig):
         return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
 
     def check(self):
-        """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration, the buffer
-        and batch sizes."""
+        """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration,
+        the buffer and batch sizes."""
         c = self
         if (c.updates_per_iter is None) == (c.utd_ratio is None):
             raise ValueError(
@@ -71,12 +76,13 @@ class ReplayConfig(AlgoConfig):
             per_iter = c.utd_ratio * c.num_envs * c.unroll
             if per_iter < 1 or abs(per_iter - round(per_iter)) > 1e-6:
                 raise ValueError(
-                    f"utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps per "
-                    f"iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}"
+                    "utd_ratio * num_envs * unroll must be a whole number >= 1 of gradient steps "
+                    f"per iteration, got {c.utd_ratio!r} * {c.num_envs} * {c.unroll}"
                 )
         if c.buffer_size < c.num_envs * c.unroll:
             raise ValueError(
-                f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got {c.buffer_size}"
+                f"buffer_size must be >= num_envs * unroll = {c.num_envs * c.unroll}, got "
+                f"{c.buffer_size}"
             )
         if c.learning_starts < c.batch_size:
             raise ValueError(
@@ -88,7 +94,8 @@ class ReplayConfig(AlgoConfig):
             )
 
 
-# The fields of every training state after its learned ones (name, type): ``NamedTuple(name, [*learned, *STATE])``.
+# The fields of every training state after its learned ones (name, type):
+# ``NamedTuple(name, [*learned, *STATE])``.
 STATE = [
     ("obs_norm", Any),
     ("buffer", Any),
@@ -139,7 +146,8 @@ def replay_buffer(env, h):
 
 
 def start(env, h, buffer, actor, critic, key, env_params):
-    """(actor params, critic params, buffer state, env state, first observations, run key) of a fresh run."""
+    """(actor params, critic params, buffer state, env state, first observations, run key) of a
+    fresh run."""
     k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
     dummy_obs, dummy_act = jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.num_actions))
     obs, env_state = env.reset_batch(jax.random.split(k_env, h["num_envs"]), env_params)
@@ -165,10 +173,10 @@ def delayed(ts, h, actor_step):
 def replay_loop(env, h, buffer, explore, update) -> dict:
     """The jitted-scan pieces of training around ``explore(ts, key, obs, random) -> actions`` and
     ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
-    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's exploration
-    with ``random=False``; returns their observations (T, D)),
-    ``fit_norm(ts, obs)`` and ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics); and ``explore``
-    and ``update`` themselves (a bench learner steps them one at a time, ``agents.bench.learning``)."""
+    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's
+    exploration with ``random=False``; returns their observations (T, D)), ``fit_norm(ts, obs)`` and
+    ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics); and ``explore`` and
+    ``update`` themselves (a bench learner steps them one at a time, ``agents.bench.learning``)."""
     b, d = h["num_envs"], env.observation_size
 
     def env_step(ts, key, random):
@@ -229,9 +237,9 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
 
 
 def mlp_module():
-    """The flax MLP of the off-policy learners: ``MLP(hidden, out, layer_norm, dropout)``; each hidden
-    layer is Dense, then Dropout (rate ``dropout``, active when called with ``train=True``), then
-    LayerNorm (if ``layer_norm``), then ReLU (DroQ's critic order)."""
+    """The flax MLP of the off-policy learners: ``MLP(hidden, out, layer_norm, dropout)``; each
+    hidden layer is Dense, then Dropout (rate ``dropout``, active when called with ``train=True``),
+    then LayerNorm (if ``layer_norm``), then ReLU (DroQ's critic order)."""
     import flax.linen as nn
 
     class MLP(nn.Module):

@@ -1,16 +1,18 @@
 """TD3 (Fujimoto et al. 2018) in pure JAX, in the style of brax's trainers.
 
 Flax (linen) networks in flax ``TrainState``s (optax Adam; targets by ``optax.incremental_update``),
-brax's ``UniformSamplingQueue`` replay buffer, and the whole training loop as jitted ``lax.scan`` chunks over
-the batched ``ops_jax`` environment (``env.reset_batch`` / ``env.step_batch``, ``model="phasor"`` unless the
-env_config names a model); the loop, the seed batching and the driver are ``agents.learners.offpolicy.driver``'s.
-Twin critics, target policy smoothing, delayed actor and target updates, Gaussian exploration.
+brax's ``UniformSamplingQueue`` replay buffer, and the whole training loop as jitted ``lax.scan``
+chunks over the batched ``ops_jax`` environment (``env.reset_batch`` / ``env.step_batch``,
+``model="phasor"`` unless the env_config names a model); the loop, the seed batching and the driver
+are ``agents.learners.offpolicy.driver``'s. Twin critics, target policy smoothing, delayed actor and
+target updates, Gaussian exploration.
 
 One training *iteration* = one batched env step of ``num_envs`` instances (exploration actions),
 their insertion into the buffer, then ``updates_per_iter`` gradient steps (critic every step, actor
 and targets every ``policy_delay`` steps); ``utd_ratio`` sets the same as gradient steps per env
 step. With ``unroll`` > 1 (the paper's SB3 setting: 100 env steps, then 100 gradient steps) an
-iteration collects ``unroll`` batched steps first. ``learning_starts`` >= ``batch_size`` is required.
+iteration collects ``unroll`` batched steps first. ``learning_starts`` >= ``batch_size`` is
+required.
 
 Presets of ``TD3Config`` (below): "paper" (the paper's Table 4), "fast" (32 envs, wall
 clock on a 2-core CPU) and "budget" (few env steps: one env, many small updates per env step;
@@ -46,8 +48,9 @@ from ops_jax.ranges import Range
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayConfig):
-    """TD3 (``agents.learners.offpolicy.td3``): presets "paper" (the paper's Table 4), "fast" and "budget" (<= 20k env
-    steps). Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio`` per env step (one of the two)."""
+    """TD3 (``agents.learners.offpolicy.td3``): presets "paper" (the paper's Table 4), "fast" and
+    "budget" (<= 20k env steps). Gradient steps per iteration: ``updates_per_iter``, or
+    ``utd_ratio`` per env step (one of the two)."""
 
     NAME: ClassVar[str] = "TD3"
     PRESETS: ClassVar[dict] = {
@@ -279,14 +282,15 @@ def train(
     config: TD3Config | str | None = None,
     **hyper,
 ) -> base.TrainResult:
-    """Train TD3 on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env
-    steps (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
-    "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is called after every
-    evaluation with metrics normalized_power, critic_loss, actor_loss, reward, elapsed_s. Trains at most
-    ``total_steps`` env steps (whole iterations, ``agents.learners.offpolicy.driver.schedule``); the curve's 'step' holds the true
-    counts. ``start_from=result`` continues from an earlier run in this process (``agents.learners.offpolicy.driver``);
-    ``checkpoints=Checkpoints(folder)`` checkpoints the run as it trains and continues the one stored there
-    (``agents.learners.offpolicy.checkpoint``)."""
+    """Train TD3 on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env steps
+    (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
+    "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is
+    called after every evaluation with metrics normalized_power, critic_loss, actor_loss, reward,
+    elapsed_s. Trains at most ``total_steps`` env steps (whole iterations,
+    ``agents.learners.offpolicy.driver.schedule``); the curve's 'step' holds the true counts.
+    ``start_from=result`` continues from an earlier run in this process
+    (``agents.learners.offpolicy.driver``); ``checkpoints=Checkpoints(folder)`` checkpoints the run
+    as it trains and continues the one stored there (``agents.learners.offpolicy.checkpoint``)."""
     return train_seeds(
         env_config,
         seeds=[offpolicy.check_seed(seed)],

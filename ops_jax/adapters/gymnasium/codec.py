@@ -1,5 +1,6 @@
-"""The packed form of the Gymnasium adapters' steps (``ops_jax.adapters.gymnasium.env``): a step's outputs as one float32
-array (one device-to-host copy), and a pytree of 32-bit arrays as one float32 vector, bit-exact."""
+"""The packed form of the Gymnasium adapters' steps (``ops_jax.adapters.gymnasium.env``): a step's
+outputs as one float32 array (one device-to-host copy), and a pytree of 32-bit arrays as one float32
+vector, bit-exact."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ SCALARS = (
 
 
 def pack(obs, reward, terminated, truncated, info, extra=()):
-    """One float32 array (..., D + SCALARS + N [+ extra]) so that one device->host copy returns a step."""
+    """One float32 array (..., D + SCALARS + N [+ extra]) so that one device->host copy returns a
+    step."""
     scal = [
         reward,
         terminated,

@@ -1,5 +1,6 @@
-"""The JAX process state of the Gymnasium adapters (``ops_jax.adapters.gymnasium.env``): the guard against running in a
-process forked after JAX started, and the device an adapter's state lives on."""
+"""The JAX process state of the Gymnasium adapters (``ops_jax.adapters.gymnasium.env``): the guard
+against running in a process forked after JAX started, and the device an adapter's state lives
+on."""
 
 from __future__ import annotations
 
@@ -8,10 +9,12 @@ import os
 import jax
 
 FORK_ERROR = (
-    "ops_jax/OPS-v0 cannot run in a process forked after JAX started in its parent (JAX is multithreaded; "
-    'the child would deadlock). Fixes: gymnasium.make_vec(..., vectorization_mode="vector_entry_point") '
-    '(one process, all instances in one jitted call), or keep "async" with '
-    'vector_kwargs={"context": "forkserver"} (or "spawn"); plain "async" with the default fork '
+    "ops_jax/OPS-v0 cannot run in a process forked after JAX started in its parent (JAX is "
+    "multithreaded; "
+    "the child would deadlock). Fixes: gymnasium.make_vec(..., "
+    'vectorization_mode="vector_entry_point") (one process, all instances in one jitted call), or '
+    'keep "async" with vector_kwargs={"context": "forkserver"} (or "spawn"); plain "async" with '
+    "the default fork "
     "works when the parent has not run JAX yet."
 )
 
@@ -42,7 +45,8 @@ if hasattr(os, "register_at_fork"):
 
 
 def refuse_after_fork() -> None:
-    """Raise ``RuntimeError(FORK_ERROR)`` in a process forked after JAX started (instead of deadlocking)."""
+    """Raise ``RuntimeError(FORK_ERROR)`` in a process forked after JAX started (instead of
+    deadlocking)."""
     if _FORKED_AFTER_JAX:
         raise RuntimeError(FORK_ERROR)
 

@@ -1,5 +1,5 @@
-"""The jitted functions of the Gymnasium adapters (``ops_jax.adapters.gymnasium.env``), built once per configuration and
-shared by every adapter of it."""
+"""The jitted functions of the Gymnasium adapters (``ops_jax.adapters.gymnasium.env``), built once
+per configuration and shared by every adapter of it."""
 
 from __future__ import annotations
 

@@ -16,7 +16,8 @@ RENDER_FPS = 10
 
 
 def observation_bounds(env, params) -> np.ndarray:
-    """Per-entry bound B (obs in [-B, B]) of one frame, from the physics and the noise parameters."""
+    """Per-entry bound B (obs in [-B, B]) of one frame, from the physics and the noise
+    parameters."""
     p = {k: float(np.max(np.asarray(v))) for k, v in vars(params).items() if k != "lab"}
     margin = 10.0 * p["obs_noise"] + 1e-3
     k = env.config.feedback_k
@@ -57,11 +58,12 @@ def reset_key(env, seed, options):
 
 
 def set_up_adapter(adapter, stages: int, mode: str, render_mode, device, options: dict):
-    """What both adapters' constructors set: the environment and its options, render mode, device spec,
-    sizes; returns the observation bound."""
+    """What both adapters' constructors set: the environment and its options, render mode, device
+    spec, sizes; returns the observation bound."""
     if render_mode is not None and render_mode not in adapter.metadata["render_modes"]:
         raise ValueError(
-            f"render_mode must be None or one of {adapter.metadata['render_modes']}, got {render_mode!r}"
+            f"render_mode must be None or one of {adapter.metadata['render_modes']}, got "
+            f"{render_mode!r}"
         )
     adapter.env, adapter.params = make(stages, mode, **options)
     adapter.options = dict(stages=stages, mode=mode, **options)
@@ -80,8 +82,9 @@ def jax_options(adapter) -> dict:
 
 
 def render_scope(adapter, started: bool, scope, modes: str):
-    """``(ops_jax.render, oscilloscope)`` for an adapter's ``render()`` (the scope made on first use), or
-    ``(None, scope)`` with a warning naming ``modes`` without a render_mode; RuntimeError before reset."""
+    """``(ops_jax.render, oscilloscope)`` for an adapter's ``render()`` (the scope made on first
+    use), or ``(None, scope)`` with a warning naming ``modes`` without a render_mode; RuntimeError
+    before reset."""
     if adapter.render_mode is None:
         gymnasium.logger.warn(f"render() called without a render_mode; pass render_mode={modes}")
         return None, scope

@@ -1,5 +1,5 @@
-"""``OPSGymEnv``: one OPS instance behind the Gymnasium ``Env`` API (``ops_jax.adapters.gymnasium.env``
-describes the semantics)."""
+"""``OPSGymEnv``: one OPS instance behind the Gymnasium ``Env`` API
+(``ops_jax.adapters.gymnasium.env`` describes the semantics)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,8 @@ class OPSGymEnv(gymnasium.Env):
         self._scope = None
 
     def _start(self) -> None:
-        """Start JAX for this instance: device, jitted functions (shared cache), carry on the device."""
+        """Start JAX for this instance: device, jitted functions (shared cache), carry on the
+        device."""
         if self._step is not None:
             return
         fns = single_fns(self.options["stages"], self.options["mode"], jax_options(self))
@@ -66,7 +67,8 @@ class OPSGymEnv(gymnasium.Env):
         self._step, self._reset, self._codec, self._head = fns
 
     def __getstate__(self):
-        """Picklable state: the carry as a host array; jitted functions, device and render scope left out."""
+        """Picklable state: the carry as a host array; jitted functions, device and render scope
+        left out."""
         state = dict(self.__dict__)
         state.update(
             _step=None,
@@ -83,7 +85,8 @@ class OPSGymEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``seed`` reseeds ``np_random`` and restarts the episode counter;
-        ``options={"episode": k}`` sets the counter (drift ramp of hard mode). Returns (obs, info)."""
+        ``options={"episode": k}`` sets the counter (drift ramp of hard mode). Returns (obs,
+        info)."""
         super().reset(seed=seed)
         key = reset_key(self, seed, options)
         fresh = not self._started or seed is not None
@@ -128,7 +131,8 @@ class OPSGymEnv(gymnasium.Env):
 
     def render(self):
         """``"rgb_array"``: an (H, W, 3) uint8 oscilloscope frame of the current pulse train (exact
-        field model); ``"human"``: the same frame in a matplotlib window (no-op without a display)."""
+        field model); ``"human"``: the same frame in a matplotlib window (no-op without a
+        display)."""
         _render, self._scope = render_scope(
             self, self._last is not None, self._scope, "'rgb_array' or 'human'"
         )

@@ -1,5 +1,5 @@
-"""``OPSVectorEnv``: a batch of OPS instances behind the Gymnasium ``VectorEnv`` API, one jitted call per
-step, same-step auto-reset (``ops_jax.adapters.gymnasium.env`` describes the semantics)."""
+"""``OPSVectorEnv``: a batch of OPS instances behind the Gymnasium ``VectorEnv`` API, one jitted
+call per step, same-step auto-reset (``ops_jax.adapters.gymnasium.env`` describes the semantics)."""
 
 from __future__ import annotations
 
@@ -67,7 +67,8 @@ class OPSVectorEnv(VectorEnv):
         self._scopes = None
 
     def _start(self) -> None:
-        """Start JAX for this batch: device, jitted functions (shared cache), carry on the device."""
+        """Start JAX for this batch: device, jitted functions (shared cache), carry on the
+        device."""
         if self._step is not None:
             return
         fns = vector_fns(
@@ -80,7 +81,8 @@ class OPSVectorEnv(VectorEnv):
         self._reset, self._step = fns
 
     def __getstate__(self):
-        """Picklable state: the carry as host arrays; jitted functions, device and render scopes left out."""
+        """Picklable state: the carry as host arrays; jitted functions, device and render scopes
+        left out."""
         state = dict(self.__dict__)
         state.update(
             _reset=None,
@@ -97,7 +99,8 @@ class OPSVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset every instance. ``seed`` reseeds ``np_random`` (and restarts the episode counter);
-        ``options={"episode": k}`` starts every instance as its k-th episode. Returns (obs, infos)."""
+        ``options={"episode": k}`` starts every instance as its k-th episode. Returns (obs,
+        infos)."""
         super().reset(seed=seed)
         key = reset_key(self, seed, options)
         episodes = np.full(self.num_envs, self._episode, np.int32)

@@ -1,6 +1,7 @@
 """Physics-informed controller: beats a threshold fast, ignores the length channel unless asked,
 deterministic, one measurement per step, validated hyperparameters; online identification of
-detector and actuator errors and of the length readout's calibration; earlier frames compared; the dither's hold."""
+detector and actuator errors and of the length readout's calibration; earlier frames compared; the
+dither's hold."""
 
 import jax
 import jax.numpy as jnp
@@ -75,7 +76,8 @@ def test_bad_hyperparameters_raise(hyper, word):
 
 
 def _identified(env_config, hyper, episodes=8, steps=80, seed=3):
-    """(P / P_best per instance, mean of the last 10 of ``steps`` control steps; the controller's carry)."""
+    """(P / P_best per instance, mean of the last 10 of ``steps`` control steps; the controller's
+    carry)."""
     env, params = ops_jax.make(**env_config)
     pol = pi.make_policy(dict(ENV, stages=env_config["stages"]), hyper)
     keys = jax.random.split(jax.random.key(seed), episodes)
@@ -117,9 +119,9 @@ def test_identification_finds_detector_and_actuator_errors_and_closes_the_gap():
 
 
 def test_calibrated_length_readout_lifts_the_lab_preset():
-    """5 stages, lab preset: with ``use_lengths`` the identifying controller calibrates the length readout
-    (offset and gain errors of 1-2 %) against its fit and reads it, which removes the fit's sign ambiguity
-    near the optimum under vibration."""
+    """5 stages, lab preset: with ``use_lengths`` the identifying controller calibrates the length
+    readout (offset and gain errors of 1-2 %) against its fit and reads it, which removes the fit's
+    sign ambiguity near the optimum under vibration."""
     env_config = {"stages": 5, "mode": "hard", "model": "phasor", "imperfections": "lab"}
     fit = {"config": "frames", "starts": 8, "iters": 6, "identify": True}
     fitted, _ = _identified(env_config, fit)
@@ -129,9 +131,9 @@ def test_calibrated_length_readout_lifts_the_lab_preset():
 
 
 def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
-    """With ``history`` H the fit's misfit holds the latest frame and the H before it, each through the sum of the
-    moves commanded since and of the drift estimate's steps: zero at the true offsets, and each earlier frame's
-    block weighted by its own weight."""
+    """With ``history`` H the fit's misfit holds the latest frame and the H before it, each through
+    the sum of the moves commanded since and of the drift estimate's steps: zero at the true
+    offsets, and each earlier frame's block weighted by its own weight."""
     n, fit, history = 3, 2, 3
     config = agents.PhysicsConfig.make("frames", history=history)
     cfg = ops_jax.make(**ENV)[0].config
@@ -169,8 +171,9 @@ def test_history_residual_compares_each_earlier_frame_through_the_moves_since():
 
 
 def test_more_frames_compared_win_back_what_the_vibration_takes():
-    """Twice the lab preset's imperfections, frames only: the vibration moves the lines between the frames that the
-    fit compares; comparing three earlier frames instead of one acquires sooner and holds more."""
+    """Twice the lab preset's imperfections, frames only: the vibration moves the lines between the
+    frames that the fit compares; comparing three earlier frames instead of one acquires sooner and
+    holds more."""
     env_config = dict(ENV, imperfections="lab", imperfection_scale=2.0, observe_lengths=False)
     held = {}
     for history in (1, 3):
@@ -186,9 +189,10 @@ def test_more_frames_compared_win_back_what_the_vibration_takes():
 
 
 def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the_moves_sent():
-    """At or above ``hold`` the move is SPGD's proportional step up the slope that one probe reads (a slope along
-    line 1 alone: line 1 steps up it, each other line by as much with the dither's sign), and the fit's carry holds
-    that move; above every measured P the move is the fit's own; without a probe the hold raises ValueError."""
+    """At or above ``hold`` the move is SPGD's proportional step up the slope that one probe reads
+    (a slope along line 1 alone: line 1 steps up it, each other line by as much with the dither's
+    sign), and the fit's carry holds that move; above every measured P the move is the fit's own;
+    without a probe the hold raises ValueError."""
     env, params = ops_jax.make(**ENV)
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(0), 8), params)
     key, slope = jax.random.key(1), 3.0  # dP/dx along line 1, 1/wl
@@ -228,8 +232,8 @@ def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the
 
 
 def test_the_hold_keeps_more_than_the_fit_where_the_vibration_moves_the_lines():
-    """Twice the lab preset's imperfections, frames only: the fit acquires, the dither then holds more than the
-    fit's own moves do (2 measurements per step there, 1 while the fit acquires)."""
+    """Twice the lab preset's imperfections, frames only: the fit acquires, the dither then holds
+    more than the fit's own moves do (2 measurements per step there, 1 while the fit acquires)."""
     env_config = dict(ENV, imperfections="lab", imperfection_scale=2.0, observe_lengths=False)
     held = {}
     for hold in (None, 0.85):

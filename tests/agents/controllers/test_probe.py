@@ -64,10 +64,12 @@ def test_frame_probes_are_deterministic_spgds_fine_dither_drowns_in_frame_noise_
     small = agents.evaluate((policy, None), _config("frame"), episodes=2, seed=7)
     large = agents.evaluate((policy, None), _config("frame"), episodes=6, seed=7)
     assert small.summary["measurements_per_step"] == 2
-    # the same episodes whatever the batch (to float32 rounding: the batch size changes the compiled program)
+    # the same episodes whatever the batch (to float32 rounding: the batch size changes the compiled
+    # program)
     np.testing.assert_allclose(small.normalized_power, large.normalized_power[:2], atol=1e-5)
     instant = agents.evaluate((policy, None), _config("instant"), episodes=6, seed=7)
-    # the preset's dither (delta) is under the frame-to-frame change of P: its slope estimate is noise there
+    # the preset's dither (delta) is under the frame-to-frame change of P: its slope estimate is
+    # noise there
     assert spgd.HOLD["delta"] == pytest.approx(0.002)
     assert large.summary["final_mean_best"] < instant.summary["final_mean_best"] - 0.2
     # the bench preset's dither is above it
@@ -77,8 +79,9 @@ def test_frame_probes_are_deterministic_spgds_fine_dither_drowns_in_frame_noise_
 
 
 def test_a_probe_left_out_moves_nothing_and_reads_nan():
-    """``probe(offsets, active)``: where ``active`` is False no frame passes and nothing moves, and the reading is NaN:
-    a policy that moves only on a finite reading runs there the episode of a policy that never probes."""
+    """``probe(offsets, active)``: where ``active`` is False no frame passes and nothing moves, and
+    the reading is NaN: a policy that moves only on a finite reading runs there the episode of a
+    policy that never probes."""
     from agents.api import Policy
 
     def policy(active):

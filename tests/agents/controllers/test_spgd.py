@@ -82,7 +82,8 @@ def test_bad_action_scale_raises():
 
 def test_stalled_instance_tests_each_line_then_commits_a_jump():
     """Below p_stall for `patience` steps, the probe tests line k at +jump (instead of the dither);
-    a line that beats P by `margin` is moved by `jump` at full action, one probe per step throughout."""
+    a line that beats P by `margin` is moved by `jump` at full action, one probe per step
+    throughout."""
     n, hyper = 3, {"patience": 2.0, "jump": 0.05, "p_stall": 0.9, "margin": 0.02}
     policy = spgd.make_policy(ENV, hyper)
     obs = jnp.zeros((1, 2**n + n)).at[0, 0].set(2 * 0.4 - 1)  # P/Pmax = 0.4

@@ -1,5 +1,6 @@
-"""The extremum-seeking trim: removes a policy's static bias, is the policy itself at ki = 0, leaves the local
-maxima a hill climber stops on, one compiled program for every gain, gated, holds near the top, validated."""
+"""The extremum-seeking trim: removes a policy's static bias, is the policy itself at ki = 0, leaves
+the local maxima a hill climber stops on, one compiled program for every gain, gated, holds near the
+top, validated."""
 
 import jax
 import jax.numpy as jnp
@@ -16,7 +17,8 @@ BIAS = 0.04  # wl, on every line: P/Pmax about 0.6 on 3 stages
 
 
 def _biased_policy(env_config, bias=BIAS, gain=0.3, traces=None):
-    """A proportional controller on the length readouts whose set point is ``bias`` wl off the optimum."""
+    """A proportional controller on the length readouts whose set point is ``bias`` wl off the
+    optimum."""
     env, params = built(env_config)
 
     def act(p, carry, obs, key, probe):
@@ -120,7 +122,8 @@ def test_gate_holds_the_trim_below_it_and_release_clears_it():
         True,
         False,
     ]  # below the gate the reading would go unused: none is made
-    # instance 0 reads P/Pmax 0.8 >= 0.5: integrates (|step| = ki x 0.1 / amp); instance 1 reads 0.2: released
+    # instance 0 reads P/Pmax 0.8 >= 0.5: integrates (|step| = ki x 0.1 / amp); instance 1 reads
+    # 0.2: released
     np.testing.assert_allclose(np.abs(c[0] - 0.5), 0.01 * 0.1 / 0.002, rtol=1e-4)
     np.testing.assert_allclose(c[1], 0.25)
 
@@ -143,7 +146,8 @@ def test_hold_replaces_the_move_at_and_above_it_and_climbs_from_a_biased_policy(
         )[0]
     )  # noqa: E731
     plain, held = act({"ki": 0.0}), act({"ki": 0.0, "hold": 0.5})
-    # instance 0 reads P/Pmax 0.8 >= 0.5: SPGD's step, Kp(0.8) x 0.05 on every line; instance 1 reads 0.2: the policy's
+    # instance 0 reads P/Pmax 0.8 >= 0.5: SPGD's step, Kp(0.8) x 0.05 on every line; instance 1
+    # reads 0.2: the policy's
     kp = float(
         agents.controllers.spgd.proportional_gain(
             agents.controllers.spgd.gains({}), jnp.array([0.8])
@@ -166,7 +170,8 @@ def test_hold_replaces_the_move_at_and_above_it_and_climbs_from_a_biased_policy(
 
 @pytest.mark.parametrize("inner", ["physics", "observer"])
 def test_the_wrapped_fit_is_told_the_move_the_trim_sent(inner):
-    """``Policy.sent``: a wrapped policy that reads its own last move (the fit) records the trim's, not its own."""
+    """``Policy.sent``: a wrapped policy that reads its own last move (the fit) records the trim's,
+    not its own."""
     from agents.learners.offpolicy import observer
     from agents.controllers import physics_informed
 
@@ -203,8 +208,9 @@ def test_the_wrapped_fit_is_told_the_move_the_trim_sent(inner):
 
 
 def test_the_trims_hold_around_the_fit_is_the_fits_own_hold():
-    """Told the moves the trim sent, the frames' fit wrapped in the trim's hold runs the episodes of the fit with the
-    same hold inside (``config="frames-hold"``: the same dither stream, the same step)."""
+    """Told the moves the trim sent, the frames' fit wrapped in the trim's hold runs the episodes of
+    the fit with the same hold inside (``config="frames-hold"``: the same dither stream, the same
+    step)."""
     from agents.controllers import physics_informed
 
     env_config = {
@@ -272,7 +278,8 @@ def test_trimmed_result_keeps_the_learners_params():
 
 
 def test_trim_loss_pairs_the_same_episodes():
-    """benchmarks.trim_loss counts, episode by episode, where the trim ends lower or higher than the policy alone."""
+    """benchmarks.trim_loss counts, episode by episode, where the trim ends lower or higher than the
+    policy alone."""
     from benchmarks.trim_loss import paired, table
 
     alone = np.array([0.99, 0.95, 0.20, 0.90])
@@ -289,7 +296,8 @@ def test_trim_loss_pairs_the_same_episodes():
 
 
 def test_trim_loss_offset_shifts_every_action_of_the_policy_alone():
-    """``benchmarks.trim_loss.shifted``: the policy's own action plus the offset, clipped; offset 0 is the policy."""
+    """``benchmarks.trim_loss.shifted``: the policy's own action plus the offset, clipped; offset 0
+    is the policy."""
     from benchmarks.trim_loss import shifted
 
     result = agents.train("spgd", ENV, seed=1, curve_episodes=2)
@@ -326,15 +334,17 @@ def test_trim_loss_refuses_bad_arguments_naming_them(argv, needle, capsys):
 
 
 def test_guarded_preset_gates_and_releases():
-    """The ``guarded`` preset is the default one with the gate at half of P_max and a decaying offset below it."""
+    """The ``guarded`` preset is the default one with the gate at half of P_max and a decaying
+    offset below it."""
     default, guarded = trim.gains(None), trim.gains({"config": "guarded"})
     assert float(guarded["p_gate"]) == 0.5 and float(guarded["release"]) == pytest.approx(0.9)
     assert float(default["p_gate"]) == 0.0 and float(guarded["ki"]) == float(default["ki"])
 
 
 def test_bench_preset_climbs_with_probes_read_a_frame_later():
-    """Read a frame later (``probe="frame"``), the guarded trim's 0.002 wl dither is under the frame-to-frame change
-    of P; the ``bench`` preset, the guarded trim with a larger dither, still removes the bias."""
+    """Read a frame later (``probe="frame"``), the guarded trim's 0.002 wl dither is under the
+    frame-to-frame change of P; the ``bench`` preset, the guarded trim with a larger dither, still
+    removes the bias."""
     env = {"stages": 3, "mode": "hard", "model": "phasor", "imperfections": "lab", "probe": "frame"}
     bench, guarded = trim.gains({"config": "bench"}), trim.gains({"config": "guarded"})
     assert float(bench["amp"]) > float(guarded["amp"]) and float(bench["p_gate"]) == float(

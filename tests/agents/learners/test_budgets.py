@@ -65,7 +65,8 @@ def test_a_budget_its_warm_up_takes_most_of_is_warned_and_a_fair_one_is_not():
 
 
 def test_agents_train_warns_before_it_trains(monkeypatch):
-    """The warning comes from ``agents.train`` before the trainer runs (here: a stand-in that records)."""
+    """The warning comes from ``agents.train`` before the trainer runs (here: a stand-in that
+    records)."""
     calls = []
     module = agents.api.algo_module("td3")
     monkeypatch.setattr(module, "train", lambda *a, **k: calls.append(len(caught)) or "trained")
@@ -132,6 +133,6 @@ def test_results_print_their_numbers_not_their_arrays():
     wall = {"total": 13.33, "compile": 9.71}
     result = TrainResult("td3", {"stages": 2}, {"config": "fast"}, {}, curve, wall, 0)
     assert repr(result) == (
-        "TrainResult(algo='td3', seed=0, env_steps=8192, curve=2 points, last normalized_power=0.61, "
-        "wall_time={'total': 13.33, 'compile': 9.71}, config='fast')"
+        "TrainResult(algo='td3', seed=0, env_steps=8192, curve=2 points, last "
+        "normalized_power=0.61, wall_time={'total': 13.33, 'compile': 9.71}, config='fast')"
     )

@@ -1,6 +1,6 @@
-"""The fit observer (``observer="fit"`` or ``"fit-residual"`` of TD3 and DroQ, ``agents.learners.offpolicy.observer``): what it
-appends, its resets, the move a residual learner sends, the stored form of the field, and a learner trained and
-evaluated with it on frames alone."""
+"""The fit observer (``observer="fit"`` or ``"fit-residual"`` of TD3 and DroQ,
+``agents.learners.offpolicy.observer``): what it appends, its resets, the move a residual learner
+sends, the stored form of the field, and a learner trained and evaluated with it on frames alone."""
 
 import jax
 import jax.numpy as jnp
@@ -17,8 +17,8 @@ FRAMES = dict(stages=5, mode="hard", model="phasor", observe_lengths=False)
 
 
 def _rollout(env_config, steps: int, actions_fn, residual: bool = False, power: bool = False):
-    """(appended entries (steps, B, fit), true offsets (steps, B, N) wl, done flags[, P / P_max (steps, B)]) of
-    ``Observed`` under ``actions_fn(key) -> (B, N)``."""
+    """(appended entries (steps, B, fit), true offsets (steps, B, N) wl, done flags[, P / P_max
+    (steps, B)]) of ``Observed`` under ``actions_fn(key) -> (B, N)``."""
     env, params = built(env_config)
     seen_env = observer.Observed(env, observer.fit_observer(env_config, residual=residual))
     step = jax.jit(seen_env.step_batch)
@@ -43,8 +43,8 @@ def _rollout(env_config, steps: int, actions_fn, residual: bool = False, power: 
 
 
 def test_fit_reads_the_offsets_from_frames_under_random_moves():
-    """Ideal hard mode, frames only, uniform random actions: the appended offsets are the true ones (modulo the
-    period) within 0.005 wl in >= 90 % of the steps after the first five."""
+    """Ideal hard mode, frames only, uniform random actions: the appended offsets are the true ones
+    (modulo the period) within 0.005 wl in >= 90 % of the steps after the first five."""
     z, deltas, _ = _rollout(
         FRAMES, 40, lambda k: jax.random.uniform(k, (16, 5), minval=-1, maxval=1)
     )
@@ -54,9 +54,10 @@ def test_fit_reads_the_offsets_from_frames_under_random_moves():
 
 
 def test_a_residual_learner_sends_its_correction_added_to_the_fits_move():
-    """With ``fit-residual`` a zero correction sends the fit's own move (the physics-informed controller's frames
-    preset), which stacks ideal hard from its random starts; with ``fit`` the same zero action leaves the lines
-    where they start. A correction is added to that move, then clipped to [-1, 1]."""
+    """With ``fit-residual`` a zero correction sends the fit's own move (the physics-informed
+    controller's frames preset), which stacks ideal hard from its random starts; with ``fit`` the
+    same zero action leaves the lines where they start. A correction is added to that move, then
+    clipped to [-1, 1]."""
     zeros = lambda k: jnp.zeros((16, 5))  # noqa: E731
     *_, p_residual = _rollout(FRAMES, 60, zeros, residual=True, power=True)
     *_, p_fit = _rollout(FRAMES, 60, zeros, power=True)
@@ -79,8 +80,8 @@ def test_a_residual_learner_sends_its_correction_added_to_the_fits_move():
 
 
 def test_episode_ends_restart_the_fit():
-    """At a truncation the final observation keeps the episode's fit, and the next episode's first observation is
-    the fit of a fresh carry at its first frame."""
+    """At a truncation the final observation keeps the episode's fit, and the next episode's first
+    observation is the fit of a fresh carry at its first frame."""
     config = dict(FRAMES, max_steps=3)
     env, params = built(config)
     ob = observer.fit_observer(config)
@@ -134,9 +135,9 @@ def test_observer_field_is_checked_and_stored_only_when_set():
 
 
 def test_the_fits_history_holds_the_frames_and_the_moves_really_sent():
-    """``fit_history=3``: the fit's carry keeps the frames it compares the next one with (the newest and the two before
-    it) and the moves the residual learner really sent after each (the fit's move plus its correction, clipped),
-    newest first."""
+    """``fit_history=3``: the fit's carry keeps the frames it compares the next one with (the newest
+    and the two before it) and the moves the residual learner really sent after each (the fit's move
+    plus its correction, clipped), newest first."""
     env, params = built(FRAMES)
     ob = observer.of_learner(FRAMES, {"observer": "fit-residual", "fit_history": 3})
     key = jax.random.key(11)
@@ -177,8 +178,9 @@ def test_the_fits_history_holds_the_frames_and_the_moves_really_sent():
 
 
 def test_the_fits_size_reaches_the_observer():
-    """``fit_starts`` / ``fit_iters``: one Levenberg-Marquardt iteration from one random start reads a fresh frame's
-    offsets (up to their sign: one frame does not tell it) worse than the frames preset's 16 starts x 8 iterations."""
+    """``fit_starts`` / ``fit_iters``: one Levenberg-Marquardt iteration from one random start reads
+    a fresh frame's offsets (up to their sign: one frame does not tell it) worse than the frames
+    preset's 16 starts x 8 iterations."""
     env, params = built(FRAMES)
     obs, state = env.reset_batch(jax.random.split(jax.random.key(7), 32), params)
     truth = np.asarray(state.deltas)[:, :4]
@@ -194,8 +196,9 @@ def test_the_fits_size_reaches_the_observer():
 
 
 def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
-    """A short DroQ run with the fit: its policy params are sized for frames + offsets, the saved policy evaluates
-    on the frames-only env (the fit runs inside the policy), and the same seed gives the same params."""
+    """A short DroQ run with the fit: its policy params are sized for frames + offsets, the saved
+    policy evaluates on the frames-only env (the fit runs inside the policy), and the same seed
+    gives the same params."""
     config = dict(
         FRAMES, imperfections="none", max_steps=50
     )  # short episodes: the fit is costly to run unoptimised

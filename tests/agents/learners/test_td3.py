@@ -141,7 +141,8 @@ def test_cli_end_to_end(tmp_path):
 
 
 def test_cli_logdir_writes_the_curve_to_tensorboard(tmp_path):
-    """``--logdir``: the evaluation curve, losses and update ratio as TensorBoard scalars against env steps."""
+    """``--logdir``: the evaluation curve, losses and update ratio as TensorBoard scalars against
+    env steps."""
     from agents import cli
 
     pytest.importorskip("tensorboardX")

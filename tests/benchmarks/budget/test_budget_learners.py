@@ -55,8 +55,8 @@ FEW_STEPS = 256 + 2 * 32  # 64 gradient steps
 
 
 def test_vmapped_seeds_equal_single_seed_runs():
-    """The same draws as each seed alone: equal to float32 rounding before any gradient step (the vmapped
-    evaluation is another compiled program), to float rounding after 64."""
+    """The same draws as each seed alone: equal to float32 rounding before any gradient step (the
+    vmapped evaluation is another compiled program), to float rounding after 64."""
     both = agents.train_seeds("droq", ENV, seeds=[3, 5], total_steps=FEW_STEPS, **FEW)
     solo = agents.train("droq", ENV, seed=5, total_steps=FEW_STEPS, **FEW)
     assert [r.seed for r in both] == [3, 5] and both[1].wall_time["seeds_in_call"] == 2
@@ -71,7 +71,8 @@ def test_vmapped_seeds_equal_single_seed_runs():
 
 
 def test_a_snapshot_is_the_shorter_run():
-    """The state a run passes at a chunk end is the state of a run with that budget (benchmarks.budget.plan)."""
+    """The state a run passes at a chunk end is the state of a run with that budget
+    (benchmarks.budget.plan)."""
     snaps = {}
     offpolicy.train_seeds(
         droq.LEARNER,
@@ -87,8 +88,9 @@ def test_a_snapshot_is_the_shorter_run():
 
 
 def test_continued_training_starts_from_the_pretrained_state(trained):
-    """A continued run that stops at its warm-up (the policy's own exploration, no gradient step) holds the
-    pretrained policy exactly; training on moves it; sizes or a learner that do not match are refused."""
+    """A continued run that stops at its warm-up (the policy's own exploration, no gradient step)
+    holds the pretrained policy exactly; training on moves it; sizes or a learner that do not match
+    are refused."""
     warm_only = agents.train("droq", ENV, seed=3, total_steps=256, start_from=trained, **HYPER)
     jax.tree.map(np.testing.assert_array_equal, warm_only.params, trained.params)
     assert (
@@ -171,7 +173,8 @@ def test_training_reward_is_the_learners_choice():
 
 
 def test_td3_update_to_data_ratio():
-    """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep updates_per_iter."""
+    """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep
+    updates_per_iter."""
     c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)
     assert replay.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
     assert replay.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
@@ -192,7 +195,8 @@ def test_budget_plan_cells_and_report(tmp_path):
         "spgd",
         "physics",
     }
-    # the default plan fits the sweep's 20 minutes on 2 workers by the cost model (docs/learners.md: measured)
+    # the default plan fits the sweep's 20 minutes on 2 workers by the cost model (docs/learners.md:
+    # measured)
     assert sum(map(budget.cost, budget.cells("default"))) <= 2 * 20 * 60 * 1.05
     assert {c.env for c in default} == {"hard", "hard + lab"}
     assert all(
@@ -200,7 +204,8 @@ def test_budget_plan_cells_and_report(tmp_path):
         for c in default
     )
     assert len({c.seed for c in default if c.algo == "droq"}) == 5
-    # a cell names every setting its preset resolves to, so a changed preset is another cell, never a stored one
+    # a cell names every setting its preset resolves to, so a changed preset is another cell, never
+    # a stored one
     droq_cell = next(c for c in default if c.algo == "droq")
     assert (
         droq_cell.hyper == {"config": "budget"}
@@ -262,7 +267,8 @@ def test_budget_plan_cells_and_report(tmp_path):
 
 
 def test_budget_plan_simulator_to_bench(tmp_path, capsys):
-    """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and worst seed."""
+    """Protocol (b): one adapt cell per seed, each on its own unseen bench; its table gives mean and
+    worst seed."""
     adapt = [c for c in budget.cells("default") if c.kind == "adapt"]
     assert [c.seed for c in adapt] == [11, 12, 13, 14, 15] and len(
         {c.bench_seed for c in adapt}
@@ -376,9 +382,9 @@ def test_budget_plan_simulator_to_bench(tmp_path, capsys):
 
 
 def test_budget_cells_are_frozen_records_of_their_stored_form():
-    """A cell is a frozen record; its stored form lists the fields in their order, the protocol (b) fields only on
-    protocol (b)'s cells, and reads back equal; a misspelt field, an unknown kind or a protocol (b) field on another
-    kind's cell fails where the record is built."""
+    """A cell is a frozen record; its stored form lists the fields in their order, the protocol (b)
+    fields only on protocol (b)'s cells, and reads back equal; a misspelt field, an unknown kind or
+    a protocol (b) field on another kind's cell fails where the record is built."""
     cells = budget.cells("default")
     assert {c.kind for c in cells} == {"learner", "reference", "adapt", "bench reference"}
     for c in cells:

@@ -1,4 +1,5 @@
-"""The quick preset's reports say its budgets are too small to learn; the summary lists every report."""
+"""The quick preset's reports say its budgets are too small to learn; the summary lists every
+report."""
 
 from benchmarks.sweep import presets
 from benchmarks.sweep import report

@@ -43,7 +43,8 @@ def test_bold_rule_matches_welch():
         "y": True,
         "z": False,
     }
-    # Fewer than 3 seeds: nothing is bold, however far apart (two seeds of 0.999 against 0.315 +- 0.231).
+    # Fewer than 3 seeds: nothing is bold, however far apart (two seeds of 0.999 against 0.315 +-
+    # 0.231).
     assert bold_mask({"spgd": [0.999, 0.999], "td3": [0.084, 0.546]}) == {
         "spgd": False,
         "td3": False,
@@ -147,7 +148,8 @@ def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     assert not [
         u for u in Sweep(preset, tmp_path, print).units(sweep.SECTIONS) if "reality" in u.key
     ]
-    # The default preset's own reality budgets: SAC's trainings there run longer than its table-1 ones.
+    # The default preset's own reality budgets: SAC's trainings there run longer than its table-1
+    # ones.
     default = sweep.build_preset(
         argparse.Namespace(quick=False, preset="default", seeds=None, algos=None)
     )
@@ -321,8 +323,8 @@ def test_remaining_work_follows_measured_cost_per_kind():
 
 
 def test_a_section_plugs_into_the_plan(tmp_path):
-    """A section given as cells(preset), compute(cell) and report(records, out) is planned, computed into
-    the cell store, resumed and reported like the built-in ones."""
+    """A section given as cells(preset), compute(cell) and report(records, out) is planned, computed
+    into the cell store, resumed and reported like the built-in ones."""
     from benchmarks.sweep import plan as sweep_plan
     from benchmarks.sweep.section import CellSection
 
@@ -389,7 +391,8 @@ def test_progress_fraction_never_decreases_and_its_total_is_smoothed():
 
     smoothed = SmoothedTotal(weight=0.3)
     shown = []
-    # (done, projected total): a slow unit finishes at 2.5x its estimate, the projection jumps from 100 to 250
+    # (done, projected total): a slow unit finishes at 2.5x its estimate, the projection jumps from
+    # 100 to 250
     for done, projected in [
         (10, 100),
         (20, 100),
@@ -407,8 +410,8 @@ def test_progress_fraction_never_decreases_and_its_total_is_smoothed():
 
 
 def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
-    """SIGINT (Ctrl-C) during a sweep: one line saying what was kept and how to resume, no traceback, exit
-    status 130, the local Ray instance's workers gone within seconds."""
+    """SIGINT (Ctrl-C) during a sweep: one line saying what was kept and how to resume, no
+    traceback, exit status 130, the local Ray instance's workers gone within seconds."""
     out = tmp_path / "run"
     proc = _run_sweep(
         ["--quick", "--algos", "spgd", "--only", "table1", "--out", str(out)],
@@ -436,8 +439,8 @@ def test_ctrl_c_keeps_the_cells_and_says_how_to_resume(tmp_path):
     kept = len(list((out / "cells").glob("*.json")))
     last = stderr.strip().splitlines()[-1]
     assert (
-        last
-        == f"interrupted: {kept} finished cells are kept in {out}/cells; run the same command again to resume"
+        last == f"interrupted: {kept} finished cells are kept in {out}/cells; run the same command "
+        "again to resume"
     )
     if sys.platform == "linux":
         workers = {
@@ -467,9 +470,9 @@ def test_local_workers_get_disjoint_cpu_shares_and_pinning_holds_for_later_threa
         assert len(shares) == n and all(shares) and sorted(c for s in shares for c in s) == cpus
     assert cpu_shares(len(cpus) + 1) == [None] * (len(cpus) + 1) and cpu_shares(1) == [None]
     code = (
-        "import os, threading; from benchmarks.sweep.executor import pin; pin([%d]); seen = []; "
-        "t = threading.Thread(target=lambda: seen.append(os.sched_getaffinity(0))); t.start(); t.join(); "
-        "print(sorted(os.sched_getaffinity(0)), sorted(seen[0]))" % cpus[-1]
+        "import os, threading; from benchmarks.sweep.executor import pin; pin([%d]); seen = []; t "
+        "= threading.Thread(target=lambda: seen.append(os.sched_getaffinity(0))); "
+        "t.start(); t.join(); print(sorted(os.sched_getaffinity(0)), sorted(seen[0]))" % cpus[-1]
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60
@@ -478,8 +481,9 @@ def test_local_workers_get_disjoint_cpu_shares_and_pinning_holds_for_later_threa
 
 
 def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cells(tmp_path):
-    """lock.md from stored evaluations (JSON round trip): SPGD's cells hold the lock figures, TD3's were stored
-    before them (a dash), but for one seed in hard mode; episodes that never lock are counted out."""
+    """lock.md from stored evaluations (JSON round trip): SPGD's cells hold the lock figures, TD3's
+    were stored before them (a dash), but for one seed in hard mode; episodes that never lock are
+    counted out."""
     from benchmarks.sweep.lock_table import lock_table
     from benchmarks.sweep.paper import MODES
     from ops_jax import lock

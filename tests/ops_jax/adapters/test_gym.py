@@ -187,8 +187,8 @@ def test_step_cost_helper():
 
 
 def _rollout(env, actions):
-    """Observations, rewards and flags of ``env.step`` over ``actions``, resetting (unseeded) when an
-    episode ends, so the continuation also exercises ``np_random`` and the episode counter."""
+    """Observations, rewards and flags of ``env.step`` over ``actions``, resetting (unseeded) when
+    an episode ends, so the continuation also exercises ``np_random`` and the episode counter."""
     out = []
     for a in actions:
         obs, r, term, trunc, info = env.step(a)
@@ -235,10 +235,12 @@ def test_vector_env_copy_and_pickle(how):
 
 
 def test_unstarted_env_pickles_without_starting_jax():
-    """Construction does not start JAX (so async workers may fork after it); a pickled fresh env works."""
+    """Construction does not start JAX (so async workers may fork after it); a pickled fresh env
+    works."""
     code = (
-        "import pickle, ops_jax; from ops_jax.adapters.gymnasium.env import OPSGymEnv; from ops_jax.adapters.gymnasium.devices import jax_running; "
-        "e = pickle.loads(pickle.dumps(OPSGymEnv(stages=2, mode='easy', model='phasor'))); "
+        "import pickle, ops_jax; from ops_jax.adapters.gymnasium.env import OPSGymEnv; from "
+        "ops_jax.adapters.gymnasium.devices import jax_running; e = "
+        "pickle.loads(pickle.dumps(OPSGymEnv(stages=2, mode='easy', model='phasor'))); "
         "print(jax_running()); e.reset(seed=0); print(jax_running())"
     )
     out = subprocess.run(
@@ -248,7 +250,8 @@ def test_unstarted_env_pickles_without_starting_jax():
 
 
 def test_gym_modes_benchmark_rows():
-    """benchmarks.speed.gym_modes measures a mode in-process and reports a failing one as its row's error."""
+    """benchmarks.speed.gym_modes measures a mode in-process and reports a failing one as its row's
+    error."""
     from benchmarks.speed import gym_modes
 
     for mode, n in [("single", 1), ("vector_entry_point", 4)]:

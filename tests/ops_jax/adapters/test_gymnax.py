@@ -1,5 +1,6 @@
-"""The gymnax adapter on gymnax >= 1.0: a gymnax Environment whose six-value step is OPSEnv.step's, its
-truncation, transition gradients, vmap, the wrappers and the purejaxrl-style example at tiny budgets."""
+"""The gymnax adapter on gymnax >= 1.0: a gymnax Environment whose six-value step is OPSEnv.step's,
+its truncation, transition gradients, vmap, the wrappers and the purejaxrl-style example at tiny
+budgets."""
 
 import importlib.util
 import os

@@ -1,5 +1,6 @@
-"""The gymnax adapter on gymnax 0.0.x (five-value step) and rejax 0.1.3's PPO and SAC on it, at tiny budgets.
-Runs in a venv of its own (.ci/run: gymnax 0.0.9, rejax 0.1.3); skipped where gymnax >= 1.0 is installed."""
+"""The gymnax adapter on gymnax 0.0.x (five-value step) and rejax 0.1.3's PPO and SAC on it, at tiny
+budgets. Runs in a venv of its own (.ci/run: gymnax 0.0.9, rejax 0.1.3); skipped where gymnax >= 1.0
+is installed."""
 
 import importlib.util
 from pathlib import Path
