@@ -24,7 +24,7 @@ import jax  # noqa: E402
 from ophyd.sim import make_fake_device  # noqa: E402
 
 import agents  # noqa: E402
-from agents.bench import runner  # noqa: E402
+from agents.bench import loop as bench_loop, runner  # noqa: E402
 from agents.bench.devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
 from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
@@ -657,7 +657,7 @@ def test_agent_replays_a_controller_step_probe_by_probe():
     env_config = {"stages": 3, "model": "phasor"}
     policy = agents.api.algo_module("spgd").make_policy(env_config, None)
     env, _ = ops_jax.make(**env_config)
-    agent = runner.Agent(policy, None, env, seed=3)
+    agent = bench_loop.Agent(policy, None, env, seed=3)
     assert agent.probes == 1
     obs = np.linspace(-0.5, 0.5, env.observation_size)
     agent.start(obs)
@@ -687,7 +687,7 @@ def test_agent_leaves_out_the_probes_a_controller_leaves_out():
         {"config": "guarded"},
         env_config,
     )
-    agent = runner.Agent(*wrapped, env, seed=3)
+    agent = bench_loop.Agent(*wrapped, env, seed=3)
     assert agent.probes == 2  # SPGD's and the trim's
     dark, bright = (
         np.tile(
@@ -720,7 +720,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
     bench, lines = fake_bench(max_step_wl=0.5 * scale, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
     for i in range(1, 4):
         getattr(bench, f"line{i}").setpoint.sim_put(2.6)  # within a wrap of the upper limit
-    agent = runner.Agent(
+    agent = bench_loop.Agent(
         agents.api.algo_module("physics").make_policy(env_config, {"config": "frames"}),
         None,
         env,
@@ -746,7 +746,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
         want = np.full(fit, 7.0) if told is None else np.array(told[:fit]) * scale
         np.testing.assert_allclose(np.asarray(agent.carry["dz_prev"])[0], want, rtol=1e-6)
     assert loop.actions_cut == 1 and lines.wraps.get() == 3 and lines.clipped.get() == 1
-    spgd = runner.Agent(
+    spgd = bench_loop.Agent(
         agents.api.algo_module("spgd").make_policy(env_config, None), None, env, seed=1
     )
     spgd.start(np.zeros(env.observation_size))
