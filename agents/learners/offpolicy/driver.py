@@ -231,25 +231,25 @@ def train_seeds(
         raise ValueError("checkpoints take one seed and no start_from")
     warm_iters, n_chunks, chunk = schedule(h)
     fns, env_params = build.cached_build(learner, env_config, h, len(seeds))
-    session = _Session(learner, env_config, h, seeds, fns, env_params)
-    session.progress_fn, session.snapshot_fn = progress_fn, snapshot_fn
+    trainer = _Trainer(learner, env_config, h, seeds, fns, env_params)
+    trainer.progress_fn, trainer.snapshot_fn = progress_fn, snapshot_fn
     with checkpoints.stop_requests() if checkpoints else contextlib.nullcontext():
-        ts = fns["init"](session.k_init, env_params)
-        run = checkpoints.restore(ts, session.wanted) if checkpoints else None
-        session.checkpoints = checkpoints
+        ts = fns["init"](trainer.k_init, env_params)
+        run = checkpoints.restore(ts, trainer.wanted) if checkpoints else None
+        trainer.checkpoints = checkpoints
         if run is None:
             if start_from is not None:
                 ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
-            run = session.start(ts, warm_iters, random=start_from is None)
-            session.record(run, None, last=n_chunks == 0)
+            run = trainer.start(ts, warm_iters, random=start_from is None)
+            trainer.record(run, None, last=n_chunks == 0)
         else:  # this call's seconds add to the stored run's
-            session.t_start -= run.timing.pop("total")
-            session.compile_evaluation(run)
-        session.train(run, n_chunks, chunk)
-    return session.results(run)
+            trainer.t_start -= run.timing.pop("total")
+            trainer.compile_evaluation(run)
+        trainer.train(run, n_chunks, chunk)
+    return trainer.results(run)
 
 
-class _Session:
+class _Trainer:
     """One call of ``train_seeds``: its evaluation, reports, checkpoints and training chunks around
     a ``Run``."""
 
