@@ -2,30 +2,18 @@
 
 Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
 
-    python -m agents --algo td3 --stages 5 --mode hard --out runs/td3 [--steps N] [--seed S]
-                           [--config fast|paper] [--episodes 50] [--eval-seed 1]
-                           [--set key=value ...]
-                           [--logdir DIR] [--resume | --overwrite] [--checkpoint-every M]
+    python -m agents --algo td3 --out runs/td3 [--stages 5] [--mode hard] [--steps N] [--seed S]
+        [--config NAME] [--set key=value ...] [--logdir DIR] [--resume | --overwrite]
 
-Writes into ``--out``: ``checkpoint/`` (``agents.save``), ``curve.csv`` (every curve column),
-``curve.png`` (evaluation P/Pmax vs env steps) and ``summary.json`` (``agents.evaluate`` summary on
-the testing environment, wall time); with ``--logdir``, TensorBoard event files of the training
-curve (``agents.tensorboard``: env steps on the x axis; evaluation P/Pmax, losses, update ratio;
-needs the tensorboard extra). An ``--out`` that holds a run (any of ``RUN_FILES``) is refused (exit
-2, before any work) unless ``--overwrite`` (its files deleted once the new training has started) or
-``--resume`` (TD3 and DroQ: the run continued from its checkpoint to its ``--steps`` total, with the
-options it was started with; a run stopped after its training: its evaluation written). TD3 and DroQ
-write ``checkpoint/`` as they train, every ``--checkpoint-every`` env steps
-(``agents.learners.offpolicy.checkpoint``). It prints the testing score, P/P_best with
-imperfections, else P/Pmax, and the wall time in parts (compiling apart where the trainer times it).
-A progress bar (``ops_jax.cli.progress.StepProgress``) shows env steps, the latest evaluation
-P/Pmax, "compiling" until the first report and the remaining time from the rate after it. A budget
-that takes no gradient step is refused before any output, naming the ``--steps`` to type instead;
-one whose warm-up takes most of it is warned about before the work starts
-(``agents.learners.budgets``). Ctrl-C stops it with one line saying what was kept and exit status
-130: TD3 and DroQ end their current training chunk and write their checkpoint (``agents.load`` reads
-it; the line gives the command that continues it; SIGTERM the same, exit status 143), the other
-algorithms keep nothing of their training; after training, the checkpoint.
+Writes into ``--out``: ``checkpoint/`` (``agents.save``; TD3 and DroQ also every
+``--checkpoint-every`` env steps, ``agents.learners.offpolicy.checkpoint``), ``curve.csv``,
+``curve.png`` and ``summary.json`` (the testing environment's ``agents.evaluate`` summary, the wall
+time in parts); ``--logdir``: TensorBoard event files (``agents.tensorboard``). An ``--out`` holding
+a run (``RUN_FILES``) is refused (exit 2, before any work) unless ``--overwrite`` or ``--resume``
+(TD3 and DroQ: continued to its ``--steps`` total with its own options). A budget that takes no
+gradient step is refused before any output (``agents.learners.budgets``). Ctrl-C: one line saying
+what was kept, exit status 130 (SIGTERM 143); TD3 and DroQ write their checkpoint first and the line
+gives the command that continues the run.
 """
 
 from __future__ import annotations
