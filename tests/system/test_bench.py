@@ -280,7 +280,7 @@ def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_fr
     if len(allowed) < 2:
         pytest.skip("needs two CPU cores")
     code = (
-        "import os, sys, jax; from ops_jax import runtime\nstarted = "
+        "import os, sys, jax; from ops_jax.cli import runtime\nstarted = "
         "runtime.start_single_threaded() if sys.argv[1] == 'single' else jax.devices() and "
         "None\njax.jit(lambda x: x @ x)(jax.numpy.ones((64, "
         "64))).block_until_ready()\nprint(started, sys.argv[1]); sys.stdout.flush(); "
