@@ -20,6 +20,7 @@ from agents import api as base  # noqa: E402
 from agents.bench import learning as bench_learn
 from agents.controllers import physics_informed
 from agents.learners.offpolicy import replay
+from agents.learners.offpolicy.checkpoint import raw_keys
 from agents.io import kept_dir  # noqa: E402
 from agents.bench import runner  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
@@ -470,7 +471,7 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
     leaves = lambda ts: {
         jax.tree_util.keystr(k): np.asarray(v)
         for k, v in jax.tree_util.tree_leaves_with_path(  # noqa: E731
-            jax.device_get(bench_learn._raw(ts._saved()))
+            jax.device_get(raw_keys(ts._saved()))
         )
     }
     saved = leaves(learning)
