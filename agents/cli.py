@@ -1,19 +1,14 @@
 """Train one controller from the command line and write its checkpoint, curve and evaluation.
 
-Run as ``python -m agents`` (``agents/__main__.py`` starts ``main`` here)::
-
-    python -m agents --algo td3 --out runs/td3 [--stages 5] [--mode hard] [--steps N] [--seed S]
-        [--config NAME] [--set key=value ...] [--logdir DIR] [--resume | --overwrite]
-
-Writes into ``--out``: ``checkpoint/`` (``agents.save``; TD3 and DroQ also every
-``--checkpoint-every`` env steps, ``agents.learners.offpolicy.checkpoint``), ``curve.csv``,
-``curve.png`` and ``summary.json`` (the testing environment's ``agents.evaluate`` summary, the wall
-time in parts); ``--logdir``: TensorBoard event files (``agents.tensorboard``). An ``--out`` holding
-a run (``RUN_FILES``) is refused (exit 2, before any work) unless ``--overwrite`` or ``--resume``
-(TD3 and DroQ: continued to its ``--steps`` total with its own options). A budget that takes no
-gradient step is refused before any output (``agents.learners.budgets``). Ctrl-C: one line saying
-what was kept, exit status 130 (SIGTERM 143); TD3 and DroQ write their checkpoint first and the line
-gives the command that continues the run.
+Run as ``python -m agents --algo td3 --out runs/td3 ...`` (``agents/__main__.py``). Writes into
+``--out``: ``checkpoint/`` (``agents.save``; TD3 and DroQ also every ``--checkpoint-every`` env
+steps, ``agents.learners.offpolicy.checkpoint``), ``curve.csv``, ``curve.png`` and ``summary.json``
+(the testing environment's ``agents.evaluate`` summary, the wall time in parts); ``--logdir``:
+TensorBoard event files (``agents.tensorboard``). An ``--out`` holding a run (``RUN_FILES``) is
+refused (exit 2, before any work) unless ``--overwrite`` or ``--resume`` (TD3 and DroQ: continued to
+its ``--steps`` total with its own options). A budget that takes no gradient step is refused before
+any output (``agents.learners.budgets``). Ctrl-C: one line saying what was kept, exit 130
+(SIGTERM 143); TD3 and DroQ write their checkpoint first, and the line says how to continue.
 """
 
 from __future__ import annotations
@@ -175,12 +170,10 @@ def interrupted(argv, out: Path, at: str, checkpoints, stop) -> tuple[str, int]:
 
 
 def write_curve_csv(path: Path, curve: dict) -> None:
+    """curve.csv: every column of ``curve`` as long as its env steps."""
     cols = [k for k, v in curve.items() if np.ndim(v) == 1 and len(v) == len(curve["step"])]
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for row in zip(*(np.asarray(curve[c]).tolist() for c in cols)):
-            w.writerow(row)
+        csv.writer(f).writerows([cols, *zip(*(np.asarray(curve[c]).tolist() for c in cols))])
 
 
 def plot_curve(path: Path, curve: dict, title: str) -> None:
@@ -201,7 +194,8 @@ def plot_curve(path: Path, curve: dict, title: str) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> dict:
+def parser() -> ArgumentParser:
+    """The command line of ``python -m agents``."""
     ap = ArgumentParser(prog="python -m agents", description=__doc__.split("\n")[0])
     presets = "; ".join(
         f"{algo}: {', '.join(sorted(t.PRESETS))} (default {t.DEFAULT_PRESET})"
@@ -253,6 +247,12 @@ def main(argv=None) -> dict:
         help="env steps between two checkpoints, rounded up to whole training chunks "
         f"(td3, droq; default {CHECKPOINT_EVERY})",
     )
+    return ap
+
+
+def main(argv=None) -> dict:
+    """Train, evaluate and write one run from the command line ``argv``; its summary."""
+    ap = parser()
     args = ap.parse_args(argv)
     out = args.out or Path("runs") / args.algo
     if (refused := refusal(args, out)) is not None:
