@@ -166,8 +166,10 @@ def progress(
 class StepProgress:
     """A training's progress as a ``progress_fn(step, metrics)``: env steps done, the latest
     evaluation P/Pmax, "compiling" until the first report (the compilation and warm-up before it are
-    timed and said), then the remaining time from the rate since that report, so the compiling does
-    not distort it. ``close()`` ends the bar; ``n`` is the steps reported."""
+    timed and said), then the remaining time from the rate since the second report: the trainers
+    compile their training step after the first report (brax's report step 0 first, the off-policy
+    learners the end of their warm-up), so the first interval holds a compilation that the rest of
+    the run does not repeat. ``close()`` ends the bar; ``n`` is the steps reported."""
 
     def __init__(self, total: int | None, desc: str, file=None):
         self.total = total or None
@@ -181,6 +183,7 @@ class StepProgress:
         self.bar.set_postfix_str("compiling", refresh=True)
         self.start = time.monotonic()
         self.first = None  # (time, step) of the first report
+        self.base = None  # (time, step) of the second: the rate is measured from there
 
     @property
     def n(self) -> int:
@@ -194,8 +197,10 @@ class StepProgress:
         if self.first is None:
             self.first = (now, step)
             said.append(f"{format_seconds(now - self.start)} compiling and warming up")
-        elif now > self.first[0] and step > self.first[1]:
-            rate = (step - self.first[1]) / (now - self.first[0])
+        elif self.base is None:
+            self.base = (now, step)
+        elif now > self.base[0] and step > self.base[1]:
+            rate = (step - self.base[1]) / (now - self.base[0])
             said.append(f"{rate:.3g} step/s")
             if self.total:
                 said.append(f"~{format_seconds((self.total - step) / rate)} remaining")
