@@ -92,6 +92,14 @@ def step_dtypes(stages: int, model: str) -> list[str]:
     return sorted({str(x.dtype) for x in jax.tree.leaves((obs, state, stepped))})
 
 
+def _scan_section(args, measure_one, deadline: float, record, out: dict) -> dict:
+    """``out`` with the scan of ``measure_one(model, stages, batch)`` over the command line's
+    models, stages and batches until ``deadline`` (``batch_scan.scan``)."""
+    configs = [(m, n) for n in args.stages for m in args.models]
+    scan(measure_one, configs, batches(args.tiny, args.batch_exp), deadline, record, out)
+    return out
+
+
 def section_step_batch(args, deadline: float, record) -> dict:
     """env-steps/s of a jitted 200-step scan of ``env.step_batch``
     (``benchmarks.speed.throughput.measure``)."""
@@ -113,15 +121,7 @@ def section_step_batch(args, deadline: float, record) -> dict:
             for k in ("model", "stages", "batch", "compile_s", "median_scan_s", "steps_per_s")
         }
 
-    scan(
-        one,
-        [(m, n) for n in args.stages for m in args.models],
-        batches(args.tiny, args.batch_exp),
-        deadline,
-        record,
-        out,
-    )
-    return out
+    return _scan_section(args, one, deadline, record, out)
 
 
 def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int = 200) -> dict:
@@ -162,15 +162,9 @@ def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int =
 def section_rollout(args, deadline: float, record) -> dict:
     """env-steps/s of ``ops_jax.rollout`` over 200 steps, the trajectory kept on the device."""
     out = dict(scan_steps=200, repeats=args.repeats)
-    scan(
-        lambda m, n, b: rollout_rate(n, m, b, args.repeats),
-        [(m, n) for n in args.stages for m in args.models],
-        batches(args.tiny, args.batch_exp),
-        deadline,
-        record,
-        out,
+    return _scan_section(
+        args, lambda m, n, b: rollout_rate(n, m, b, args.repeats), deadline, record, out
     )
-    return out
 
 
 class OutOfTime(Exception):
