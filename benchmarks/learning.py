@@ -44,10 +44,10 @@ def expected_hyper(algo: str, steps, config) -> dict:
     """The hyperparameters a run with these arguments trains with, in the stored (JSON) form."""
     from agents.registry import CONFIG_TYPES
 
-    h = CONFIG_TYPES[algo].make(config).to_hyper()
-    if steps is not None and "total_steps" in h:
-        h["total_steps"] = int(steps)
-    return json.loads(json.dumps(h))
+    learner_config = CONFIG_TYPES[algo].make(config)
+    if steps is not None and "total_steps" in learner_config.names():
+        learner_config = CONFIG_TYPES[algo].make(learner_config, total_steps=int(steps))
+    return json.loads(json.dumps(learner_config.to_hyper()))
 
 
 def checkpointing(
@@ -94,9 +94,8 @@ def run_one(
     from agents import api as base
 
     env_config = base.check_env_config({"stages": stages, "mode": mode})
-    hyper = {} if config is None else {"config": config}
-    if checkpoints is not None:
-        hyper["checkpoints"] = checkpoints
+    settings = {"config": config, "checkpoints": checkpoints}
+    hyper = {k: v for k, v in settings.items() if v is not None}
     t0 = time.perf_counter()
     result = base.train(algo, env_config, seed=seed, total_steps=steps, progress=False, **hyper)
     train_s = time.perf_counter() - t0
@@ -212,8 +211,9 @@ def format_table(agg: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> dict:
-    from agents.api import ALGOS, algo_module
+def parser() -> ArgumentParser:
+    """The command line of ``python -m benchmarks.learning``."""
+    from agents.api import ALGOS
     from agents.learners.offpolicy.checkpoint import EVERY
 
     ap = ArgumentParser(
@@ -249,75 +249,57 @@ def main(argv=None) -> dict:
         metavar="M",
         help=f"TD3, DroQ: env steps between two checkpoints of a run (default {EVERY})",
     )
-    args = ap.parse_args(argv)
-    keep_ctrl_c()
-    ap.check_least(
-        args, seeds=1, stages=1, episodes=1, steps=0, checkpoint_every=1
-    )  # before any run
-    for algo in args.algos:  # a missing extra stops here, at once, naming its install command
-        algo_module(algo)
+    return ap
 
-    from ops_jax.cli.progress import progress
 
-    path = args.out / "learning.json"
-    done = {}
-    if path.exists() and not args.fresh:
-        done = {
-            run_key(r["algo"], r["mode"], r["seed"]): r
-            for r in read_json(path)["runs"]
-            if r["status"] == "ok" and r["stages"] == args.stages
-        }
-    ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
-    jobs = [
-        (a, m, s)
-        for a in args.algos
-        for m in args.modes
-        for s in range(args.seed0, args.seed0 + args.seeds)
-    ]
-    runs = dict(done)
-    bar = progress(jobs, unit="run")
-    for algo, mode, seed in bar:
-        key = run_key(algo, mode, seed)
-        bar.set_description(key)
-        stored = done.get(key)
-        same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
-            expected_hyper(algo, args.steps, args.config),
-            args.episodes,
+def stored_runs(path: Path, args) -> dict:
+    """The finished runs in ``path`` (learning.json) at ``args.stages``, by run key; none with
+    ``--fresh`` or without the file."""
+    if not path.exists() or args.fresh:
+        return {}
+    return {
+        run_key(r["algo"], r["mode"], r["seed"]): r
+        for r in read_json(path)["runs"]
+        if r["status"] == "ok" and r["stages"] == args.stages
+    }
+
+
+def job_record(args, job: tuple, stored, ckpt_dir: Path | None, write, kept: str):
+    """The run record of ``job`` (algo, mode, seed), a failure recorded with its error; None where
+    ``stored`` (its stored run, or None) has the same hyperparameters and --episodes and is kept."""
+    algo, mode, seed = job
+    key = run_key(*job)
+    same = stored is not None and (stored.get("hyper"), stored.get("episodes")) == (
+        expected_hyper(algo, args.steps, args.config),
+        args.episodes,
+    )
+    if same:
+        write(
+            f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); "
+            "--fresh reruns it"
         )
-        if same:
-            bar.write(
-                f"{key}: reusing the stored run (testing P/Pmax {stored['testing_p_pmax']:.4f}); "
-                "--fresh reruns it"
-            )
-            continue
-        if stored is not None:
-            bar.write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
-        try:
-            kept = f"the {len(runs)} finished runs are in {path}"
-            rec = run_job(args, (algo, mode, seed), ckpt_dir, bar.write, kept)
-        except Exception as exc:  # recorded and printed, never silently skipped
-            rec = dict(
-                algo=algo,
-                mode=mode,
-                seed=seed,
-                stages=args.stages,
-                status="error",
-                error=f"{type(exc).__name__}: {exc}",
-                traceback=traceback.format_exc(limit=5),
-            )
-            bar.write(f"{key}: FAILED {rec['error']}")
-        runs[key] = rec
-        write_json_atomic(
-            path,
-            dict(
-                stages=args.stages,
-                steps=args.steps,
-                config=args.config,
-                episodes=args.episodes,
-                runs=list(runs.values()),
-                summary=aggregate(list(runs.values())),
-            ),
+        return None
+    if stored is not None:
+        write(f"{key}: the stored run used other hyperparameters or --episodes: rerunning")
+    try:
+        return run_job(args, job, ckpt_dir, write, kept)
+    except Exception as exc:  # recorded and printed, never silently skipped
+        rec = dict(
+            algo=algo,
+            mode=mode,
+            seed=seed,
+            stages=args.stages,
+            status="error",
+            error=f"{type(exc).__name__}: {exc}",
+            traceback=traceback.format_exc(limit=5),
         )
+        write(f"{key}: FAILED {rec['error']}")
+        return rec
+
+
+def save(path: Path, args, runs: dict) -> dict:
+    """Write learning.json at ``path`` (the settings, ``runs``' records and their summary); the
+    summary."""
     agg = aggregate(list(runs.values()))
     write_json_atomic(
         path,
@@ -330,6 +312,44 @@ def main(argv=None) -> dict:
             summary=agg,
         ),
     )
+    return agg
+
+
+def main(argv=None) -> dict:
+    """Run (or reuse) every (algo, mode, seed) of the command line ``argv``; the summary."""
+    from agents.api import algo_module
+
+    ap = parser()
+    args = ap.parse_args(argv)
+    keep_ctrl_c()
+    ap.check_least(
+        args, seeds=1, stages=1, episodes=1, steps=0, checkpoint_every=1
+    )  # before any run
+    for algo in args.algos:  # a missing extra stops here, at once, naming its install command
+        algo_module(algo)
+
+    from ops_jax.cli.progress import progress
+
+    path = args.out / "learning.json"
+    done = stored_runs(path, args)
+    ckpt_dir = None if args.no_checkpoints else args.out / "checkpoints"
+    jobs = [
+        (a, m, s)
+        for a in args.algos
+        for m in args.modes
+        for s in range(args.seed0, args.seed0 + args.seeds)
+    ]
+    runs = dict(done)
+    bar = progress(jobs, unit="run")
+    for job in bar:
+        key = run_key(*job)
+        bar.set_description(key)
+        kept = f"the {len(runs)} finished runs are in {path}"
+        rec = job_record(args, job, done.get(key), ckpt_dir, bar.write, kept)
+        if rec is not None:
+            runs[key] = rec
+            save(path, args, runs)
+    agg = save(path, args, runs)
     print(format_table(agg))
     print(f"written to {path}")
     return agg

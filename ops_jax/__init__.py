@@ -10,15 +10,8 @@ from ops_jax.cli import extras
 extras.install_excepthook()
 
 from ops_jax import noise, physics  # noqa: E402
-from ops_jax.env import (  # noqa: E402
-    MODES,
-    REWARDS,
-    EnvConfig,
-    EnvParams,
-    EnvState,
-    OPSEnv,
-    make,
-)
+from ops_jax.env import MODES, REWARDS, OPSEnv, make  # noqa: E402
+from ops_jax.records import EnvConfig, EnvParams, EnvState  # noqa: E402
 from ops_jax.trajectories import Rollout, rollout  # noqa: E402
 from ops_jax.spec import EnvSpec  # noqa: E402
 

@@ -1,5 +1,6 @@
 """The OPS control environment, gymnax-style: static ``EnvConfig``, dynamic ``EnvParams`` pytree,
-``EnvState`` pytree, ``reset(key, params)`` / ``step(key, state, action, params)`` with auto-reset.
+``EnvState`` pytree (``ops_jax.records``), ``reset(key, params)`` / ``step(key, state, action,
+params)`` with auto-reset (``ops_jax.batching``).
 
 Lengths are offsets from the optimal delay-line lengths in wavelengths (wl).
 
@@ -24,20 +25,15 @@ Non-finite actions (inside jit): every non-finite entry is replaced by 0 before 
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.custom_batching import custom_vmap
-from jax.typing import ArrayLike
 
-from ops_jax import imperfections, noise, physics
+from ops_jax import batching, imperfections, noise, physics
 from ops_jax.observation import ObservationLayout
-from ops_jax.ranges import Range, check_fields, ranged, ranges
-
-INT32_MAX = 2**31 - 1  # step counters are int32
+from ops_jax.ranges import check_fields, ranges
+from ops_jax.records import EnvConfig, EnvParams, EnvState
 
 MODES = ("easy", "medium", "hard", "custom")
 REWARDS = ("paper", "reference", "linear")
@@ -52,91 +48,6 @@ MODE_PARAMS = {
     "medium": dict(init_spread=0.13, step_sigma=5e-4, drift_cap=0.0),
     "hard": dict(init_spread=0.15, step_sigma=5e-4, drift_cap=1.0),
 }
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Static configuration: changing it recompiles.
-
-    stages: N >= 1. model: "field" (exact) | "phasor" (fast). detector: "total" | "polariser".
-    reward: "paper" (Eq. 3) | "reference" (the code's) | "linear" (in P). max_steps: truncation
-    length. feedback_k: free-running draws per control step (feedback delay). frame_stack:
-    observations stacked. observe_lengths: the N length readouts in the observation (False: the
-    detector's frames only). include_noise: append the noise state to the observation. imperfect:
-    apply ``EnvParams.lab`` (docs/imperfections.md); False is the ideal system whatever ``lab``
-    holds. probe: how ``OPSEnv.probe_step`` measures a dither probe: "instant" (P at the probed
-    offsets in the same instant as the last frame: nothing moves, no time passes) | "frame" (as on a
-    bench: the lines move to the probed offsets through the actuators, one frame passes, the
-    detector reads P; the next step's move starts from there).
-    """
-
-    stages: int = 5
-    model: str = "field"
-    detector: str = "total"
-    reward: str = "paper"
-    max_steps: int = ranged(Range(1, INT32_MAX, integer=True), 200)
-    feedback_k: int = ranged(Range(1, INT32_MAX, integer=True), 1)
-    frame_stack: int = ranged(Range(1, INT32_MAX, integer=True), 1)
-    include_noise: bool = False
-    imperfect: bool = False
-    observe_lengths: bool = True
-    probe: str = "instant"
-
-
-@partial(jax.tree_util.register_dataclass)
-@dataclasses.dataclass(frozen=True)
-class EnvParams:
-    """Dynamic parameters (a pytree: one batch may hold different values per instance). wl units.
-
-    init_spread: s0 of the reset offsets. step_sigma: std of each free-running draw.
-    drift_cap, drift_ramp: the reference's per-episode drift (r ~ U(-s, s), s = min(cap, ramp *
-    resets); init_loc = r s0, mu = r sigma); cap 0 disables it. drift_amplitude (wl per step),
-    drift_segment (steps): within-episode piecewise-linear mean mu_t with knots every segment
-    drawn in +-amplitude; amplitude 0 disables it. action_scale: wl per unit action.
-    obs_noise: std of the observation noise. window: termination bound |x_i| > window.
-    lab: the lab imperfections (``imperfections.Imperfections``), used when ``imperfect``.
-
-    Each range excludes values that leave no meaningful task: actions without effect (action_scale
-    0), a window nothing fits in (and window > init_spread), phases randomised every step (offsets
-    repeat every wavelength: spreads, step noise and drifts beyond ~1 wl carry no more information),
-    observations drowned in noise (entries live in about [-1, 1]).
-    """
-
-    init_spread: ArrayLike = ranged(
-        Range(0.0, 1.0, unit="wl"), 0.13
-    )  # 0: every episode starts at the optimum
-    step_sigma: ArrayLike = ranged(Range(0.0, 0.1, unit="wl"), 5e-4)  # 0: noise-free
-    drift_cap: ArrayLike = ranged(Range(0.0, 10.0), 0.0)
-    drift_ramp: ArrayLike = ranged(Range(0.0), 0.1)
-    drift_amplitude: ArrayLike = ranged(Range(0.0, 0.1, unit="wl per step"), 0.0)
-    drift_segment: ArrayLike = ranged(Range(1, INT32_MAX, integer=True, unit="steps"), 50)
-    action_scale: ArrayLike = ranged(Range(0.0, 1.0, lo_open=True, unit="wl per unit action"), 0.01)
-    obs_noise: ArrayLike = ranged(Range(0.0, 1.0), 1e-4)  # 0: noise-free observations
-    window: ArrayLike = ranged(Range(0.0, lo_open=True, unit="wl"), 3.0)
-    lab: imperfections.Imperfections = dataclasses.field(
-        default_factory=imperfections.Imperfections
-    )
-
-
-@partial(jax.tree_util.register_dataclass)
-@dataclasses.dataclass(frozen=True)
-class EnvState:
-    """deltas: offsets (N,) wl. mu_episode: per-episode free-running mean (N,) wl. knots: the
-    current drift segment's start and end knots (2, N). t: step in episode (frames, probes included,
-    with ``probe="frame"``). episode: resets so far. p_init: P at the first reset (reference
-    reward). frames: stacked observations. probed: the probe offsets (N,) wl the lines hold since
-    the last step (zero but between a "frame" probe and the next step). lab: the imperfections'
-    state (``imperfections.LabState``; () when the config is ideal)."""
-
-    deltas: jax.Array
-    mu_episode: jax.Array
-    knots: jax.Array
-    t: jax.Array
-    episode: jax.Array
-    p_init: jax.Array
-    frames: jax.Array
-    probed: jax.Array
-    lab: Any = ()
 
 
 def _validate_params(params: EnvParams) -> None:
@@ -347,18 +258,11 @@ class OPSEnv:
         new = self._reset_state(d, params, state.episode + 1, state.p_init)
         return self._observe_reset(d["obs"], new, params)
 
-    @staticmethod
-    def _params_axes(params):
-        axes = jax.tree.map(
-            lambda x: 0 if jnp.ndim(x) > 0 else None, dataclasses.replace(params, lab=None)
-        )
-        return dataclasses.replace(axes, lab=imperfections.batch_axes(params.lab))
-
     def auto_reset(self, done, key, state: EnvState, fallback, params: EnvParams):
         """``next_episode(key, state, params)`` where ``done``, else ``fallback`` (obs, state).
         Under ``jax.vmap`` (nested too) the reset is computed only on calls where some instance is
         done."""
-        return _auto_reset_ad(self, done, key, state, fallback, params)
+        return batching.auto_reset(self, done, key, state, fallback, params)
 
     def step(self, key, state: EnvState, action, params: EnvParams):
         """One control step with auto-reset. Returns (obs, state, reward, terminated, truncated,
@@ -397,61 +301,14 @@ class OPSEnv:
 
     def reset_batch(self, keys, params: EnvParams):
         """Reset a batch; ``keys`` (B, ...) one per instance, ``params`` shared or batched (B,)."""
-        return jax.vmap(self.reset, in_axes=(0, self._params_axes(params)))(keys, params)
+        return jax.vmap(self.reset, in_axes=(0, batching.params_axes(params)))(keys, params)
 
     def step_batch(self, keys, states: EnvState, actions, params: EnvParams):
         """``jax.vmap(step)`` over a batch (B instances, one key each); ``params`` shared or batched
         (B,)."""
-        return jax.vmap(self.step, in_axes=(0, 0, 0, self._params_axes(params)))(
+        return jax.vmap(self.step, in_axes=(0, 0, 0, batching.params_axes(params)))(
             keys, states, actions, params
         )
-
-
-@partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _auto_reset_ad(env: OPSEnv, done, key, state, fallback, params):
-    """``_auto_reset`` whose derivatives (reverse mode included) go through a per-instance
-    select."""
-    return _auto_reset(env, ())(done, key, state, fallback, params)
-
-
-@_auto_reset_ad.defjvp
-def _auto_reset_jvp(env, primals, tangents):
-    def plain(done, key, state, fallback, params):
-        return jax.tree.map(
-            lambda a, b: jnp.where(done, a, b), env.next_episode(key, state, params), fallback
-        )
-
-    return _auto_reset_ad(env, *primals), jax.jvp(plain, primals, tangents)[1]
-
-
-def _auto_reset(env: OPSEnv, levels: tuple):
-    """``env.auto_reset`` on arguments with ``len(levels)`` leading batch axes; ``levels[j]``
-    (outermost first) says per argument leaf whether it carries axis j. The reset runs when any
-    instance is done."""
-
-    @custom_vmap
-    def auto_reset(done, key, state, fallback, params):
-        def one(d, k, s, fb, p):
-            return jax.tree.map(lambda a, b: jnp.where(d, a, b), env.next_episode(k, s, p), fb)
-
-        for batched in reversed(levels):
-            one = jax.vmap(one, in_axes=tuple(jax.tree.map(lambda b: 0 if b else None, batched)))
-        args = (done, key, state, fallback, params)
-        return jax.lax.cond(jnp.any(done), one, lambda *a: a[3], *args)
-
-    @auto_reset.def_vmap
-    def rule(axis_size, in_batched, done, key, state, fallback, params):
-        # The fallback (hence the result) carries every batch axis, so both cond branches agree.
-        fallback = jax.tree.map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
-            fallback,
-            in_batched[3],
-        )
-        in_batched[3] = jax.tree.map(lambda b: True, in_batched[3])
-        out = _auto_reset(env, (tuple(in_batched), *levels))(done, key, state, fallback, params)
-        return out, jax.tree.map(lambda x: True, out)
-
-    return auto_reset
 
 
 def option_names() -> tuple:

@@ -9,7 +9,8 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ops_jax.env import EnvParams, OPSEnv
+from ops_jax.env import OPSEnv
+from ops_jax.records import EnvParams
 
 
 class Rollout(NamedTuple):

@@ -257,9 +257,11 @@ def _snapshot_run(cell: Cell, start_from=None):
 
     module = base.algo_module(cell.algo)
     marks = set(cell.checkpoints)
-    h = module.LEARNER.config_type.make(**cell.hyper).to_hyper()
-    warm, n_chunks, chunk = offpolicy.schedule({**h, "total_steps": max(marks)})
-    per_iter = h["num_envs"] * h["unroll"]
+    learner_config = module.LEARNER.config_type.make(**cell.hyper)
+    warm, n_chunks, chunk = offpolicy.schedule(
+        {**learner_config.to_hyper(), "total_steps": max(marks)}
+    )
+    per_iter = learner_config.num_envs * learner_config.unroll
     ends = {per_iter * (warm + chunk * i) for i in range(n_chunks + 1)}
     if not marks <= ends:
         raise ValueError(

@@ -130,18 +130,10 @@ def _bench_references(records) -> dict:
     return out
 
 
-def _adapt_table(adapted: list, on_bench: dict) -> list:
-    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after
-    adapting, with the trim around the pretrained and the last adapted policy, and the references'
-    on the same bench."""
-    c = adapted[0]["cell"]
-    ks = c.checkpoints
-    trimmed = all("trimmed" in r["result"] for r in adapted)
-    refs = {NAMES.get(a, a): scores for a, scores in on_bench.items()}
-    ref = lambda scores, bench_seed: (
-        f" {scores[bench_seed]:.3f} |" if bench_seed in scores else " - |"
-    )
-    # the columns: (title, score of a record)
+def _adapt_columns(checkpoints, trimmed: bool) -> list:
+    """Protocol (b)'s score columns: (title, P / P_best of a record) before and after adapting, and
+    with ``trimmed`` around the pretrained and the last adapted policy."""
+    ks = checkpoints
     cols = [("before", lambda r: r["result"]["before"])]
     cols += [(f"after {k:,}", lambda r, k=k: r["result"]["scores"][str(k)]) for k in ks]
     if trimmed:
@@ -149,13 +141,18 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
             ("before, trimmed", lambda r: r["result"]["trimmed"]["0"]),
             (f"after {ks[-1]:,}, trimmed", lambda r: r["result"]["trimmed"][str(ks[-1])]),
         ]
-    lines = [
+    return cols
+
+
+def _adapt_intro(c, trimmed: bool) -> list:
+    """Protocol (b)'s heading and the sentence on what cell ``c`` pretrained and adapted on."""
+    return [
         f"## Simulator to bench ({NAMES.get(c.algo, c.algo)})",
         "",
         f"Pretrained {c.pretrain_steps:,} env steps on the randomised simulator "
-        f"({c.pretrain_env}, {c.pretrain_hyper}), then trained on for up to {ks[-1]:,} env steps "
-        "on an unseen bench (the lab preset at "
-        f"{adapted[0]['cell'].env_config.get('imperfection_scale')}x, per-stage errors re-drawn "
+        f"({c.pretrain_env}, {c.pretrain_hyper}), then trained on for up to "
+        f"{c.checkpoints[-1]:,} env steps on an unseen bench (the lab preset at "
+        f"{c.env_config.get('imperfection_scale')}x, per-stage errors re-drawn "
         "from the bench seed); final P / P_best on that bench"
         + (
             "; trimmed: with the extremum-seeking trim (agents.controllers.trim, "
@@ -164,6 +161,18 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
             else "."
         ),
         "",
+    ]
+
+
+def _adapt_table(adapted: list, on_bench: dict) -> list:
+    """Protocol (b)'s lines: per pretraining seed, P / P_best on its unseen bench before and after
+    adapting, with the trim around the pretrained and the last adapted policy, and the references'
+    on the same bench."""
+    c = adapted[0]["cell"]
+    trimmed = all("trimmed" in r["result"] for r in adapted)
+    refs = {NAMES.get(a, a): scores for a, scores in on_bench.items()}
+    cols = _adapt_columns(c.checkpoints, trimmed)
+    lines = _adapt_intro(c, trimmed) + [
         "| pretraining seed | bench seed | "
         + " | ".join(t for t, _ in cols)
         + "".join(f" | {name} on the bench" for name in refs)
@@ -176,7 +185,10 @@ def _adapt_table(adapted: list, on_bench: dict) -> list:
             f"| {r['cell'].seed} | {bench_seed} | "
             + " | ".join(f"{f(r):.3f}" for _, f in cols)
             + " |"
-            + "".join(ref(scores, bench_seed) for scores in refs.values())
+            + "".join(
+                f" {scores[bench_seed]:.3f} |" if bench_seed in scores else " - |"
+                for scores in refs.values()
+            )
             + f" {res['pretrain_s']:.0f} | {res['train_s']:.0f} |"
         )
     bench_seeds = [r["cell"].bench_seed for r in adapted]

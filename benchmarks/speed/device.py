@@ -39,27 +39,14 @@ from pathlib import Path  # noqa: E402
 from benchmarks.speed.device_table import best_phasor_n5, compare_table  # noqa: E402
 from agents.io import write_json_atomic  # noqa: E402
 from ops_jax.cli.progress import keep_ctrl_c  # noqa: E402
-from benchmarks.speed.device_sections import (  # noqa: E402, F401
-    ENV,
-    MIN_SECTION_S,
+from benchmarks.speed.batch_scan import MIN_SECTION_S, short_error  # noqa: E402
+from benchmarks.speed.device_sections import (  # noqa: E402
     ROOT,
     SECTION_FNS,
     TRAIN,
-    TRAIN_TINY,
-    OutOfTime,
     _pythonpath,
-    _scan,
     _stop,
-    batches,
     device_info,
-    is_oom,
-    rollout_rate,
-    section_rollout,
-    section_step_batch,
-    section_sweep,
-    short_error,
-    step_dtypes,
-    train_rate,
 )
 
 MEASURED = ROOT / "benchmarks" / "measured"

@@ -13,6 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.speed.batch_scan import batches, scan
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {"stages": 5, "mode": "hard"}
 # Training runs: env steps and hyperparameters (full size; --tiny below).
@@ -48,34 +50,6 @@ TRAIN_TINY = {
         },
     ),
 }
-# A (model, stages) configuration's weight in the split of a scan section's time (others: 1).
-CONFIG_WEIGHTS = {("phasor", 5): 3.0}
-MIN_SECTION_S = 5.0  # a section with less time than this left is skipped
-
-
-def batches(tiny: bool, exps=None) -> list[int]:
-    """The scanned batch sizes: 2^lo .. 2^hi in steps of 2^stride, ``exps`` = (lo, hi[, stride])
-    (default 2^4 .. 2^6 with ``tiny``, else 2^10 .. 2^20)."""
-    lo, hi, stride = (*(exps or ((4, 6) if tiny else (10, 20))), 1)[:3]
-    return [2**k for k in range(lo, hi + 1, stride)]
-
-
-def is_oom(err: BaseException) -> bool:
-    """True for XLA's out-of-memory errors (RESOURCE_EXHAUSTED)."""
-    text = f"{type(err).__name__}: {err}"
-    return (
-        "RESOURCE_EXHAUSTED" in text
-        or "out of memory" in text.lower()
-        or isinstance(err, MemoryError)
-    )
-
-
-def short_error(err: BaseException, limit: int = 600) -> str:
-    """The first ``limit`` characters of ``type: message``."""
-    text = f"{type(err).__name__}: {err}".strip()
-    return text if len(text) <= limit else text[:limit] + " ..."
-
-
 # --------------------------------------------------------------------------------------------------
 # The sections, each run in a child process: ``fn(args, deadline, record)``, record(dict) saving its
 # results so far.
@@ -103,78 +77,6 @@ def device_info() -> dict:
     )
 
 
-def _scan_batches(
-    measure_one, model: str, n: int, batch_list, cfg_deadline: float, record, out: dict, s: dict
-) -> None:
-    """``measure_one(model, n, batch)`` over ``batch_list`` into ``out["rows"]`` and the config's
-    summary ``s`` until the next batch would pass ``cfg_deadline`` or the device runs out of
-    memory."""
-    import gc
-
-    for b in batch_list:
-        t0 = time.monotonic()
-        out["running"] = dict(model=model, stages=n, batch=b)
-        try:
-            row = measure_one(model, n, b)
-        except Exception as err:  # noqa: BLE001 (out of memory ends the scan; anything else is recorded)
-            out.pop("running", None)
-            gc.collect()
-            s["stopped"] = "oom" if is_oom(err) else "error"
-            s["oom_at_batch" if is_oom(err) else "error"] = b if is_oom(err) else short_error(err)
-            break
-        out.pop("running", None)
-        cost = time.monotonic() - t0
-        row["wall_s"] = cost
-        out["rows"].append(row)
-        s["batches"].append(b)
-        if s["best_steps_per_s"] is None or row["steps_per_s"] > s["best_steps_per_s"]:
-            s["best_steps_per_s"], s["best_batch"] = row["steps_per_s"], b
-        record(out)
-        print(
-            f"  {model} N={n} batch {b}: {row['steps_per_s']:,.0f} env-steps/s "
-            f"(compile {row['compile_s']:.1f} s)",
-            flush=True,
-        )
-        compile_s = min(row["compile_s"], cost)
-        grow = 1.1 * (batch_list[batch_list.index(b) + 1] / b if b != batch_list[-1] else 1)
-        if (
-            b != batch_list[-1]
-            and time.monotonic() + compile_s + grow * (cost - compile_s) > cfg_deadline
-        ):
-            s["stopped"] = "budget"
-            break
-
-
-def _scan(measure_one, configs, batch_list, deadline: float, record, out: dict) -> None:
-    """For each (model, stages) of ``configs``, ``measure_one(model, stages, batch) -> row`` over
-    ``batch_list`` until the next batch would pass the config's share of the time to ``deadline`` or
-    the device runs out of memory; rows and a summary per config go into ``out`` (saved by
-    ``record``)."""
-    out.setdefault("rows", [])
-    summary = out.setdefault("configs", [])
-    out["planned"] = [dict(model=m, stages=n) for m, n in configs]
-    record(out)
-    weights = [CONFIG_WEIGHTS.get(c, 1.0) for c in configs]
-    for i, (model, n) in enumerate(configs):
-        t_cfg = time.monotonic()
-        if deadline - t_cfg < MIN_SECTION_S:
-            break
-        cfg_deadline = t_cfg + (deadline - t_cfg) * weights[i] / sum(weights[i:])
-        s = dict(
-            model=model,
-            stages=n,
-            batches=[],
-            best_steps_per_s=None,
-            best_batch=None,
-            oom_at_batch=None,
-            stopped="end",
-            error=None,
-        )
-        summary.append(s)
-        _scan_batches(measure_one, model, n, batch_list, cfg_deadline, record, out, s)
-        record(out)
-
-
 def step_dtypes(stages: int, model: str) -> list[str]:
     """The dtypes of every array that ``reset_batch`` and ``step_batch`` return (traced, not
     run)."""
@@ -188,6 +90,14 @@ def step_dtypes(stages: int, model: str) -> list[str]:
     obs, state = jax.eval_shape(env.reset_batch, keys, params)
     stepped = jax.eval_shape(env.step_batch, keys, state, jnp.zeros((2, stages)), params)
     return sorted({str(x.dtype) for x in jax.tree.leaves((obs, state, stepped))})
+
+
+def _scan_section(args, measure_one, deadline: float, record, out: dict) -> dict:
+    """``out`` with the scan of ``measure_one(model, stages, batch)`` over the command line's
+    models, stages and batches until ``deadline`` (``batch_scan.scan``)."""
+    configs = [(m, n) for n in args.stages for m in args.models]
+    scan(measure_one, configs, batches(args.tiny, args.batch_exp), deadline, record, out)
+    return out
 
 
 def section_step_batch(args, deadline: float, record) -> dict:
@@ -211,15 +121,7 @@ def section_step_batch(args, deadline: float, record) -> dict:
             for k in ("model", "stages", "batch", "compile_s", "median_scan_s", "steps_per_s")
         }
 
-    _scan(
-        one,
-        [(m, n) for n in args.stages for m in args.models],
-        batches(args.tiny, args.batch_exp),
-        deadline,
-        record,
-        out,
-    )
-    return out
+    return _scan_section(args, one, deadline, record, out)
 
 
 def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int = 200) -> dict:
@@ -260,15 +162,9 @@ def rollout_rate(stages: int, model: str, batch: int, repeats: int, steps: int =
 def section_rollout(args, deadline: float, record) -> dict:
     """env-steps/s of ``ops_jax.rollout`` over 200 steps, the trajectory kept on the device."""
     out = dict(scan_steps=200, repeats=args.repeats)
-    _scan(
-        lambda m, n, b: rollout_rate(n, m, b, args.repeats),
-        [(m, n) for n in args.stages for m in args.models],
-        batches(args.tiny, args.batch_exp),
-        deadline,
-        record,
-        out,
+    return _scan_section(
+        args, lambda m, n, b: rollout_rate(n, m, b, args.repeats), deadline, record, out
     )
-    return out
 
 
 class OutOfTime(Exception):

@@ -93,23 +93,9 @@ def run_in_subprocess(
 ) -> dict:
     """``measure_one`` in a fresh Python process under a watchdog; a failure becomes the row's
     ``error``."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "benchmarks.speed.gym_modes",
-        "--one",
-        json.dumps(
-            dict(
-                mode=mode,
-                context=context,
-                num_envs=num_envs,
-                model=model,
-                stages=stages,
-                repeats=repeats,
-            )
-        ),
-    ]
     row = dict(mode=mode, context=context, num_envs=num_envs, model=model, stages=stages)
+    one = json.dumps({**row, "repeats": repeats})
+    cmd = [sys.executable, "-m", "benchmarks.speed.gym_modes", "--one", one]
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=WATCHDOG_S)
     except subprocess.TimeoutExpired:

@@ -283,6 +283,17 @@ def _returned(ray, ref, unit: Unit, out: Path) -> Computed:
         ) from exc
 
 
+def _start_workers(ray, n: int, preset: dict, worker_gpus: float, restarts: int, local: bool):
+    """``n`` ``SweepWorker`` actors of ``worker_gpus`` GPUs each, restarted up to ``restarts`` times
+    (``local``: each pinned to its share of this machine's CPUs)."""
+    env = worker_env(n, worker_gpus, local)
+    actor = ray.remote(
+        num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts
+    )(SweepWorker)
+    shares = cpu_shares(n) if local else [None] * n
+    return [actor.remote(preset, env, cpus) for cpus in shares]
+
+
 def _compute(
     ray,
     sweep: Sweep,
@@ -300,12 +311,7 @@ def _compute(
     plan's cells stored before, said on the progress line; ``local``: a local instance, whose
     workers get a share of the CPUs each). Returns (cells computed, a record per worker)."""
     n = max(1, min(jobs or int(ray.cluster_resources().get("CPU", 1)), len(todo)))
-    env = worker_env(n, worker_gpus, local)
-    actor = ray.remote(
-        num_cpus=1, num_gpus=worker_gpus, max_restarts=restarts, max_task_retries=restarts
-    )(SweepWorker)
-    shares = cpu_shares(n) if local else [None] * n
-    actors = [actor.remote(preset, env, cpus) for cpus in shares]
+    actors = _start_workers(ray, n, preset, worker_gpus, restarts, local)
     ledger = Ledger.of(todo.values())
     cells_total = sum(len(u.cells) for u in todo.values())
     on = f"sweep on {n} worker{'s' if n > 1 else ''}"

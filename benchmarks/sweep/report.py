@@ -255,13 +255,9 @@ def testing_curves(out: Path, runs: dict, p: dict):
     )
 
 
-def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall=float("nan")):
-    """summary.md: configuration, machine, cells (``counts``: computed, reused), wall times (this
-    process's ``timing``; each part worker's in ``workers``; ``wall``, the whole command's, if
-    known) and every table and figure."""
-    import jax
-
-    computed, reused = counts
+def _wall_times(timing: dict, workers, wall: float) -> list:
+    """summary.md's wall-time lines (s): the whole command's ``wall`` if known (not NaN), then each
+    part worker's in ``workers`` and this process's ``timing``."""
     if workers:
         times = [
             f"- worker {i + 1} ({'+'.join(w['algos'])}): "
@@ -278,6 +274,17 @@ def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall
         times = [f"- {k}: {v:.1f} s" for k, v in timing.items()]
     if wall == wall:
         times = [f"- whole command: {wall:.1f} s", *times]
+    return times
+
+
+def summary(out: Path, p: dict, sections, timing: dict, counts, workers=(), wall=float("nan")):
+    """summary.md: configuration, machine, cells (``counts``: computed, reused), wall times (this
+    process's ``timing``; each part worker's in ``workers``; ``wall``, the whole command's, if
+    known) and every table and figure."""
+    import jax
+
+    computed, reused = counts
+    times = _wall_times(timing, workers, wall)
 
     files = sorted(  # the reports and those of a section in its own folder (budget/budget.md)
         f.relative_to(out).as_posix()

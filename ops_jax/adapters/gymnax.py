@@ -42,9 +42,10 @@ import jax
 import jax.numpy as jnp
 
 from ops_jax.cli import extras
-from ops_jax.env import EnvParams, EnvState, OPSEnv
+from ops_jax.env import OPSEnv
 from ops_jax.env import make as make_ops
 from ops_jax.adapters.gymnasium.shared import observation_bounds
+from ops_jax.records import EnvParams, EnvState
 
 try:
     from flax import struct

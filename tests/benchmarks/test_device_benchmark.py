@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from benchmarks.speed import device
+from benchmarks.speed import batch_scan, device
 from benchmarks.sweep.executor import worker_env
 
 TOP_KEYS = {
@@ -79,7 +79,7 @@ def test_scan_records_where_memory_ends_and_keeps_the_rows_before():
         return dict(model=model, stages=n, batch=b, compile_s=0.0, steps_per_s=float(b))
 
     out = {}
-    device._scan(fake, [("phasor", 5)], device.batches(True), 1e18, saved.append, out)
+    batch_scan.scan(fake, [("phasor", 5)], batch_scan.batches(True), 1e18, saved.append, out)
     (cfg,) = out["configs"]
     assert cfg["batches"] == [16, 32] and cfg["oom_at_batch"] == 64 and cfg["stopped"] == "oom"
     assert cfg["best_batch"] == 32 and saved
@@ -93,8 +93,8 @@ def test_default_output_path_follows_the_platform(tmp_path):
     assert (
         device.default_out("gpu", tmp_path) == tmp_path / "benchmarks" / "measured" / "device.json"
     )
-    assert device.batches(False)[0] == 2**10 and device.batches(False)[-1] == 2**20
-    assert device.batches(False, (10, 20, 2)) == [2**k for k in (10, 12, 14, 16, 18, 20)]
+    assert batch_scan.batches(False)[0] == 2**10 and batch_scan.batches(False)[-1] == 2**20
+    assert batch_scan.batches(False, (10, 20, 2)) == [2**k for k in (10, 12, 14, 16, 18, 20)]
 
 
 @pytest.mark.parametrize(

@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 
 import ops_jax
-from ops_jax import noise, physics
+from ops_jax import batching, noise, physics
 
 
 def _zero_policy(n):
@@ -141,7 +141,7 @@ def _uneven_ends(model, b):
 def test_vmapped_step_equals_step_batch_and_single_instance_bitwise(model):
     b, t = 6, 12
     env, params = _uneven_ends(model, b)
-    axes = env._params_axes(params)
+    axes = batching.params_axes(params)
     _, state = env.reset_batch(jax.random.split(jax.random.key(0), b), params)
     keys = jax.random.split(jax.random.key(1), (t, b))
     actions = jax.random.uniform(jax.random.key(2), (t, b, 3), minval=-1, maxval=1)
@@ -176,7 +176,7 @@ def test_vmapped_step_equals_step_batch_and_single_instance_bitwise(model):
 def test_nested_vmap_seeds_by_instances_with_per_instance_params():
     s_, b, t = 2, 4, 12
     env, params = _uneven_ends("phasor", b)
-    axes = env._params_axes(params)
+    axes = batching.params_axes(params)
     _, state = jax.vmap(env.reset_batch, in_axes=(0, None))(
         jax.random.split(jax.random.key(0), (s_, b)), params
     )
@@ -195,7 +195,7 @@ def test_vmapped_reset_is_one_batch_wide_branch():
     # Under vmap (nested too) the auto-reset stays a lax.cond on "any instance done" rather than
     # a per-instance select, which would compute a reset for every instance on every step.
     env, params = _uneven_ends("phasor", 4)
-    axes = env._params_axes(params)
+    axes = batching.params_axes(params)
     _, state = env.reset_batch(jax.random.split(jax.random.key(0), 4), params)
     one = jax.vmap(env.step, in_axes=(0, 0, 0, axes))
     two = jax.vmap(one, in_axes=(0, 0, 0, None))
@@ -218,7 +218,7 @@ def test_gradients_through_vmapped_auto_reset():
     keys = jax.random.split(jax.random.key(0), 4)
     _, state = env.reset_batch(keys, params)
     state = dataclasses.replace(state, t=jnp.array([0, 1, 0, 1], jnp.int32))
-    axes = env._params_axes(dataclasses.replace(params, init_spread=spread))
+    axes = batching.params_axes(dataclasses.replace(params, init_spread=spread))
 
     def total_obs(spread):
         p = dataclasses.replace(params, init_spread=spread)
