@@ -18,6 +18,7 @@ from test_bench import START_S, bench_run, documents, finish  # noqa: E402
 
 from agents import api as base  # noqa: E402
 from agents.bench import documents as bench_documents, learning as bench_learn
+from agents.bench.controller import Controller
 from agents.controllers import physics_informed
 from agents.learners.offpolicy import replay
 from agents.learners.offpolicy.checkpoint import raw_keys
@@ -465,7 +466,7 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
             learning.actor.act(o, np.zeros(0)) for o in obs[1:] if time.sleep(0.002) is None
         ]  # a 500 Hz loop
         learning.thread.finish()
-    assert n[0] == 0 and learning.thread.error is None
+    assert n[0] == 0 and learning.thread.error is None and isinstance(learning.actor, Controller)
     assert np.all(np.abs(actions) <= 1) and learning.state.counts.learn_steps > 0
     assert learning.state.counts.learn_steps == int(learning.state.ts.updates)
     leaves = lambda ts: {
