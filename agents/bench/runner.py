@@ -36,6 +36,11 @@ the user ended it with Ctrl-C (143 with SIGTERM; everything recorded is written 
 watchdog stopped it, 2 for bad arguments or a bench that cannot be reached, 130 for a Ctrl-C before
 the run started (nothing recorded).
 
+The runner's parts: ``agents.bench.cli`` (the command line), ``agents.bench.prepare`` (the run's
+setup), ``agents.bench.execute`` (the plan's run, Ctrl-C and SIGTERM), ``agents.bench.documents``
+(``documents.jsonl``), ``agents.bench.report`` (the summary, the plot, the lines shown); the loop
+drives an ``agents.bench.controller.Controller``: a frozen controller or a learner's actor.
+
 ``python -m agents.bench template --out FILE`` writes a mapping to start from,
 ``python -m agents.bench check --mapping FILE`` reads every PV it names once
 (``agents.bench.template``).
