@@ -20,7 +20,7 @@ class Built:
     ``env_config`` it is built for, its ``config`` (of ``learner.config_type``) and the stored form
     ``hyper`` its builders read, the ``seed``; ``env`` the simulator environment whose observations
     the bench's frames follow, ``train_env`` the one it learns on (with the observer's entries, if
-    any), ``observer`` (or None), ``fns`` (``learner.build``)."""
+    any), ``observer`` (or None), ``fns`` (``learner.build``), ``ratio``."""
 
     learner: Any
     env_config: dict
@@ -31,11 +31,7 @@ class Built:
     train_env: Any
     observer: Any
     fns: dict
-
-    @property
-    def ratio(self) -> float:
-        """The target gradient steps per env step (the config's update-to-data ratio)."""
-        return self.config.updates_per_step()
+    ratio: float  # the target gradient steps per env step (the config's update-to-data ratio)
 
 
 def build(learner, env_config: dict, config, seed: int):
@@ -45,7 +41,8 @@ def build(learner, env_config: dict, config, seed: int):
     train_env = learner.training_env(env, env_config, hyper)
     seen = train_env.observer if isinstance(train_env, observer.Observed) else None
     fns = learner.build(train_env, hyper)
-    parts = Built(learner, env_config, config, hyper, seed, env, train_env, seen, fns)
+    ratio = config.updates_per_step()
+    parts = Built(learner, env_config, config, hyper, seed, env, train_env, seen, fns, ratio)
     return parts, env_params
 
 
