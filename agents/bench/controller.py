@@ -1,6 +1,6 @@
 """The controller protocol of the bench: what the control loop (``agents.bench.loop.Loop``) drives,
 a frozen controller (``agents.bench.loop.Agent``) or an online learner's actor
-(``agents.bench.learn_actor.Actor``).
+(``agents.bench.learning.actor.Actor``).
 
 Per run the loop calls ``start`` with the first observation, then per control step ``offsets`` for
 each of the ``probes`` probes in turn (their results filled in as they are measured), ``act`` for

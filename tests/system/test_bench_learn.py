@@ -432,12 +432,12 @@ def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
         SimpleNamespace(from_=None, seed=3),
     )
     learner = bench_learn.off_policy_learner("droq")
-    env_config, config, _, start = bench_learn._settings(
+    env_config, config, _, start = bench_learn.settings(
         args, learner, mapping, None, {}, {"hidden": [16, 16]}
     )
     assert config.config == "budget" and config.observer == "none", config
     assert start is None and env_config["observe_lengths"] is False, env_config
-    _, c = bench_learn._settings(
+    _, c = bench_learn.settings(
         args, learner, mapping, None, {}, {"config": "bench", "hidden": [16, 16]}
     )[:2]
     assert (c.config, c.observer, c.residual_scale, c.fit_starts, c.fit_iters) == (

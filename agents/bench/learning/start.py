@@ -1,32 +1,6 @@
-"""Learning on a bench: an off-policy learner of ``agents.learners.offpolicy.driver`` (DroQ, TD3)
-acting in the control loop of ``agents.bench`` and learning from the bench's own transitions.
-
-    python -m agents.bench --prefix OPS: --learn droq [--from DIR] --steps 20000 --out DIR \\
-        [--resume]
-
-The actor (the loop's thread, ``agents.bench.learn_actor.Actor``, an
-``agents.bench.controller.Controller``) hands each step's observation (``Loop.observe``: the
-simulator's layout) with the previous observation and action to the learner, and sends the
-exploration action of the newest actor network it was handed. The learner (a thread of its own,
-``agents.bench.learn_thread``) stores the transitions in the replay buffer, their reward the
-configuration's (``OPSEnv.reward``) at the detector's reading, and takes gradient steps one at a
-time as the wall clock allows, at most the config's ratio (``utd_ratio``) per env step after the
-warm-up; every ``PUBLISH_STEPS`` env steps it hands the actor a copy of the actor network (a swap
-under a lock). Its jitted programs: ``agents.bench.learn_programs``; its state and checkpoints:
-``agents.bench.learn_state``.
-
-A free-running bench has no reset and no terminal state: the task is continuing, every transition's
-discount 1 (every target bootstrapped). The warm-up is ``learning_starts`` transitions of uniform
-random actions, the observation statistics then frozen from them; from ``--from`` (a policy of
-``agents.save``) it is the policy's own exploration and its statistics are kept, as
-``agents.learners.offpolicy.driver`` continues a run.
-
-``DIR/checkpoint``, written every ``--checkpoint-every`` env steps and at the end
-(``agents.io.replace_dir``): an ``agents.save`` folder of the current policy
-(``--controller DIR/checkpoint`` runs it), ``learner.msgpack`` (networks, targets, optimiser states,
-replay buffer, gradient step count, PRNG key) and ``learner.json`` (``Counts``). ``--resume``
-continues from it; the actor's draws are keyed by the run's seed and env step.
-"""
+"""How a learning run on the bench starts (``agents.bench.learning``): its arguments checked, its
+settings (``settings``: from scratch, ``--from`` a policy or resumed), the learner built, restored
+or started from the policy (``setup``); ``Learning``: its parts for the runner."""
 
 from __future__ import annotations
 
@@ -38,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from agents import api as base, registry
-from agents.bench.learn_actor import Actor, Handover
-from agents.bench.learn_programs import Built, build, compile_programs
-from agents.bench.learn_state import Checkpoints, State, fresh, restore, start_from
-from agents.bench.learn_thread import GradientThread
+from agents.bench.learning.actor import Actor, Handover
+from agents.bench.learning.programs import Built, build, compile_programs
+from agents.bench.learning.state import Checkpoints, State, fresh, restore, start_from
+from agents.bench.learning.thread import GradientThread
 from agents.bench.loop import check_lengths
 from agents.io import kept_dir
 from agents.learners.offpolicy import driver as offpolicy
@@ -111,9 +85,7 @@ def default_stages(args, checkpoint: Path | None) -> int:
     return base.load(source).env_config.get("stages", 5) if source else 5
 
 
-def _settings(
-    args, learner, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict
-):
+def settings(args, learner, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict):
     """(env_config, the learner's config, seed, start: the ``--from`` or resumed TrainResult or
     None)."""
     stages, lengths = len(mapping["lines"]), all("length" in line for line in mapping["lines"])
@@ -160,7 +132,7 @@ def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper
     """(Learning, env_config, action scale (wl per unit), window (wl)) of the arguments on the bench
     of ``mapping``."""
     learner = off_policy_learner(args.learn)
-    env_config, config, seed, start = _settings(
+    env_config, config, seed, start = settings(
         args, learner, mapping, checkpoint, env_options, hyper
     )
     parts, env_params = build(learner, base.check_env_config(env_config), config, seed)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import api as base
-from agents.bench.learn_programs import Built
+from agents.bench.learning.programs import Built
 from agents.io import replace_dir, temp_dir, write_json_atomic
 from agents.learners.offpolicy import driver as offpolicy
 from agents.learners.offpolicy.checkpoint import is_key, raw_keys

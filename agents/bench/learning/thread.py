@@ -13,9 +13,9 @@ import time
 import jax
 import numpy as np
 
-from agents.bench.learn_actor import Handover
-from agents.bench.learn_programs import Built, Programs, acting
-from agents.bench.learn_state import Checkpoints, Counts, State
+from agents.bench.learning.actor import Handover
+from agents.bench.learning.programs import Built, Programs, acting
+from agents.bench.learning.state import Checkpoints, Counts, State
 from ops_jax.cli.progress import progress
 
 PUBLISH_STEPS = 10  # env steps between two hand-overs of the actor network

@@ -9,7 +9,7 @@ import threading
 import numpy as np
 
 from agents.bench.controller import Controller
-from agents.bench.learn_programs import Built, Programs
+from agents.bench.learning.programs import Built, Programs
 
 
 class Handover:
