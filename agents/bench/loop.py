@@ -13,6 +13,7 @@ import numpy as np
 import ops_jax
 from agents import api as base
 from agents.controllers import trim
+from agents.bench.controller import Controller
 from agents.bench.devices import Control, MappingError, SafetyStop, monitored, signals
 from agents.bench.flyer import LoopFlyer, fly
 from agents.bench.mapping import missing_lengths
@@ -25,7 +26,7 @@ USER_STOP = "user"  # the stop reason of a run the user ended at once (a second 
 log = logging.getLogger("agents.bench")
 
 
-class Agent:
+class Agent(Controller):
     """A controller on one instance (B = 1): ``start(obs)``, then per step the probe ``offsets`` in
     turn and the ``act``ion, with probe results filled in as they are measured. One jitted program;
     a step with K probes calls it K + 1 times (the policy is pure, so each call repeats the same
@@ -189,8 +190,8 @@ def reads_lengths(algo: str, hyper: dict | None) -> bool:
     if algo == "spgd":
         return False
     if algo == "physics":
-        h = base.ALGOS["physics"].settings(hyper or {})
-        return bool(h["use_lengths"] or h["lengths_only"])
+        config = base.ALGOS["physics"].config.from_hyper(hyper or {})
+        return bool(config.use_lengths or config.lengths_only)
     return True
 
 
@@ -216,7 +217,9 @@ def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
 class Loop:
     """The state of one run shared by the plan, the watchdog and the summary."""
 
-    def __init__(self, bench, lines, mapping, agent, scale, window, seconds, rate, steps=0):
+    def __init__(
+        self, bench, lines, mapping, agent: Controller, scale, window, seconds, rate, steps=0
+    ):
         self.bench, self.lines, self.mapping, self.agent = bench, lines, mapping, agent
         self.scale, self.window, self.seconds, self.period = scale, window, seconds, 1.0 / rate
         self.max_steps = steps

@@ -1,14 +1,19 @@
-"""What a run on the bench shows as it goes and when it ends: a controller's progress line
-(``progress``, the one a learner's run shows: a bar on a terminal, a plain line every 30 s
-elsewhere) and the run's summary in a few lines (``summary.json`` keeps the numbers)."""
+"""What a run on the bench shows as it goes and when it ends: the runner's lines on stderr
+(``say``), a controller's progress line (``progress``, the one a learner's run shows: a bar on a
+terminal, a plain line every 30 s elsewhere), ``summary.json`` (``summarize``), ``power.png``
+(``plot``) and the run's summary in a few lines (``readable``)."""
 
 from __future__ import annotations
 
 import math
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
+from agents.bench.loop import USER_STOP, Loop
+from ops_jax import lock
 from ops_jax.cli.progress import progress
 
 # (event key, name) of what the progress line shows of the score: the first the bench maps
@@ -17,6 +22,106 @@ SCORES = (
     ("bench_evaluation_p_pmax", "P / P_max"),
     ("bench_detector_power", "detector"),
 )
+
+
+def say(line: str) -> None:
+    """A line of the runner's on stderr."""
+    print(f"agents.bench.runner: {line}", file=sys.stderr, flush=True)
+
+
+def stopped_by(loop: Loop) -> str:
+    """How the run ended: ``"time"``, ``"steps"``, ``"user"`` (``USER_STOP``) or the watchdog's
+    reason."""
+    user = USER_STOP if loop.user_stop else None
+    return (
+        loop.stop_reason
+        or user
+        or ("steps" if 0 < loop.max_steps <= len(loop.rec["time_s"]) else "time")
+    )
+
+
+def summarize(loop: Loop, controller: str, elapsed: float) -> dict:
+    """``summary.json``: the score (the last 80 % of the run: of its time, in lockstep of its
+    frames, so that a lockstep score does not depend on the host's pace), achieved rates, latencies,
+    how it ended; the lock figures of P / P_best over the whole run at its achieved rate
+    (``ops_jax.lock.trace_json``)."""
+    rec = {k: np.asarray(v, float) for k, v in loop.rec.items()}
+    steps, t = len(rec["time_s"]), rec["time_s"]
+    if loop.advance is not None and steps:
+        tail = rec["tick"] >= rec["tick"][0] + 0.2 * (rec["tick"][-1] - rec["tick"][0])
+    else:
+        tail = t >= 0.2 * elapsed
+    pct = lambda v, q: float(np.percentile(v, q)) if v.size else float("nan")
+    mean = lambda v: float(np.mean(v)) if v.size else float("nan")
+    frames = float(rec["tick"][-1] - rec["tick"][0]) if steps > 1 else 0.0
+    return {
+        "controller": controller,
+        "stopped_by": stopped_by(loop),
+        "watchdog_time": loop.stopped_at,
+        "steps": steps,
+        "seconds": elapsed,
+        "rate_hz": steps / elapsed if elapsed > 0 else 0.0,
+        "frames_per_step": frames / (steps - 1) if steps > 1 else float("nan"),
+        "probes_per_step": loop.agent.probes,
+        "latency_ms_p50": pct(rec["latency_ms"], 50),
+        "latency_ms_p99": pct(rec["latency_ms"], 99),
+        "latency_ms_max": float(rec["latency_ms"].max())
+        if rec["latency_ms"].size
+        else float("nan"),
+        "decide_ms_p50": pct(rec["decide_ms"], 50),
+        "decide_ms_p99": pct(rec["decide_ms"], 99),
+        "cpu_ms_per_step": 1e3 * (time.process_time() - loop.cpu0) / steps
+        if steps
+        else float("nan"),
+        "p_over_pbest_mean": mean(rec["p_pbest"][tail]),
+        "p_over_pmax_mean": mean(rec["p_pmax"][tail]),
+        "clipped_moves": int(loop.lines.clipped.get()),
+        "wrapped_moves": int(loop.lines.wraps.get()),
+        "actions_cut": loop.actions_cut,
+        **lock.trace_json(rec["p_pbest"], steps / elapsed if elapsed > 0 and steps else None),
+    }
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (imported before a run: the end of a run is kept
+    short)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot(path: Path, loop: Loop, title: str, ratio=None, rate_hz=None) -> None:
+    """P / P_max and P / P_best against time; ``ratio``: (times (s), gradient steps per env step) on
+    a second axis; beside it the PSD of P / P_best after lock at ``rate_hz`` (control steps/s;
+    ``ops_jax.lock``)."""
+    plt = pyplot()
+    t = np.asarray(loop.rec["time_s"])
+    fig, (ax, psd_ax) = plt.subplots(1, 2, figsize=(11, 3.5), width_ratios=(3, 2))
+    _draw_psd(psd_ax, loop.rec["p_pbest"], rate_hz)
+    ax.plot(t, loop.rec["p_pbest"], lw=1, label="P / P_best")
+    ax.plot(t, loop.rec["p_pmax"], lw=1, alpha=0.7, label="P / P_max")
+    ax.set(xlabel="time (s)", ylabel="stacked power", ylim=(0, 1.05), title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    if ratio is not None:
+        twin = ax.twinx()
+        twin.plot(*ratio, color="C3", lw=1)
+        twin.set_ylabel("gradient steps per env step", color="C3")
+        twin.set_ylim(bottom=0)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _draw_psd(ax, trace, rate_hz) -> None:
+    """The PSD after lock of ``trace`` on ``ax``, or a note that the run is too short to score."""
+    if len(trace) < lock.MIN_STEPS:
+        ax.text(0.5, 0.5, "too short to score a lock", transform=ax.transAxes, ha="center")
+        return
+    lock.draw_psd(ax, lock.lock_figures(trace, rate_hz or None), label="P / P_best")
 
 
 class RunProgress:

@@ -106,7 +106,7 @@ def other_cores(core: int | None) -> set | None:
     ``core`` (None: any)."""
     if core is None:
         return None
-    from agents.bench.runner import usable_cores
+    from agents.bench.prepare import usable_cores
 
     return (usable_cores(core) - {core}) or None
 

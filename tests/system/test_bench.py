@@ -24,7 +24,7 @@ import jax  # noqa: E402
 from ophyd.sim import make_fake_device  # noqa: E402
 
 import agents  # noqa: E402
-from agents.bench import loop as bench_loop, runner  # noqa: E402
+from agents.bench import cli, loop as bench_loop, prepare, runner  # noqa: E402
 from agents.bench.devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
 from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
@@ -243,7 +243,7 @@ def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
     """``--cpu``: the threads running before and those started after run on that core only."""
     core = sorted(os.sched_getaffinity(0))[-1]
     code = (
-        "import os, threading; from agents.bench.runner import pin\n"
+        "import os, threading; from agents.bench.prepare import pin\n"
         "e = threading.Event(); t = threading.Thread(target=e.wait); t.start()\n"
         f"pin({core})\n"
         "u = threading.Thread(target=e.wait); u.start()\n"
@@ -257,7 +257,7 @@ def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == f"[frozenset({{{core}}})]"
     with pytest.raises(ValueError, match=r"--cpu must be one of the cores .* got 100000"):
-        runner.pin(100_000)
+        prepare.pin(100_000)
 
 
 def xla_pool_threads(pid) -> tuple[int, set]:
@@ -307,15 +307,15 @@ def test_single_threaded_start_gives_xla_one_pool_thread_and_leaves_the_cores_fr
 def test_settle_s_sets_the_detectors_settle_and_is_checked(tmp_path):
     """``--settle-s``: the mapping's ``detector.settle_s`` for the run; out of [0, 10] s it fails
     naming it."""
-    args = runner.parser().parse_args(
+    args = cli.parser().parse_args(
         ["--prefix", "X:", "--controller", "spgd", "--settle-s", "-0.001", "--out", str(tmp_path)]
     )
     with pytest.raises(ValueError, match=r"--settle-s must be in \[0, 10\] s, got -0.001"):
-        runner._setup(args)
+        prepare.setup(args)
     args.settle_s = 0.004
-    assert runner._setup(args)[0]["detector"]["settle_s"] == 0.004
+    assert prepare.setup(args).mapping["detector"]["settle_s"] == 0.004
     args.settle_s = None
-    assert runner._setup(args)[0]["detector"]["settle_s"] == 0.002
+    assert prepare.setup(args).mapping["detector"]["settle_s"] == 0.002
 
 
 def test_loop_flyer_pages_are_collected_between_steps():
@@ -433,7 +433,7 @@ def test_closing_channel_access_drops_only_caprotos_network_errors():
 def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
     """The rate cap's deadlines are one period apart, so a late wake-up does not delay the next
     step; after a stall of more than a period the schedule starts again."""
-    loop = runner.Loop.__new__(runner.Loop)
+    loop = bench_loop.Loop.__new__(bench_loop.Loop)
     loop.period, loop.deadline = 0.01, None
     start = time.perf_counter()
     loop.pace(start)
@@ -726,7 +726,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
         env,
         seed=1,
     )
-    loop = runner.Loop(
+    loop = bench_loop.Loop(
         bench, lines, sim_mapping("T:", 3), agent, scale, 1.0, seconds=1.0, rate=100.0
     )
     agent.start(np.zeros(env.observation_size))
@@ -1306,7 +1306,7 @@ def test_ctrl_c_while_the_runner_starts_prints_one_line_and_records_nothing(tmp_
 INTERRUPTS = """
 import json, os, random, signal, sys, threading, time
 from pathlib import Path
-from agents.bench import runner as bench
+from agents.bench import execute, loop as bench, report
 from agents.bench.devices import arm, check_mapping, connect, disconnect, make_bench, sim_mapping
 
 prefix, out, runs = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
@@ -1329,8 +1329,8 @@ for k in range(runs):
         os.kill(os.getpid(), signum)
     threading.Thread(target=interrupt, daemon=True).start()
     (out / str(k)).mkdir(parents=True)
-    elapsed = bench._run(loop, {"plan_name": "interrupts"}, out / str(k))
-    s = bench.summarize(loop, "spgd", elapsed)
+    elapsed = execute.run_plan(loop, {"plan_name": "interrupts"}, out / str(k))
+    s = report.summarize(loop, "spgd", elapsed)
     print(json.dumps({"stopped_by": s["stopped_by"], "steps": s["steps"],
                       "after_s": time.perf_counter() - sent[0]}), flush=True)
 disconnect(device)

@@ -14,7 +14,7 @@ pytest.importorskip("caproto")
 pytest.importorskip("ophyd")
 pytest.importorskip("bluesky")
 
-from agents.bench import defaults, runner, template  # noqa: E402
+from agents.bench import cli, defaults, runner, template  # noqa: E402
 from agents.bench.mapping import MappingError, check_mapping, sim_mapping  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
 
@@ -25,7 +25,7 @@ PREFIX = "FO:"
 def chosen(argv: list, mapping: dict) -> tuple:
     """``defaults.choose`` of the runner's arguments ``argv`` on ``mapping``: (--set items, wrap
     (wl), line)."""
-    args = runner.parser().parse_args([*argv, "--out", "unused"])
+    args = cli.parser().parse_args([*argv, "--out", "unused"])
     if args.wrap is not None:
         mapping = {**mapping, "safety": {**mapping.get("safety", {}), "wrap_wl": args.wrap}}
     items, resolved, line = defaults.choose(args, check_mapping(mapping))

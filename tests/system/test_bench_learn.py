@@ -17,7 +17,8 @@ pytest.importorskip("bluesky")
 from test_bench import START_S, bench_run, documents, finish  # noqa: E402
 
 from agents import api as base  # noqa: E402
-from agents.bench import learning as bench_learn
+from agents.bench import documents as bench_documents, learning as bench_learn
+from agents.bench.controller import Controller
 from agents.controllers import physics_informed
 from agents.learners.offpolicy import replay
 from agents.learners.offpolicy.checkpoint import raw_keys
@@ -371,12 +372,12 @@ def test_replace_dir_leaves_one_whole_folder(tmp_path):
 def test_resume_ends_the_last_line_of_the_documents(tmp_path):
     docs = tmp_path / "documents.jsonl"
     docs.write_text('{"name": "start"}\n{"name": "event"}\n{"name": "ev')
-    bench_learn.mend_documents(docs)
+    bench_documents.mend(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
-    bench_learn.mend_documents(docs)
+    bench_documents.mend(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
     docs.write_text('{"name": "start"}\n{"name": "event"}')  # whole, its newline not written yet
-    bench_learn.mend_documents(docs)
+    bench_documents.mend(docs)
     assert docs.read_text() == '{"name": "start"}\n{"name": "event"}\n'
 
 
@@ -431,22 +432,22 @@ def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
         SimpleNamespace(from_=None, seed=3),
     )
     learner = bench_learn.off_policy_learner("droq")
-    env_config, h, _, start = bench_learn._settings(
+    env_config, config, _, start = bench_learn.settings(
         args, learner, mapping, None, {}, {"hidden": [16, 16]}
     )
-    assert h["config"] == "budget" and h.get("observer", "none") == "none", h
+    assert config.config == "budget" and config.observer == "none", config
     assert start is None and env_config["observe_lengths"] is False, env_config
-    _, h = bench_learn._settings(
+    _, c = bench_learn.settings(
         args, learner, mapping, None, {}, {"config": "bench", "hidden": [16, 16]}
     )[:2]
-    assert (h["config"], h["observer"], h["residual_scale"], h["fit_starts"], h["fit_iters"]) == (
+    assert (c.config, c.observer, c.residual_scale, c.fit_starts, c.fit_iters) == (
         "bench",
         "fit-residual",
         0.25,
         4,
         6,
-    ), h
-    assert list(h["hidden"]) == [16, 16] and h["utd_ratio"] == 10.0, h
+    ), c
+    assert list(c.hidden) == [16, 16] and c.utd_ratio == 10.0, c
 
 
 def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, compiles):
@@ -455,28 +456,28 @@ def test_learner_compiles_once_and_its_checkpoint_restores_its_state(tmp_path, c
     learning = _learning(tmp_path, 200, resume=False)
     obs = (
         np.random.default_rng(0)
-        .uniform(-1, 1, (201, learning.env.observation_size))
+        .uniform(-1, 1, (201, learning.parts.env.observation_size))
         .astype(np.float32)
     )
     with compiles() as n:
         learning.begin(200, lambda exc: None)
-        learning.start(obs[0])
+        learning.actor.start(obs[0])
         actions = [
-            learning.act(o, np.zeros(0)) for o in obs[1:] if time.sleep(0.002) is None
+            learning.actor.act(o, np.zeros(0)) for o in obs[1:] if time.sleep(0.002) is None
         ]  # a 500 Hz loop
-        learning.finish()
-    assert n[0] == 0 and learning.error is None
-    assert np.all(np.abs(actions) <= 1) and learning.counts.learn_steps > 0
-    assert learning.counts.learn_steps == int(learning.ts.updates)
+        learning.thread.finish()
+    assert n[0] == 0 and learning.thread.error is None and isinstance(learning.actor, Controller)
+    assert np.all(np.abs(actions) <= 1) and learning.state.counts.learn_steps > 0
+    assert learning.state.counts.learn_steps == int(learning.state.ts.updates)
     leaves = lambda ts: {
         jax.tree_util.keystr(k): np.asarray(v)
         for k, v in jax.tree_util.tree_leaves_with_path(  # noqa: E731
-            jax.device_get(raw_keys(ts._saved()))
+            jax.device_get(raw_keys(ts.state.saved()))
         )
     }
     saved = leaves(learning)
     again = _learning(tmp_path, 300, resume=True)
-    assert again.counts == learning.counts and again.warm_obs is None
+    assert again.state.counts == learning.state.counts and again.state.warm_obs is None
     restored = leaves(again)
     assert saved.keys() == restored.keys() and any("buffer" in k for k in saved), sorted(saved)
     assert all(np.array_equal(saved[k], restored[k]) for k in saved), [
@@ -494,30 +495,32 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
     learner's corrections, not the moves sent (the fit's move added). A move the bench's limits cut
     is told to the fit, and stored where the action is the move."""
     learning = _learning(tmp_path, 120, resume=False, observer=kind)
-    d = learning.env.observation_size
+    d = learning.parts.env.observation_size
     assert (
-        learning.train_env.observation_size == d + 2
+        learning.parts.train_env.observation_size == d + 2
     )  # 3 stages, detector "total": 2 fitted lines
     obs = np.random.default_rng(1).uniform(-1, 1, (121, d)).astype(np.float32)
-    scale = physics_informed.policy_params(learning.env_config)["action_scale"]
+    scale = physics_informed.policy_params(learning.parts.env_config)["action_scale"]
     with compiles() as n:
         learning.begin(120, lambda exc: None)
-        learning.start(obs[0])
+        learning.actor.start(obs[0])
         actions = []
         for i, o in enumerate(obs[1:]):
-            actions.append(learning.act(o, np.zeros(0)))
+            actions.append(learning.actor.act(o, np.zeros(0)))
             if (
                 i == 60
             ):  # the bench's limits cut this step's move: the fit is told it, and the stored step
                 actions[-1] = done = np.array([0.5, -0.25, 0.0])
-                assert learning.tell(done)
+                assert learning.actor.tell(done)
                 np.testing.assert_allclose(
-                    np.asarray(learning.seen["dz_prev"])[0], done[:2] * scale, rtol=1e-6
+                    np.asarray(learning.actor.seen["dz_prev"])[0], done[:2] * scale, rtol=1e-6
                 )
-                assert np.array_equal(learning.prev[1], done) == (kind == "fit")
-        learning.finish()
-    assert n[0] == 0 and learning.error is None and np.all(np.abs(actions) <= 1)
-    _, batch = replay.replay_buffer(learning.train_env, learning.h).sample(learning.ts.buffer)
+                assert np.array_equal(learning.actor.prev[1], done) == (kind == "fit")
+        learning.thread.finish()
+    assert n[0] == 0 and learning.thread.error is None and np.all(np.abs(actions) <= 1)
+    _, batch = replay.replay_buffer(learning.parts.train_env, learning.parts.hyper).sample(
+        learning.state.ts.buffer
+    )
     fitted = np.asarray(batch["obs"])[:, d:]
     assert fitted.shape[1] == 2 and np.any(fitted != 0) and np.all(np.abs(fitted) <= 0.25)
     sent = np.asarray(actions)

@@ -138,9 +138,9 @@ def test_the_watchdog_stop_exits_3_and_the_bench_writes_strict_json(tmp_path):
     assert runner.wait(60) == 3, runner.text()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text(), parse_constant=reject)
     assert summary["stopped_by"].startswith("lost connection to PV EXW:"), summary
-    events = [
-        json.loads(line, parse_constant=reject)
-        for line in documents.read_text().splitlines()
-        if line.startswith('{"name": "event"')
+    parsed = [
+        json.loads(line, parse_constant=reject) for line in documents.read_text().splitlines()
     ]
-    assert len(events) >= 10
+    names = [doc["name"] for doc in parsed]
+    assert names[:2] == ["start", "descriptor"] and names[-1] == "stop", names[:3] + names[-3:]
+    assert names.count("event") >= 10
