@@ -516,21 +516,36 @@ def test_reality_report_writes_table_csv_and_figure(tmp_path):
         "spgd/ideal": {"none": [0.99, 0.98], "lab": [0.97, 0.96], "2x lab": [0.9, 0.91]},
         "ppo/randomised": {"none": [0.9, 0.7], "lab": [0.5, 0.6], "2x lab": [0.4, 0.45]},
     }
+    ideal = imperfections.Ceilings(None, None, "the ideal system", 64, 0)
+    ceilings = {
+        "none": ideal,
+        "lab": imperfections.Ceilings(0.98, 0.99, None, 64, 0),
+        "2x lab": imperfections.Ceilings(0.95, 0.98, None, 64, 0),
+    }
     reality.report(
         tmp_path,
         results,
         dict(seeds=2, episodes=8),
         "python -m benchmarks.sweep --only reality",
         60.0,
+        ceilings=ceilings,
     )
     md = (tmp_path / "reality.md").read_text()
     assert "| SPGD (ideal) | 0.9850 ± 0.0050 |" in md and "PPO (randomised)" in md
     assert "**" not in md and "No bold: 2 seeds" in md  # too few seeds to tell values apart
+    # against the ceilings: SPGD's lab mean 0.965 over 0.98 and 0.99; none at the ideal level
+    assert "| SPGD (ideal) | lab | 0.9650 | 0.9800 | 0.9900 | 0.9847 | 0.9747 |" in md
+    assert "| PPO (randomised) | 2x lab | 0.4250 | 0.9500 | 0.9800 | 0.4474 | 0.4337 |" in md
+    assert "| SPGD (ideal) | none | 0.9850 | – | – | – | – |" in md
+    assert "none: the ideal system" in md and "64 draws from seed 0" in md
     rows = (tmp_path / "reality.csv").read_text().splitlines()
     assert (
-        rows[0] == "controller,trained,level,mean,std,seeds,iqm,iqm_ci_lo,iqm_ci_hi"
+        rows[0]
+        == "controller,trained,level,mean,std,seeds,iqm,iqm_ci_lo,iqm_ci_hi,held,predicted,"
+        "mean_over_held,mean_over_predicted"
         and len(rows) == 7
     )
+    assert rows[1].endswith(",,,,") and rows[2].endswith(",0.980000,0.990000,0.984694,0.974747")
     assert (tmp_path / "reality.png").stat().st_size > 1000
 
 
