@@ -486,6 +486,7 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
     counted out."""
     from benchmarks.sweep.lock_table import lock_table
     from benchmarks.sweep.paper import MODES
+    from benchmarks.sweep.plan import table1_ceilings
     from ops_jax import lock
 
     k = np.arange(100)
@@ -506,7 +507,8 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
         for s in (0, 1):
             runs[mode, "td3", s] = {"train_env": old, "test_env": old}
     runs["hard", "td3", 1] = {"train_env": old, "test_env": stored(np.stack([never, never]))}
-    lock_table(tmp_path, runs, dict(algos=["spgd", "td3"], seeds=2, episodes=2, name="synthetic"))
+    p = dict(algos=["spgd", "td3"], seeds=2, episodes=2, name="synthetic")
+    lock_table(tmp_path, runs, p, table1_ceilings())
     md = (tmp_path / "lock.md").read_text()
     # SPGD testing: seed medians 20 and 50 -> 35 ± 15; RMS 0 (a flat lock)
     assert "| easy | testing | SPGD | 100% | 35 ± 15 | 0.00 ± 0.00 |" in md
@@ -514,3 +516,34 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
     assert "| easy | testing | TD3 | – | – | – |" in md
     assert "| hard | testing | TD3 | 0% (1 of 2 seeds) | not reached | not locked |" in md
     assert "the band within 2% of its held level" in md
+    # the table-1 environments are ideal: no ceiling, the reason named for each mode; TD3's old
+    # cells hold their final score, SPGD's synthetic summaries none
+    assert "| easy | testing | SPGD | 100% | 35 ± 15 | 0.00 ± 0.00 | – | – | – | – | – |" in md
+    assert "| easy | testing | TD3 | – | – | – | 0.5000 | – | – | – | – |" in md
+    assert all(f"{m}: the ideal system: no imperfections" in md for m in MODES)
+
+
+def test_lock_table_gives_the_score_as_a_fraction_of_each_ceiling(tmp_path):
+    """lock.md's ceiling columns: the seeds' mean final P / P_best, the mode's held and predicted
+    ceilings and the score over each."""
+    from benchmarks.sweep.lock_table import lock_table
+    from benchmarks.sweep.paper import MODES
+    from ops_jax.imperfections import Ceilings
+
+    summary = lambda final: {"summary": {"final_mean_best": final, "fraction_locked": None}}
+    runs = {
+        (mode, "spgd", s): {"train_env": summary(0.9 + s / 100), "test_env": summary(0.8)}
+        for mode in MODES
+        for s in (0, 1)
+    }
+    ceilings = {mode: Ceilings(0.95, 0.98, None, 128, 3) for mode in MODES}
+    lock_table(tmp_path, runs, dict(algos=["spgd"], seeds=2, episodes=2, name="x"), ceilings)
+    md = (tmp_path / "lock.md").read_text()
+    # training: (0.90 + 0.91) / 2 = 0.905; 0.905 / 0.95 = 0.9526, / 0.98 = 0.9235
+    assert (
+        "| hard | training | SPGD | – | – | – | 0.9050 | 0.9500 | 0.9800 | 0.9526 | 0.9235 |" in md
+    )
+    assert (
+        "| easy | testing | SPGD | – | – | – | 0.8000 | 0.9500 | 0.9800 | 0.8421 | 0.8163 |" in md
+    )
+    assert "128 draws from seed 3" in md and "no ceiling missing" in md
