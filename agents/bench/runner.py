@@ -470,6 +470,7 @@ def main(argv=None) -> int:
             for name in QUIET_LOGGERS:
                 logging.getLogger(name).removeFilter(quiet)
         summary = summarize(loop, label, elapsed)
+        summary.update(report.ceilings(summary))  # unknown here: benchmarks.lab adds them
         if learning:
             learning.finish()
             summary.update(learning.report())
