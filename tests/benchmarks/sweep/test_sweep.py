@@ -114,6 +114,32 @@ def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
     assert {len(u.seeds) for u in units if u.kind == "train" and u.algo == "ppo"} == {1}
 
 
+def test_reality_report_of_the_quick_preset_reads_each_score_against_its_levels_ceilings(tmp_path):
+    """The reality section's report (quick preset): reality.md and reality.csv carry the held and
+    predicted ceilings of each imperfect level (``ops_jax.imperfections.ceilings`` of its test
+    environment), the scores over each, and the ideal level's reason for having none."""
+    from benchmarks.sweep.reality import LEVELS, Reality, level_ceilings, level_env
+    from ops_jax.imperfections import ceilings
+
+    preset = sweep.build_preset(
+        argparse.Namespace(quick=True, preset="default", seeds=None, algos=None)
+    )
+    results = {"spgd/ideal": {level: [0.9, 0.94] for level, _ in LEVELS}}
+    Reality().report(argparse.Namespace(out=tmp_path, preset=preset), results)
+    lab = ceilings(level_env(1.0))
+    assert level_ceilings()["lab"] is lab and level_ceilings()["none"].held is None
+    md = (tmp_path / "reality.md").read_text()
+    assert (
+        f"| SPGD (ideal) | lab | 0.9200 | {lab.held:.4f} | {lab.predicted:.4f} | "
+        f"{0.92 / lab.held:.4f} | {0.92 / lab.predicted:.4f} |" in md
+    )
+    assert "| SPGD (ideal) | none | 0.9200 | – | – | – | – |" in md
+    assert "none: the ideal system" in md and "4,096 draws from seed 0" in md
+    assert 0.95 < lab.held < lab.predicted < 1.0  # the lab preset: vibration held, then predicted
+    rows = (tmp_path / "reality.csv").read_text().splitlines()
+    assert rows[0].endswith(",held,predicted,mean_over_held,mean_over_predicted")
+
+
 def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     preset = sweep.build_preset(
         argparse.Namespace(quick=True, preset="default", seeds=None, algos=None)
