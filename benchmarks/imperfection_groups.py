@@ -117,9 +117,10 @@ def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
     """P / P_best of lines held at the P_best offsets on bench ``env_config``: "held" through the
     vibration, and "predicted" with the vibration's one-step prediction taken off
     (``ops_jax.imperfections.ceilings``)."""
+    from ops_jax import EnvSpec
     from ops_jax.imperfections import ceilings
 
-    found = ceilings(env_config, seed=seed, samples=samples)
+    found = ceilings(EnvSpec.from_options(env_config), seed=seed, samples=samples)
     return {"held": found.held, "predicted": found.predicted}
 
 

@@ -68,14 +68,14 @@ def ceilings(summary: dict, bench_env: dict | None = None) -> dict:
     ``bench_env`` (None: unknown), the run's ``p_over_pbest_mean`` as a fraction of each
     (``p_over_held_mean``, ``p_over_held_predicted_mean``), ``held_power_reason`` where there are
     none."""
-    from ops_jax import imperfections
+    from ops_jax import EnvSpec, imperfections
 
     if bench_env is None:
         found = imperfections.Ceilings(
             None, None, UNKNOWN_BENCH, imperfections.CEILING_SAMPLES, imperfections.CEILING_SEED
         )
     else:
-        found = imperfections.ceilings(bench_env)
+        found = imperfections.ceilings(EnvSpec.from_options(bench_env))
     score = summary.get("p_over_pbest_mean")
     score = score if isinstance(score, float) and math.isfinite(score) else None
     over_held, over_predicted = found.fractions(score)

@@ -152,9 +152,10 @@ def best_ratios() -> dict:
 def level_ceilings() -> dict:
     """The ``ops_jax.imperfections.ceilings`` of each level's test environment (None with the
     reason for the ideal level)."""
+    from ops_jax import EnvSpec
     from ops_jax.imperfections import ceilings
 
-    return {name: ceilings(level_env(scale)) for name, scale in LEVELS}
+    return {name: ceilings(EnvSpec.from_options(level_env(scale))) for name, scale in LEVELS}
 
 
 def _ceiling(value) -> str:

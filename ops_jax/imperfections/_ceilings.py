@@ -179,19 +179,22 @@ class Ceilings:
         )
 
 
-def ceilings(env_config, *, seed: int = CEILING_SEED, samples: int = CEILING_SAMPLES) -> Ceilings:
-    """The ``Ceilings`` of the environment of ``env_config`` (an ``ops_jax.EnvSpec`` or a dict of
-    ``ops_jax.make`` options): ``held_power`` without and with ``predict`` over ``samples`` draws
-    from ``jax.random.key(seed)``, over P_best; None with the reason for an ideal environment
-    (nothing to hold against) or a randomised one (a new bench each episode). Deterministic, and
-    computed once per configuration, seed and samples in a process."""
-    from ops_jax.spec import EnvSpec
-
+def ceilings(spec, *, seed: int = CEILING_SEED, samples: int = CEILING_SAMPLES) -> Ceilings:
+    """The ``Ceilings`` of the environment of ``spec`` (an ``ops_jax.EnvSpec``): ``held_power``
+    without and with ``predict`` over ``samples`` draws from ``jax.random.key(seed)``, over P_best;
+    None with the reason for an ideal environment (nothing to hold against) or a randomised one (a
+    new bench each episode). Deterministic, and computed once per spec, seed and samples in a
+    process."""
+    if not (callable(getattr(spec, "make", None)) and callable(getattr(spec, "as_dict", None))):
+        raise TypeError(
+            "spec must be an ops_jax.EnvSpec (ops_jax.EnvSpec.from_options(options) for a dict of "
+            f"ops_jax.make options), got {type(spec).__name__}"
+        )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
-    return _ceilings(EnvSpec.from_options(env_config), int(seed), int(samples))
+    return _ceilings(spec, int(seed), int(samples))
 
 
 @functools.lru_cache(maxsize=64)

@@ -388,12 +388,13 @@ def test_held_power_refuses_a_batch_of_benches():
 
 
 HELD_BENCH = dict(stages=3, mode="hard", model="phasor", waveplate_error_deg=(2.0, -1.5, 1.0))
+held_spec = lambda **options: ops_jax.EnvSpec(**{**HELD_BENCH, **options})
 
 
 def test_ceilings_without_vibration_are_p_best():
     """No vibration, no pulse noise: lines held at the P_best offsets hold P_best, predicted or
     not (the other imperfections play no part)."""
-    found = imperfections.ceilings(dict(HELD_BENCH, backlash_wl=0.01), seed=0, samples=64)
+    found = imperfections.ceilings(held_spec(backlash_wl=0.01), seed=0, samples=64)
     assert found.reason is None and found.samples == 64 and found.seed == 0
     assert found.held == pytest.approx(1.0, rel=1e-5)
     assert found.predicted == pytest.approx(1.0, rel=1e-5)
@@ -402,9 +403,9 @@ def test_ceilings_without_vibration_are_p_best():
 def test_ceilings_are_held_power_over_p_best_the_prediction_above_and_cached():
     """On a bench shaken by the 1/f background and two resonances (AR(2) processes): both ceilings
     are ``held_power`` over P_best from ``jax.random.key(seed)``, the prediction's above the held
-    one; an EnvSpec and its dict give the one cached answer, another seed a close one."""
+    one; two equal specs give the one cached answer, another seed a close one."""
     options = dict(HELD_BENCH, vib_rms=0.02, resonance_rms=(0.015, 0.01))
-    found = imperfections.ceilings(options, seed=3, samples=2048)
+    found = imperfections.ceilings(ops_jax.EnvSpec(**options), seed=3, samples=2048)
     env, params = ops_jax.make(**options)
     p_best, key = float(params.lab.p_best), jax.random.key(3)
     held = imperfections.held_power(env.config, params.lab, key, 2048) / p_best
@@ -412,8 +413,9 @@ def test_ceilings_are_held_power_over_p_best_the_prediction_above_and_cached():
     assert found.held == pytest.approx(held, rel=1e-6)
     assert found.predicted == pytest.approx(predicted, rel=1e-6)
     assert found.held < 0.97 < found.predicted < 1.0
-    assert imperfections.ceilings(ops_jax.EnvSpec(**options), seed=3, samples=2048) is found
-    other = imperfections.ceilings(options, seed=4, samples=2048)
+    again = imperfections.ceilings(ops_jax.EnvSpec.from_options(options), seed=3, samples=2048)
+    assert again is found
+    other = imperfections.ceilings(ops_jax.EnvSpec(**options), seed=4, samples=2048)
     assert other.held != found.held and other.held == pytest.approx(found.held, abs=0.02)
     assert found.fractions(0.95) == pytest.approx((0.95 / held, 0.95 / predicted))
     assert found.to_json() == dict(
@@ -424,8 +426,8 @@ def test_ceilings_are_held_power_over_p_best_the_prediction_above_and_cached():
 @pytest.mark.parametrize(
     "options, reason",
     [
-        (dict(stages=3, mode="hard"), "the ideal system"),
-        (dict(HELD_BENCH, vib_rms=0.01, randomize=0.5), "randomised"),
+        (ops_jax.EnvSpec(stages=3, mode="hard"), "the ideal system"),
+        (held_spec(vib_rms=0.01, randomize=0.5), "randomised"),
     ],
 )
 def test_ceilings_of_no_one_imperfect_bench_are_none_with_the_reason(options, reason):
@@ -440,7 +442,12 @@ def test_ceilings_of_no_one_imperfect_bench_are_none_with_the_reason(options, re
 )
 def test_ceilings_refuse_a_bad_seed_or_sample_count(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        imperfections.ceilings(HELD_BENCH, **kwargs)
+        imperfections.ceilings(held_spec(), **kwargs)
+
+
+def test_ceilings_take_an_env_spec_not_a_dict():
+    with pytest.raises(TypeError, match=r"spec must be an ops_jax.EnvSpec .*got dict"):
+        imperfections.ceilings(HELD_BENCH)
 
 
 @pytest.mark.parametrize(

@@ -812,7 +812,7 @@ def test_summary_ceilings_are_the_benchs_and_the_score_over_each(tmp_path):
     from agents.bench import report
 
     options = dict(stages=3, mode="hard", model="phasor", imperfections="lab")
-    known = ops_jax.imperfections.ceilings(options)
+    known = ops_jax.imperfections.ceilings(ops_jax.EnvSpec(**options))
     (tmp_path / "summary.json").write_text(json.dumps({"p_over_pbest_mean": 0.9, "steps": 5}))
     summary = report.add_ceilings(tmp_path, options)
     assert json.loads((tmp_path / "summary.json").read_text()) == summary and summary["steps"] == 5
@@ -1482,9 +1482,8 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
         summary["controller"] == "spgd" and summary["probes_per_step"] == 2
     )  # SPGD's probe and the trim's
     # the ceilings of the bench the lab started, written into the run's summary.json
-    ceilings = ops_jax.imperfections.ceilings(
-        lab.bench_env(lab.RunSettings(1, 100, 5, frames_only=True, seed=3))
-    )
+    bench = lab.bench_env(lab.RunSettings(1, 100, 5, frames_only=True, seed=3))
+    ceilings = ops_jax.imperfections.ceilings(ops_jax.EnvSpec.from_options(bench))
     assert summary["held_power"] == ceilings.held and row["held_power"] == ceilings.held
     assert summary["p_over_held_mean"] == pytest.approx(
         summary["p_over_pbest_mean"] / ceilings.held

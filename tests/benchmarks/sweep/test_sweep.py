@@ -119,6 +119,7 @@ def test_reality_report_of_the_quick_preset_reads_each_score_against_its_levels_
     predicted ceilings of each imperfect level (``ops_jax.imperfections.ceilings`` of its test
     environment), the scores over each, and the ideal level's reason for having none."""
     from benchmarks.sweep.reality import LEVELS, Reality, level_ceilings, level_env
+    from ops_jax import EnvSpec
     from ops_jax.imperfections import ceilings
 
     preset = sweep.build_preset(
@@ -126,7 +127,7 @@ def test_reality_report_of_the_quick_preset_reads_each_score_against_its_levels_
     )
     results = {"spgd/ideal": {level: [0.9, 0.94] for level, _ in LEVELS}}
     Reality().report(argparse.Namespace(out=tmp_path, preset=preset), results)
-    lab = ceilings(level_env(1.0))
+    lab = ceilings(EnvSpec.from_options(level_env(1.0)))
     assert level_ceilings()["lab"] is lab and level_ceilings()["none"].held is None
     md = (tmp_path / "reality.md").read_text()
     assert (
