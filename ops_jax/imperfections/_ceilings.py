@@ -1,7 +1,7 @@
 """The ceilings of a bench: P_best (the best P reachable with the static optics imperfections), its
 offsets, ``held_power`` (the mean P of lines held there under the vibration, with or without its
 prediction) and ``ceilings`` (both of an environment's, as fractions of P_best, cached per
-configuration)."""
+``ops_jax.EnvSpec``)."""
 
 from __future__ import annotations
 
