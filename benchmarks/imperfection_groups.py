@@ -116,18 +116,12 @@ def measure(args) -> list[dict]:
 def ceiling(env_config: dict, seed: int, samples: int = 8192) -> dict:
     """P / P_best of lines held at the P_best offsets on bench ``env_config``: "held" through the
     vibration, and "predicted" with the vibration's one-step prediction taken off
-    (``ops_jax.imperfections.held_power``)."""
-    import jax
+    (``ops_jax.imperfections.ceilings``)."""
+    from ops_jax import EnvSpec
+    from ops_jax.imperfections import ceilings
 
-    import ops_jax
-    from ops_jax.imperfections import held_power
-
-    env, params = ops_jax.make(**env_config)
-    p_best, key = float(params.lab.p_best), jax.random.key(seed)
-    return {
-        k: held_power(env.config, params.lab, key, samples, predict=k == "predicted") / p_best
-        for k in ("held", "predicted")
-    }
+    found = ceilings(EnvSpec.from_options(env_config), seed=seed, samples=samples)
+    return {"held": found.held, "predicted": found.predicted}
 
 
 def columns(args) -> list:

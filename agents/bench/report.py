@@ -1,7 +1,8 @@
 """What a run on the bench shows as it goes and when it ends: the runner's lines on stderr
 (``say``), a controller's progress line (``progress``, the one a learner's run shows: a bar on a
-terminal, a plain line every 30 s elsewhere), ``summary.json`` (``summarize``), ``power.png``
-(``plot``) and the run's summary in a few lines (``readable``)."""
+terminal, a plain line every 30 s elsewhere), ``summary.json`` (``summarize``) with the bench's
+ceilings (``ceilings``, ``add_ceilings``), ``power.png`` (``plot``) and the run's summary in a few
+lines (``readable``)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from agents.bench.loop import USER_STOP, Loop
+from agents.io import read_json, write_json_atomic
 from ops_jax import lock
 from ops_jax.cli.progress import progress
+
+# why a run's summary holds no ceilings: the runner reads no imperfections off a bench
+UNKNOWN_BENCH = (
+    "the bench's imperfections are unknown to the runner (neither the mapping nor the bench's PVs "
+    "state them); benchmarks.lab, which starts the simulated bench, adds them"
+)
 
 # (event key, name) of what the progress line shows of the score: the first the bench maps
 SCORES = (
@@ -157,6 +165,41 @@ def _number(value, digits: str) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
     return format(value, digits)
+
+
+def ceilings(summary: dict, bench_env: dict | None = None) -> dict:
+    """The summary's ceilings: ``held_power`` and ``held_power_predicted`` (P / P_best,
+    ``ops_jax.imperfections.ceilings``) of the bench whose ``ops_jax.make`` options are
+    ``bench_env`` (None: unknown), the run's ``p_over_pbest_mean`` as a fraction of each
+    (``p_over_held_mean``, ``p_over_held_predicted_mean``), ``held_power_reason`` where there are
+    none."""
+    from ops_jax import EnvSpec, imperfections
+
+    if bench_env is None:
+        found = imperfections.Ceilings(
+            None, None, UNKNOWN_BENCH, imperfections.CEILING_SAMPLES, imperfections.CEILING_SEED
+        )
+    else:
+        found = imperfections.ceilings(EnvSpec.from_options(bench_env))
+    score = summary.get("p_over_pbest_mean")
+    score = score if isinstance(score, float) and math.isfinite(score) else None
+    over_held, over_predicted = found.fractions(score)
+    return {
+        **found.to_json(),
+        "held_power_samples": found.samples,
+        "p_over_held_mean": over_held,
+        "p_over_held_predicted_mean": over_predicted,
+    }
+
+
+def add_ceilings(folder: Path, bench_env: dict) -> dict:
+    """Rewrite ``folder``'s summary.json with the ``ceilings`` of the bench ``bench_env`` (the
+    simulated bench's ``ops_jax.make`` options, as the tooling that started it knows them); the
+    summary."""
+    summary = read_json(Path(folder) / "summary.json")
+    summary.update(ceilings(summary, bench_env))
+    write_json_atomic(Path(folder) / "summary.json", summary)
+    return summary
 
 
 def readable(summary: dict, out: Path) -> str:

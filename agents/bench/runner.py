@@ -130,6 +130,7 @@ def _fly(args, run: prepare.Setup, loop: Loop) -> dict:
                 shown.close()
             disconnect(loop.bench)
     summary = report.summarize(loop, run.label, elapsed)
+    summary.update(report.ceilings(summary))  # unknown here: benchmarks.lab adds them
     if learning:
         learning.thread.finish()
         summary.update(learning.report())

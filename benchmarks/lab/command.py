@@ -19,10 +19,12 @@ runner's ``--trim config=NAME``).
 
 Columns: the runner's control rate cap, achieved control steps per second, frames (IOC ticks) per
 step, step latency (from a frame's arrival to the last setpoint written) p50 / p99, the runner's CPU
-time per step (all its threads), mean P / P_best over the last 80 % of the run, and the early
-frames: steps whose frame, taken as the bench's answer to the step before, the IOC had computed
-before that step's move reached it (``early_frames`` of ``early_frames_checked`` steps, from the
-IOC's ``--tick-log``): the mapping's ``detector.settle_s`` was too short for them.
+time per step (all its threads), mean P / P_best over the last 80 % of the run and that as a
+fraction of the bench's held and predicted ceilings (``ops_jax.imperfections.ceilings``, known here
+from the IOC's options and written into each run's summary.json), and the early frames: steps whose
+frame, taken as the bench's answer to the step before, the IOC had computed before that step's move
+reached it (``early_frames`` of ``early_frames_checked`` steps, from the IOC's ``--tick-log``): the
+mapping's ``detector.settle_s`` was too short for them.
 """
 
 from __future__ import annotations
@@ -50,14 +52,17 @@ def table(rows: list) -> str:
     """The markdown table of ``rows`` (one per run: its summary with the row's labels)."""
     head = (
         "| controller | bench seed | first tick | rate cap (Hz) | steps/s | frames/step | "
-        "latency p50 / p99 (ms) | CPU ms/step | P / P_best | clipped / wrapped moves | "
-        "early frames | stopped by |\n" + "|---" * 12 + "|"
+        "latency p50 / p99 (ms) | CPU ms/step | P / P_best | of held / predicted ceiling | "
+        "clipped / wrapped moves | early frames | stopped by |\n" + "|---" * 13 + "|"
     )
+    fraction = lambda v: "–" if v is None else f"{v:.4f}"
     body = [
         f"| {r['controller']} | {r['bench_seed']} | {r['first_tick']} | {r['rate']:g} | "
         f"{r['rate_hz']:.1f} | {r['frames_per_step']:.2f} | "
         f"{r['latency_ms_p50']:.2f} / {r['latency_ms_p99']:.2f} | {r['cpu_ms_per_step']:.2f} | "
-        f"{r['p_over_pbest_mean']:.4f} | {r['clipped_moves']} / {r['wrapped_moves']} | "
+        f"{r['p_over_pbest_mean']:.4f} | {fraction(r.get('p_over_held_mean'))} / "
+        f"{fraction(r.get('p_over_held_predicted_mean'))} | "
+        f"{r['clipped_moves']} / {r['wrapped_moves']} | "
         f"{r['early_frames']} / {r['early_frames_checked']} | {r['stopped_by']} |"
         for r in rows
     ]

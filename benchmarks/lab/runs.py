@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from agents.bench.report import add_ceilings
 from agents.io import read_json
 from benchmarks.lab.processes import START_S, TICK_LOG, Process, early_frames, start_ioc
 
@@ -111,10 +112,11 @@ def other_cores(core: int | None) -> set | None:
     return (usable_cores(core) - {core}) or None
 
 
-def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
-    """``python -m agents.bench ARGS --out OUT``; its summary.json with ``first_tick``, the bench's
-    tick at the run's first step, and ``wall_s``, the process's seconds from its start (imports and
-    compiling included)."""
+def _run(out: Path, args: list, env: dict, timeout: float, bench: dict) -> dict:
+    """``python -m agents.bench ARGS --out OUT``; its summary.json, with the ceilings of the bench
+    whose ``ops_jax.make`` options are ``bench`` written into it (``agents.bench.report``), and
+    ``first_tick``, the bench's tick at the run's first step, and ``wall_s``, the process's seconds
+    from its start (imports and compiling included)."""
     t0 = time.monotonic()
     runner = Process("agents.bench", [*args, "--out", out], env, out.parent / f"{out.name}.log")
     rc = runner.wait(timeout)
@@ -128,7 +130,7 @@ def _run(out: Path, args: list, env: dict, timeout: float) -> dict:
     )
     early, checked = early_frames(out / "documents.jsonl", out.parent / TICK_LOG)
     return {
-        **read_json(out / "summary.json"),
+        **add_ceilings(out, bench),
         "first_tick": first["doc"]["data"]["bench_detector_tick"],
         "wall_s": wall_s,
         "early_frames": early,
@@ -150,24 +152,26 @@ def unseen_args(seed: int, scale: float) -> list:
     ]
 
 
-def _ioc(out: Path, run: RunSettings) -> Process:
-    """The simulated bench of ``run`` (``IOC_ARGS``), serving, on the cores the runner leaves."""
+def ioc_args(run: RunSettings) -> list:
+    """The arguments of ``run``'s simulated bench (``IOC_ARGS``)."""
     clock = ["--lockstep"] if run.lockstep else ["--rate", 100]
     drawn = unseen_args(run.seed, run.scale) if run.unseen else []
-    return start_ioc(
-        out,
-        "--prefix",
-        "OPS:",
-        *clock,
-        *IOC_ARGS,
-        "--imperfection-scale",
-        run.scale,
-        *drawn,
-        "--seed",
-        run.seed,
-        *(FRAMES_ONLY if run.frames_only else []),
-        cpus=other_cores(run.cpu),
-    )
+    own = ["--prefix", "OPS:", *clock, "--seed", run.seed]
+    frames = FRAMES_ONLY if run.frames_only else []
+    return own + IOC_ARGS + ["--imperfection-scale", run.scale, *drawn, *frames]
+
+
+def bench_env(run: RunSettings) -> dict:
+    """The ``ops_jax.make`` options of ``run``'s simulated bench, as the IOC reads its arguments."""
+    from ops_jax import ioc
+
+    ns = ioc.parser().parse_args([str(a) for a in ioc_args(run)])
+    return {"stages": ns.stages, "mode": ns.mode, **ioc.make_options(ns)}
+
+
+def _ioc(out: Path, run: RunSettings) -> Process:
+    """The simulated bench of ``run``, serving, on the cores the runner leaves."""
+    return start_ioc(out, *ioc_args(run), cpus=other_cores(run.cpu))
 
 
 def run_controller(
@@ -183,7 +187,8 @@ def run_controller(
         args = [*_bench_args(run), "--controller", controller, "--seconds", run.seconds]
         args += ["--lockstep", "--steps", run.lockstep] if run.lockstep else []
         args += _sets(sets) + _cpu(run.cpu) + ([] if trim is None else ["--trim", f"config={trim}"])
-        return _run(out / "run", args, ioc.env, START_S + 2 * run.seconds + run.lockstep)
+        timeout = START_S + 2 * run.seconds + run.lockstep
+        return _run(out / "run", args, ioc.env, timeout, bench_env(run))
     finally:
         ioc.kill()
 
@@ -239,12 +244,14 @@ def run_learning(out: Path, learning: LearnSettings, run: RunSettings) -> tuple[
         if learning.kill_after is not None:
             killed_after = _kill_at_first_checkpoint(out, learn, ioc.env, learning, run.rate)
             learn = [*own, "--resume"]  # the run's own settings, from its checkpoint
-        learned = _run(out / "learn", learn, ioc.env, START_S + 10 * learning.steps / run.rate)
+        bench = bench_env(run)
+        learn_s = START_S + 10 * learning.steps / run.rate
+        learned = _run(out / "learn", learn, ioc.env, learn_s, bench)
         if learning.kill_after is not None:
             learned["killed_after_s"] = killed_after
         checkpoint = [*_bench_args(run), "--controller", out / "learn" / "checkpoint"]
         checkpoint += ["--seconds", run.seconds, *_cpu(run.cpu)]
-        ran = _run(out / "run", checkpoint, ioc.env, START_S + 2 * run.seconds)
+        ran = _run(out / "run", checkpoint, ioc.env, START_S + 2 * run.seconds, bench)
         return learned, ran
     finally:
         ioc.kill()

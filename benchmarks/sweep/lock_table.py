@@ -1,5 +1,6 @@
 """lock.md of ``benchmarks.sweep``: each controller's lock figures (``ops_jax.lock``) per mode and
-evaluation environment, from the table-1 cells' evaluations (``agents.evaluate``'s summary)."""
+evaluation environment, from the table-1 cells' evaluations (``agents.evaluate``'s summary), and its
+final score against the environment's ceilings (``ops_jax.imperfections.ceilings``)."""
 
 from __future__ import annotations
 
@@ -39,8 +40,33 @@ def lock_cells(summaries: list) -> tuple:
     return f"{fraction:.0%}{seeds}", _steps_cell(steps), rms_cell
 
 
-def lock_table(out: Path, runs: dict, p: dict) -> None:
-    """lock.md: per mode, evaluation environment and controller, the table-1 cells' lock figures."""
+def ceiling_cells(summaries: list, ceiling) -> tuple:
+    """Table cells (final P / P_best, held, predicted, / held, / predicted): the seeds' mean final
+    score (``final_mean_best``, else ``final_mean``: the ideal system's P / P_max), the ceilings of
+    ``ceiling`` (an ``ops_jax.imperfections.Ceilings``) and the score as a fraction of each; a dash
+    where there is none."""
+    finals = [s.get("final_mean_best", s.get("final_mean")) for s in summaries]
+    score = float(np.mean(finals)) if finals and None not in finals else None
+    values = (score, ceiling.held, ceiling.predicted, *ceiling.fractions(score))
+    return tuple(DASH if v is None else f"{v:.4f}" for v in values)
+
+
+def _ceiling_note(ceilings: dict) -> str:
+    """The lines under lock.md's table on its ceiling columns (and why some are dashes)."""
+    first = next(iter(ceilings.values()))
+    reasons = sorted({f"{m}: {c.reason}" for m, c in ceilings.items() if c.reason is not None})
+    return (
+        "Ceilings (`ops_jax.imperfections.ceilings`, P / P_best, "
+        f"{first.samples:,} draws from seed {first.seed}): held, the lines held at the P_best "
+        "offsets through the vibration (the drift followed exactly); predicted, the same less the "
+        "vibration's one-step prediction from its exact past; the seeds' mean final score as a "
+        "fraction of each. –: " + ("; ".join(reasons) or "no ceiling missing") + "."
+    )
+
+
+def lock_table(out: Path, runs: dict, p: dict, ceilings: dict) -> None:
+    """lock.md: per mode, evaluation environment and controller, the table-1 cells' lock figures
+    and final score against the mode's ``ceilings`` ({mode: ``ops_jax.imperfections.Ceilings``})."""
     band = next(
         (
             _env_summary(r, env)["lock_band"]
@@ -63,13 +89,16 @@ def lock_table(out: Path, runs: dict, p: dict) -> None:
         "where some episode locked. –: cells stored before the lock figures were recorded (they "
         "keep only the mean curve over episodes, not each episode's).",
         "",
-        "| mode | evaluation env | controller | episodes locked | lock step | RMS after lock (%) |",
-        "|---|---|---|---|---|---|",
+        _ceiling_note(ceilings),
+        "",
+        "| mode | evaluation env | controller | episodes locked | lock step | RMS after lock (%) | "
+        "final P / P_best | held | predicted | / held | / predicted |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for mode in MODES:
         for env in ENVS:
             for algo in p["algos"]:
                 summaries = [_env_summary(runs[mode, algo, s], env) for s in range(p["seeds"])]
-                cells = " | ".join(lock_cells(summaries))
+                cells = " | ".join(lock_cells(summaries) + ceiling_cells(summaries, ceilings[mode]))
                 lines.append(f"| {mode} | {env} | {NAMES[algo]} | {cells} |")
     (out / "lock.md").write_text("\n".join(lines) + "\n")

@@ -22,7 +22,19 @@ from ops_jax import EnvSpec
 
 def table1_controller(mode: str, algo: str) -> Controller:
     """The table-1 controller of ``algo`` trained in ``mode`` (5 stages)."""
-    return Controller(prefix=f"table1-{mode}-{algo}", algo=algo, env=EnvSpec(stages=5, mode=mode))
+    return Controller(prefix=f"table1-{mode}-{algo}", algo=algo, env=table1_env(mode))
+
+
+def table1_env(mode: str) -> EnvSpec:
+    """The table-1 environment of ``mode``: 5 stages, the ideal system."""
+    return EnvSpec(stages=5, mode=mode)
+
+
+def table1_ceilings() -> dict:
+    """{mode: ``ops_jax.imperfections.ceilings`` of the table-1 environment of ``mode``}."""
+    from ops_jax.imperfections import ceilings
+
+    return {mode: ceilings(table1_env(mode)) for mode in MODES}
 
 
 def table1_units(sweep) -> list:
@@ -65,7 +77,7 @@ class Table1(Section):
         report_table1.table1(sweep.out, runs, sweep.preset)
         report.training_curves(sweep.out, runs, sweep.preset)
         report.testing_curves(sweep.out, runs, sweep.preset)
-        lock_table.lock_table(sweep.out, runs, sweep.preset)
+        lock_table.lock_table(sweep.out, runs, sweep.preset, table1_ceilings())
 
 
 class Table2(Table1):

@@ -138,6 +138,7 @@ class Reality(Section):
             results,
             sweep.preset,
             sweep.preset.get("command", "python -m benchmarks.sweep --only reality"),
+            ceilings=level_ceilings(),
         )
 
 
@@ -146,6 +147,47 @@ def best_ratios() -> dict:
     from agents.envs import best_ratio
 
     return {name: best_ratio(level_env(scale)) for name, scale in LEVELS}
+
+
+def level_ceilings() -> dict:
+    """The ``ops_jax.imperfections.ceilings`` of each level's test environment (None with the
+    reason for the ideal level)."""
+    from ops_jax import EnvSpec
+    from ops_jax.imperfections import ceilings
+
+    return {name: ceilings(EnvSpec.from_options(level_env(scale))) for name, scale in LEVELS}
+
+
+def _ceiling(value) -> str:
+    """A ceiling or a fraction of one to 4 decimals, a dash where there is none."""
+    return "–" if value is None else f"{value:.4f}"
+
+
+def _ceiling_lines(results: dict, ceilings: dict, names: list) -> list:
+    """reality.md's table against the ceilings: per controller and level the mean score, both
+    ceilings and the score as a fraction of each."""
+    first = next(c for c in ceilings.values())
+    reasons = sorted({f"{n}: {c.reason}" for n, c in ceilings.items() if c.reason is not None})
+    lines = [
+        "",
+        "Against the ceilings (`ops_jax.imperfections.ceilings`, P / P_best, "
+        f"{first.samples:,} draws from seed {first.seed}): held, the lines held at the P_best "
+        "offsets through the vibration and the pulses' noise (the drift followed exactly, the "
+        "vibration not at all); predicted, the same less the vibration's one-step prediction from "
+        "its exact past. The mean score over seeds as a fraction of each: above 1 on held, the "
+        "controller follows part of the vibration. –: " + ("; ".join(reasons) or "none") + ".",
+        "",
+        "| controller | level | final P / P_best | held | predicted | / held | / predicted |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for algo in results:
+        for n in names:
+            score = float(np.mean(results[algo][n]))
+            cells = [ceilings[n].held, ceilings[n].predicted, *ceilings[n].fractions(score)]
+            lines.append(
+                f"| {_label(algo)} | {n} | {score:.4f} | " + " | ".join(map(_ceiling, cells)) + " |"
+            )
+    return lines
 
 
 def _label(algo: str) -> str:
@@ -223,8 +265,9 @@ def _aggregate_lines(matrices: dict, command: str, wall_s: float | None) -> list
     ]
 
 
-def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
-    """reality.csv: per controller, training and level, the mean, std, seeds and IQM [95 % CI]."""
+def _write_csv(path: Path, results: dict, names: list, intervals: dict, ceilings: dict) -> None:
+    """reality.csv: per controller, training and level, the mean, std, seeds, IQM [95 % CI], the
+    held and predicted ceilings and the mean as a fraction of each (empty where none)."""
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -238,6 +281,10 @@ def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
                 "iqm",
                 "iqm_ci_lo",
                 "iqm_ci_hi",
+                "held",
+                "predicted",
+                "mean_over_held",
+                "mean_over_predicted",
             ]
         )
         for algo in results:
@@ -251,6 +298,14 @@ def _write_csv(path: Path, results: dict, names: list, intervals: dict) -> None:
                         f"{np.std(v):.6f}",
                         len(v),
                         *(f"{x:.6f}" for x in intervals[algo][n]),
+                        *(
+                            "" if x is None else f"{x:.6f}"
+                            for x in (
+                                ceilings[n].held,
+                                ceilings[n].predicted,
+                                *ceilings[n].fractions(float(np.mean(v))),
+                            )
+                        ),
                     ]
                 )
 
@@ -291,11 +346,17 @@ def _plot_levels(path: Path, results: dict, names: list) -> None:
 
 
 def report(
-    out: Path, results: dict, preset: dict, command: str, wall_s: float | None = None
+    out: Path,
+    results: dict,
+    preset: dict,
+    command: str,
+    wall_s: float | None = None,
+    *,
+    ceilings: dict,
 ) -> None:
-    """reality.md (Welch-bolded table, IQM [95 % CI], probability of improvement), reality.csv,
-    reality.json, reality.png and reality_profile.png (performance profile over the levels) in
-    ``out``."""
+    """reality.md (Welch-bolded table, IQM [95 % CI], the scores against the ``ceilings``, {level:
+    ``ops_jax.imperfections.Ceilings``}, probability of improvement), reality.csv, reality.json,
+    reality.png and reality_profile.png (performance profile over the levels) in ``out``."""
     from benchmarks import robust
     from benchmarks.sweep.report_table1 import performance_profile
 
@@ -305,10 +366,11 @@ def report(
     }
     matrices = {_label(a): np.array([results[a][n] for n in names]).T for a in results}
     lines = _score_lines(results, preset, names, intervals)
+    lines += _ceiling_lines(results, ceilings, names)
     lines += _aggregate_lines(matrices, command, wall_s)
     out.mkdir(parents=True, exist_ok=True)
     (out / "reality.md").write_text("\n".join(lines) + "\n")
-    _write_csv(out / "reality.csv", results, names, intervals)
+    _write_csv(out / "reality.csv", results, names, intervals, ceilings)
     write_json_atomic(out / "reality.json", results)
     _plot_levels(out / "reality.png", results, names)
     performance_profile(

@@ -9,10 +9,14 @@ only when its static ``EnvConfig.imperfect`` is set; otherwise the step is the i
 """
 
 from ops_jax.imperfections._ceilings import (
+    CEILING_SAMPLES,
+    CEILING_SEED,
     P_BEST_ITERS,
     P_BEST_STARTS,
+    Ceilings,
     best_offsets,
     best_power,
+    ceilings,
     held_power,
 )
 from ops_jax.imperfections._parameters import (
@@ -35,6 +39,9 @@ from ops_jax.imperfections._parameters import (
 from ops_jax.imperfections._state import LabState, advance, episode_values, reset, sense
 
 __all__ = [
+    "CEILING_SAMPLES",
+    "CEILING_SEED",
+    "Ceilings",
     "FIELDS",
     "LAYOUT",
     "NUM_RESONANCES",
@@ -53,6 +60,7 @@ __all__ = [
     "best_offsets",
     "best_power",
     "build",
+    "ceilings",
     "episode_values",
     "from_options",
     "held_power",

@@ -1,9 +1,11 @@
 """The ceilings of a bench: P_best (the best P reachable with the static optics imperfections), its
-offsets, and ``held_power`` (the mean P of lines held there under the vibration, with or without its
-prediction)."""
+offsets, ``held_power`` (the mean P of lines held there under the vibration, with or without its
+prediction) and ``ceilings`` (both of an environment's, as fractions of P_best, cached per
+``ops_jax.EnvSpec``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -17,6 +19,8 @@ from ops_jax.imperfections._state import advance, reset, sense
 
 P_BEST_STARTS = 4  # gradient-ascent starts: the ideal optimum and 3 draws within +-0.1 wl
 P_BEST_ITERS = 300
+CEILING_SAMPLES = 4096  # draws of ``ceilings``' held power
+CEILING_SEED = 0  # the seed of ``ceilings``' key
 
 
 def best_power(config, lab: Imperfections):
@@ -146,3 +150,68 @@ def _best_power_fn(n, model, detector):
         )
 
     return jax.jit(jax.vmap(one))
+
+
+@dataclasses.dataclass(frozen=True)
+class Ceilings:
+    """An environment's ceilings as fractions of P_best: ``held`` (``held_power``, lines held at the
+    P_best offsets through the vibration), ``predicted`` (the same less the vibration's one-step
+    prediction), both None with ``reason`` where the environment has no one bench to hold; the
+    ``samples`` and ``seed`` they were drawn with."""
+
+    held: float | None
+    predicted: float | None
+    reason: str | None
+    samples: int
+    seed: int
+
+    def fractions(self, score) -> tuple:
+        """(score / held, score / predicted) of a ``score`` in units of P_best (None where the
+        ceiling or the score is missing)."""
+        cut = lambda ceiling: None if ceiling is None or score is None else score / ceiling
+        return cut(self.held), cut(self.predicted)
+
+    def to_json(self) -> dict:
+        """``held_power``, ``held_power_predicted`` (P / P_best, None where unknown) and
+        ``held_power_reason`` (None where known)."""
+        return dict(
+            held_power=self.held, held_power_predicted=self.predicted, held_power_reason=self.reason
+        )
+
+
+def ceilings(spec, *, seed: int = CEILING_SEED, samples: int = CEILING_SAMPLES) -> Ceilings:
+    """The ``Ceilings`` of the environment of ``spec`` (an ``ops_jax.EnvSpec``): ``held_power``
+    without and with ``predict`` over ``samples`` draws from ``jax.random.key(seed)``, over P_best;
+    None with the reason for an ideal environment (nothing to hold against) or a randomised one (a
+    new bench each episode). Deterministic, and computed once per spec, seed and samples in a
+    process."""
+    if not (callable(getattr(spec, "make", None)) and callable(getattr(spec, "as_dict", None))):
+        raise TypeError(
+            "spec must be an ops_jax.EnvSpec (ops_jax.EnvSpec.from_options(options) for a dict of "
+            f"ops_jax.make options), got {type(spec).__name__}"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+    return _ceilings(spec, int(seed), int(samples))
+
+
+@functools.lru_cache(maxsize=64)
+def _ceilings(spec, seed: int, samples: int) -> Ceilings:
+    """``ceilings`` of an ``EnvSpec``, cached."""
+    env, params = spec.make()
+    lab = params.lab
+    reason = None
+    if not env.config.imperfect:
+        reason = "the ideal system: no imperfections, no vibration to hold against (P_best = P_max)"
+    elif float(lab.randomize) or float(lab.randomize_layout):
+        reason = "randomised imperfections: a new bench each episode, no one bench to hold"
+    if reason is not None:
+        return Ceilings(None, None, reason, samples, seed)
+    key, p_best = jax.random.key(seed), float(lab.p_best)
+    held, predicted = (
+        held_power(env.config, lab, key, samples, predict=predict) / p_best
+        for predict in (False, True)
+    )
+    return Ceilings(held, predicted, None, samples, seed)

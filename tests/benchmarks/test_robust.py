@@ -134,6 +134,7 @@ def test_table1_writes_iqm_intervals_improvement_and_a_profile(tmp_path):
 def test_reality_and_budget_reports_carry_iqm_and_improvement(tmp_path):
     from benchmarks.budget import plan as budget
     from benchmarks.sweep import reality
+    from ops_jax.imperfections import Ceilings
 
     results = {
         "spgd/ideal": {
@@ -147,8 +148,13 @@ def test_reality_and_budget_reports_carry_iqm_and_improvement(tmp_path):
             "2x lab": [0.4, 0.45, 0.5],
         },
     }
+    ceilings = {n: Ceilings(None, None, "not drawn here", 64, 0) for n in results["spgd/ideal"]}
     reality.report(
-        tmp_path, results, dict(seeds=3, episodes=8), "python -m benchmarks.sweep --only reality"
+        tmp_path,
+        results,
+        dict(seeds=3, episodes=8),
+        "python -m benchmarks.sweep --only reality",
+        ceilings=ceilings,
     )
     md = (tmp_path / "reality.md").read_text()
     assert "| SPGD (ideal) | 0.980 [" in md and "| PPO (randomised) | 0.800 [" in md

@@ -387,6 +387,69 @@ def test_held_power_refuses_a_batch_of_benches():
         imperfections.held_power(env.config, batched, jax.random.key(0), 8)
 
 
+HELD_BENCH = dict(stages=3, mode="hard", model="phasor", waveplate_error_deg=(2.0, -1.5, 1.0))
+held_spec = lambda **options: ops_jax.EnvSpec(**{**HELD_BENCH, **options})
+
+
+def test_ceilings_without_vibration_are_p_best():
+    """No vibration, no pulse noise: lines held at the P_best offsets hold P_best, predicted or
+    not (the other imperfections play no part)."""
+    found = imperfections.ceilings(held_spec(backlash_wl=0.01), seed=0, samples=64)
+    assert found.reason is None and found.samples == 64 and found.seed == 0
+    assert found.held == pytest.approx(1.0, rel=1e-5)
+    assert found.predicted == pytest.approx(1.0, rel=1e-5)
+
+
+def test_ceilings_are_held_power_over_p_best_the_prediction_above_and_cached():
+    """On a bench shaken by the 1/f background and two resonances (AR(2) processes): both ceilings
+    are ``held_power`` over P_best from ``jax.random.key(seed)``, the prediction's above the held
+    one; two equal specs give the one cached answer, another seed a close one."""
+    options = dict(HELD_BENCH, vib_rms=0.02, resonance_rms=(0.015, 0.01))
+    found = imperfections.ceilings(ops_jax.EnvSpec(**options), seed=3, samples=2048)
+    env, params = ops_jax.make(**options)
+    p_best, key = float(params.lab.p_best), jax.random.key(3)
+    held = imperfections.held_power(env.config, params.lab, key, 2048) / p_best
+    predicted = imperfections.held_power(env.config, params.lab, key, 2048, predict=True) / p_best
+    assert found.held == pytest.approx(held, rel=1e-6)
+    assert found.predicted == pytest.approx(predicted, rel=1e-6)
+    assert found.held < 0.97 < found.predicted < 1.0
+    again = imperfections.ceilings(ops_jax.EnvSpec.from_options(options), seed=3, samples=2048)
+    assert again is found
+    other = imperfections.ceilings(ops_jax.EnvSpec(**options), seed=4, samples=2048)
+    assert other.held != found.held and other.held == pytest.approx(found.held, abs=0.02)
+    assert found.fractions(0.95) == pytest.approx((0.95 / held, 0.95 / predicted))
+    assert found.to_json() == dict(
+        held_power=found.held, held_power_predicted=found.predicted, held_power_reason=None
+    )
+
+
+@pytest.mark.parametrize(
+    "options, reason",
+    [
+        (ops_jax.EnvSpec(stages=3, mode="hard"), "the ideal system"),
+        (held_spec(vib_rms=0.01, randomize=0.5), "randomised"),
+    ],
+)
+def test_ceilings_of_no_one_imperfect_bench_are_none_with_the_reason(options, reason):
+    found = imperfections.ceilings(options, seed=0, samples=8)
+    assert found.held is None and found.predicted is None and reason in found.reason
+    assert found.fractions(0.9) == (None, None)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [(dict(seed=-1), "seed must be"), (dict(samples=0), "samples must"), (dict(seed=1.5), "seed")],
+)
+def test_ceilings_refuse_a_bad_seed_or_sample_count(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        imperfections.ceilings(held_spec(), **kwargs)
+
+
+def test_ceilings_take_an_env_spec_not_a_dict():
+    with pytest.raises(TypeError, match=r"spec must be an ops_jax.EnvSpec .*got dict"):
+        imperfections.ceilings(HELD_BENCH)
+
+
 @pytest.mark.parametrize(
     "bad, match",
     [
@@ -516,21 +579,36 @@ def test_reality_report_writes_table_csv_and_figure(tmp_path):
         "spgd/ideal": {"none": [0.99, 0.98], "lab": [0.97, 0.96], "2x lab": [0.9, 0.91]},
         "ppo/randomised": {"none": [0.9, 0.7], "lab": [0.5, 0.6], "2x lab": [0.4, 0.45]},
     }
+    ideal = imperfections.Ceilings(None, None, "the ideal system", 64, 0)
+    ceilings = {
+        "none": ideal,
+        "lab": imperfections.Ceilings(0.98, 0.99, None, 64, 0),
+        "2x lab": imperfections.Ceilings(0.95, 0.98, None, 64, 0),
+    }
     reality.report(
         tmp_path,
         results,
         dict(seeds=2, episodes=8),
         "python -m benchmarks.sweep --only reality",
         60.0,
+        ceilings=ceilings,
     )
     md = (tmp_path / "reality.md").read_text()
     assert "| SPGD (ideal) | 0.9850 ± 0.0050 |" in md and "PPO (randomised)" in md
     assert "**" not in md and "No bold: 2 seeds" in md  # too few seeds to tell values apart
+    # against the ceilings: SPGD's lab mean 0.965 over 0.98 and 0.99; none at the ideal level
+    assert "| SPGD (ideal) | lab | 0.9650 | 0.9800 | 0.9900 | 0.9847 | 0.9747 |" in md
+    assert "| PPO (randomised) | 2x lab | 0.4250 | 0.9500 | 0.9800 | 0.4474 | 0.4337 |" in md
+    assert "| SPGD (ideal) | none | 0.9850 | – | – | – | – |" in md
+    assert "none: the ideal system" in md and "64 draws from seed 0" in md
     rows = (tmp_path / "reality.csv").read_text().splitlines()
     assert (
-        rows[0] == "controller,trained,level,mean,std,seeds,iqm,iqm_ci_lo,iqm_ci_hi"
+        rows[0]
+        == "controller,trained,level,mean,std,seeds,iqm,iqm_ci_lo,iqm_ci_hi,held,predicted,"
+        "mean_over_held,mean_over_predicted"
         and len(rows) == 7
     )
+    assert rows[1].endswith(",,,,") and rows[2].endswith(",0.980000,0.990000,0.984694,0.974747")
     assert (tmp_path / "reality.png").stat().st_size > 1000
 
 

@@ -805,6 +805,43 @@ def test_ioc_options_come_from_make():
         ioc.parser().parse_args(["--not-an-option", "1"])
 
 
+def test_summary_ceilings_are_the_benchs_and_the_score_over_each(tmp_path):
+    """``agents.bench.report``: a summary's ceilings of a known bench (``ops_jax.imperfections
+    .ceilings``) and its P / P_best over each, written into summary.json; unknown: null with the
+    reason; a NaN score (no steps) gives no fraction."""
+    from agents.bench import report
+
+    options = dict(stages=3, mode="hard", model="phasor", imperfections="lab")
+    known = ops_jax.imperfections.ceilings(ops_jax.EnvSpec(**options))
+    (tmp_path / "summary.json").write_text(json.dumps({"p_over_pbest_mean": 0.9, "steps": 5}))
+    summary = report.add_ceilings(tmp_path, options)
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary and summary["steps"] == 5
+    assert summary["held_power"] == known.held and summary["held_power_reason"] is None
+    assert summary["held_power_predicted"] == known.predicted > known.held
+    assert summary["p_over_held_mean"] == pytest.approx(0.9 / known.held)
+    assert summary["p_over_held_predicted_mean"] == pytest.approx(0.9 / known.predicted)
+    unknown = report.ceilings({"p_over_pbest_mean": 0.9})
+    assert unknown["held_power"] is None and unknown["p_over_held_predicted_mean"] is None
+    assert unknown["held_power_reason"] == report.UNKNOWN_BENCH
+    nan = report.ceilings({"p_over_pbest_mean": float("nan")}, options)
+    assert nan["held_power"] == known.held and nan["p_over_held_mean"] is None
+
+
+def test_lab_knows_its_benchs_options_as_the_ioc_reads_them():
+    """``benchmarks.lab.bench_env``: the ``ops_jax.make`` options of the IOC its runs start (scale,
+    unseen per-stage errors, frames only)."""
+    run = lab.RunSettings(seconds=1, rate=100, stale_s=1, scale=2.0, unseen=True, seed=1011)
+    env = lab.bench_env(run)
+    ns = ioc.parser().parse_args([str(a) for a in lab.ioc_args(run)])
+    assert env == {"stages": 5, "mode": "hard", **ioc.make_options(ns)}
+    assert env["imperfection_scale"] == 2.0 and env["imperfections"] == "lab"
+    assert "waveplate_error_deg" in env and env != lab.bench_env(
+        lab.RunSettings(seconds=1, rate=100, stale_s=1, scale=2.0, unseen=True, seed=1012)
+    )
+    frames = lab.bench_env(lab.RunSettings(seconds=1, rate=100, stale_s=1, frames_only=True))
+    assert frames["observe_lengths"] is False and frames["imperfection_scale"] == 1.0
+
+
 def test_light_imports_stay_light():
     code = (
         "import sys, ops_jax, agents; heavy = [m for m in ('caproto', 'ophyd', 'bluesky') if m in "
@@ -1014,6 +1051,9 @@ def test_run_end_to_end_with_clipped_moves(iocs, tmp_path):
     assert summary["probes_per_step"] == 1 and summary["frames_per_step"] >= 2
     assert 0 < summary["p_over_pbest_mean"] <= 1.5 and summary["latency_ms_p50"] > 0
     assert summary["clipped_moves"] > 0 and "clipped" in log
+    # the runner knows no bench's imperfections: its ceilings are null, and the reason says so
+    assert summary["held_power"] is None and summary["p_over_held_mean"] is None
+    assert "unknown to the runner" in summary["held_power_reason"]
     docs = documents(tmp_path)
     stamps = [d["doc"]["timestamps"] for d in docs if d["name"] == "event"]
     frame_at = np.array([t["bench_detector_tick"] for t in stamps[1:]])
@@ -1441,6 +1481,14 @@ def test_lab_benchmark_runs_frames_only_with_the_wrap_on_a_seeded_bench(tmp_path
     assert (
         summary["controller"] == "spgd" and summary["probes_per_step"] == 2
     )  # SPGD's probe and the trim's
+    # the ceilings of the bench the lab started, written into the run's summary.json
+    bench = lab.bench_env(lab.RunSettings(1, 100, 5, frames_only=True, seed=3))
+    ceilings = ops_jax.imperfections.ceilings(ops_jax.EnvSpec.from_options(bench))
+    assert summary["held_power"] == ceilings.held and row["held_power"] == ceilings.held
+    assert summary["p_over_held_mean"] == pytest.approx(
+        summary["p_over_pbest_mean"] / ceilings.held
+    )
+    assert f"| {summary['p_over_held_mean']:.4f} / " in lab.table(result["rows"])
     start = json.loads((run / "documents.jsonl").read_text().splitlines()[0])["doc"]
     assert start["mapping"]["safety"]["wrap_wl"] == 0.5 and all(
         "length" not in x for x in start["mapping"]["lines"]

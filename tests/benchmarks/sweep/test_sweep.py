@@ -114,6 +114,33 @@ def test_units_cover_every_cell_once_after_their_checkpoints(tmp_path):
     assert {len(u.seeds) for u in units if u.kind == "train" and u.algo == "ppo"} == {1}
 
 
+def test_reality_report_of_the_quick_preset_reads_each_score_against_its_levels_ceilings(tmp_path):
+    """The reality section's report (quick preset): reality.md and reality.csv carry the held and
+    predicted ceilings of each imperfect level (``ops_jax.imperfections.ceilings`` of its test
+    environment), the scores over each, and the ideal level's reason for having none."""
+    from benchmarks.sweep.reality import LEVELS, Reality, level_ceilings, level_env
+    from ops_jax import EnvSpec
+    from ops_jax.imperfections import ceilings
+
+    preset = sweep.build_preset(
+        argparse.Namespace(quick=True, preset="default", seeds=None, algos=None)
+    )
+    results = {"spgd/ideal": {level: [0.9, 0.94] for level, _ in LEVELS}}
+    Reality().report(argparse.Namespace(out=tmp_path, preset=preset), results)
+    lab = ceilings(EnvSpec.from_options(level_env(1.0)))
+    assert level_ceilings()["lab"] is lab and level_ceilings()["none"].held is None
+    md = (tmp_path / "reality.md").read_text()
+    assert (
+        f"| SPGD (ideal) | lab | 0.9200 | {lab.held:.4f} | {lab.predicted:.4f} | "
+        f"{0.92 / lab.held:.4f} | {0.92 / lab.predicted:.4f} |" in md
+    )
+    assert "| SPGD (ideal) | none | 0.9200 | – | – | – | – |" in md
+    assert "none: the ideal system" in md and "4,096 draws from seed 0" in md
+    assert 0.95 < lab.held < lab.predicted < 1.0  # the lab preset: vibration held, then predicted
+    rows = (tmp_path / "reality.csv").read_text().splitlines()
+    assert rows[0].endswith(",held,predicted,mean_over_held,mean_over_predicted")
+
+
 def test_reality_units_train_each_variant_then_test_it_at_each_level(tmp_path):
     preset = sweep.build_preset(
         argparse.Namespace(quick=True, preset="default", seeds=None, algos=None)
@@ -486,6 +513,7 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
     counted out."""
     from benchmarks.sweep.lock_table import lock_table
     from benchmarks.sweep.paper import MODES
+    from benchmarks.sweep.plan import table1_ceilings
     from ops_jax import lock
 
     k = np.arange(100)
@@ -506,7 +534,8 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
         for s in (0, 1):
             runs[mode, "td3", s] = {"train_env": old, "test_env": old}
     runs["hard", "td3", 1] = {"train_env": old, "test_env": stored(np.stack([never, never]))}
-    lock_table(tmp_path, runs, dict(algos=["spgd", "td3"], seeds=2, episodes=2, name="synthetic"))
+    p = dict(algos=["spgd", "td3"], seeds=2, episodes=2, name="synthetic")
+    lock_table(tmp_path, runs, p, table1_ceilings())
     md = (tmp_path / "lock.md").read_text()
     # SPGD testing: seed medians 20 and 50 -> 35 ± 15; RMS 0 (a flat lock)
     assert "| easy | testing | SPGD | 100% | 35 ± 15 | 0.00 ± 0.00 |" in md
@@ -514,3 +543,34 @@ def test_lock_table_reads_the_cells_lock_figures_and_shows_a_dash_for_older_cell
     assert "| easy | testing | TD3 | – | – | – |" in md
     assert "| hard | testing | TD3 | 0% (1 of 2 seeds) | not reached | not locked |" in md
     assert "the band within 2% of its held level" in md
+    # the table-1 environments are ideal: no ceiling, the reason named for each mode; TD3's old
+    # cells hold their final score, SPGD's synthetic summaries none
+    assert "| easy | testing | SPGD | 100% | 35 ± 15 | 0.00 ± 0.00 | – | – | – | – | – |" in md
+    assert "| easy | testing | TD3 | – | – | – | 0.5000 | – | – | – | – |" in md
+    assert all(f"{m}: the ideal system: no imperfections" in md for m in MODES)
+
+
+def test_lock_table_gives_the_score_as_a_fraction_of_each_ceiling(tmp_path):
+    """lock.md's ceiling columns: the seeds' mean final P / P_best, the mode's held and predicted
+    ceilings and the score over each."""
+    from benchmarks.sweep.lock_table import lock_table
+    from benchmarks.sweep.paper import MODES
+    from ops_jax.imperfections import Ceilings
+
+    summary = lambda final: {"summary": {"final_mean_best": final, "fraction_locked": None}}
+    runs = {
+        (mode, "spgd", s): {"train_env": summary(0.9 + s / 100), "test_env": summary(0.8)}
+        for mode in MODES
+        for s in (0, 1)
+    }
+    ceilings = {mode: Ceilings(0.95, 0.98, None, 128, 3) for mode in MODES}
+    lock_table(tmp_path, runs, dict(algos=["spgd"], seeds=2, episodes=2, name="x"), ceilings)
+    md = (tmp_path / "lock.md").read_text()
+    # training: (0.90 + 0.91) / 2 = 0.905; 0.905 / 0.95 = 0.9526, / 0.98 = 0.9235
+    assert (
+        "| hard | training | SPGD | – | – | – | 0.9050 | 0.9500 | 0.9800 | 0.9526 | 0.9235 |" in md
+    )
+    assert (
+        "| easy | testing | SPGD | – | – | – | 0.8000 | 0.9500 | 0.9800 | 0.8421 | 0.8163 |" in md
+    )
+    assert "128 draws from seed 3" in md and "no ceiling missing" in md
