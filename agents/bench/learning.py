@@ -47,6 +47,7 @@ from agents.learners.offpolicy.checkpoint import is_key, raw_keys
 from agents.bench.loop import check_lengths
 from agents.envs import built, train_env_config
 from agents.io import kept_dir, replace_dir, temp_dir, write_json_atomic
+from ops_jax import EnvSpec
 from ops_jax.cli.progress import progress
 
 PUBLISH_STEPS = 10  # env steps between two hand-overs of the actor network
@@ -136,7 +137,7 @@ def check_args(args) -> Path | None:
 def default_stages(args, checkpoint: Path | None) -> int:
     """The simulated bench's stages: the resumed run's, the ``--from`` policy's, else 5."""
     source = checkpoint or args.from_
-    return base.load(source).env_config.get("stages", 5) if source else 5
+    return base.load(source).env_spec.stages if source else 5
 
 
 def _settings(
@@ -157,10 +158,9 @@ def _settings(
     what = "--from" if checkpoint is None else f"the checkpoint in {args.out}"
     if start.algo != learner.name:
         raise ValueError(f"--learn {learner.name}: {what} holds a {start.algo} policy")
-    h = learner.config_type.from_hyper(
-        {**learner.stored_config(start.hyper).to_hyper(), **hyper}
-    ).to_hyper()
-    return {**start.env_config, **env_options}, h, (start.seed if checkpoint else args.seed), start
+    h = learner.config_type.from_hyper({**start.config.to_hyper(), **hyper}).to_hyper()
+    env_config = {**start.env_spec.as_dict(), **env_options}
+    return env_config, h, (start.seed if checkpoint else args.seed), start
 
 
 def setup(args, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict):
@@ -247,17 +247,18 @@ class Learning:
         )
         self.checkpoint_every, self.from_policy = checkpoint_every, None
         self.env, env_params = built(train_env_config(env_config, h["train_reward"]))
-        self.ratio = replay.updates_per_iter(h) / (
+        self.config = learner.config_type.from_hyper(h)
+        self.ratio = replay.updates_per_iter(self.config) / (
             h["num_envs"] * h["unroll"]
         )  # target gradient steps per env step
         self.train_env = learner.training_env(
-            self.env, env_config, h
+            self.env, env_config, self.config
         )  # with the observer's entries, if any
         self.observer = (
             self.train_env.observer if isinstance(self.train_env, observer.Observed) else None
         )
-        self.fns = learner.build(self.train_env, h)
-        self.ts = jax.jit(self.fns["init"])(jax.random.key(seed), env_params)
+        self.fns = learner.build(self.train_env, self.config)
+        self.ts = jax.jit(self.fns.init)(jax.random.key(seed), env_params)
         self.k_act = jax.random.fold_in(jax.random.key(seed), 1)
         self.k_observe = jax.random.fold_in(jax.random.key(seed), 2)
         self.counts, self.warm_obs = Counts(), []
@@ -322,10 +323,10 @@ class Learning:
     def compile(self) -> None:
         """Compile exploration, insertion, gradient step and the statistics' fit before the run."""
         env, fns, ts, d_raw = self.env, self.fns, self.ts, self.env.observation_size
-        buffer = replay.replay_buffer(self.train_env, self.h)
+        buffer = replay.replay_buffer(self.train_env, self.config)
 
         def explore(snap, t, obs, random):
-            return fns["explore"](snap, jax.random.fold_in(self.k_act, t), obs[None], random)[0]
+            return fns.explore(snap, jax.random.fold_in(self.k_act, t), obs[None], random)[0]
 
         def insert(ts, obs, action, next_obs, p_init):
             reward = env.reward(env.layout.power(next_obs[:d_raw]) * env.p_max, p_init).astype(
@@ -373,10 +374,10 @@ class Learning:
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._insert = jax.jit(insert, donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
         self._update = (
-            jax.jit(lambda ts: fns["update"](ts, None)[0], donate_argnums=0).lower(ts).compile()
+            jax.jit(lambda ts: fns.update(ts, None)[0], donate_argnums=0).lower(ts).compile()
         )
         warm = jax.ShapeDtypeStruct((self.h["learning_starts"], d), jnp.float32)
-        self._fit_norm = jax.jit(fns["fit_norm"]).lower(ts, warm).compile()
+        self._fit_norm = jax.jit(fns.fit_norm).lower(ts, warm).compile()
         self._publish()
 
     # -- the actor (the loop's thread) -----------------------------------------------------------
@@ -543,8 +544,8 @@ class Learning:
         host = jax.device_get(raw_keys(self._saved()))
         result = base.TrainResult(
             self.learner.name,
-            self.env_config,
-            self.h,
+            EnvSpec.from_options(self.env_config),
+            self.config,
             offpolicy.policy_params(self.ts),
             dict(c.curve),
             {"total": c.seconds},

@@ -341,7 +341,7 @@ def _setup(args):
     stages = args.stages or (
         bench_learn.default_stages(args, checkpoint)
         if args.learn
-        else base.load(args.controller).env_config.get("stages", 5)
+        else base.load(args.controller).env_spec.stages
         if saved
         else 5
     )
