@@ -23,6 +23,7 @@ is recorded with its error and printed; nothing is skipped silently.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -44,10 +45,10 @@ def expected_hyper(algo: str, steps, config) -> dict:
     """The hyperparameters a run with these arguments trains with, in the stored (JSON) form."""
     from agents.registry import CONFIG_TYPES
 
-    h = CONFIG_TYPES[algo].make(config).to_hyper()
-    if steps is not None and "total_steps" in h:
-        h["total_steps"] = int(steps)
-    return json.loads(json.dumps(h))
+    c = CONFIG_TYPES[algo].make(config)
+    if steps is not None and hasattr(c, "total_steps"):
+        c = dataclasses.replace(c, total_steps=int(steps))
+    return json.loads(json.dumps(c.to_hyper()))
 
 
 def checkpointing(
@@ -121,7 +122,7 @@ def run_one(
         wall_time=dict(result.wall_time),
         train_call_s=train_s,
         curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
-        hyper=result.hyper,
+        hyper=result.config.to_hyper(),
     )
 
 

@@ -47,6 +47,7 @@ The presets are benchmarks/budget/presets.py. Finished cells are stored in ``<ou
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -257,9 +258,9 @@ def _snapshot_run(cell: Cell, start_from=None):
 
     module = base.algo_module(cell.algo)
     marks = set(cell.checkpoints)
-    h = module.LEARNER.config_type.make(**cell.hyper).to_hyper()
-    warm, n_chunks, chunk = offpolicy.schedule({**h, "total_steps": max(marks)})
-    per_iter = h["num_envs"] * h["unroll"]
+    c = module.LEARNER.config_type.make(**cell.hyper)
+    warm, n_chunks, chunk = offpolicy.schedule(dataclasses.replace(c, total_steps=max(marks)))
+    per_iter = c.num_envs * c.unroll
     ends = {per_iter * (warm + chunk * i) for i in range(n_chunks + 1)}
     if not marks <= ends:
         raise ValueError(
