@@ -216,7 +216,7 @@ def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
     )
     result = agents.train("droq", config, **kw)
     env, _ = built(config)
-    assert result.hyper["observer"] == "fit"
+    assert result.config.observer == "fit"
     assert result.params["obs_norm"]["mean"].shape == (env.observation_size + 4,)
     agents.save(tmp_path / "p", result)
     loaded = agents.load(tmp_path / "p")
@@ -227,6 +227,6 @@ def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
         np.array_equal(a, b)
         for a, b in zip(jax.tree.leaves(result.params), jax.tree.leaves(again.params))
     )
-    assert droq.LEARNER.make_policy(config, result.hyper).init(
+    assert droq.LEARNER.make_policy(result.env_spec, result.config).init(
         None, jnp.zeros((1, env.observation_size))
     )["z"].shape == (1, 4)

@@ -241,12 +241,12 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path, this_build):
 
 @pytest.mark.parametrize("total", [4_096, 20_000, 60_000, 60_160, 300_000])
 def test_schedule_keeps_the_budget(total):
-    h = TD3Config.preset("fast", eval_every=5_000).to_hyper() | {"total_steps": total}
-    warm, n_chunks, chunk = offpolicy.schedule(h)
-    per_iter = h["num_envs"] * h["unroll"]
+    c = TD3Config.preset("fast", eval_every=5_000, total_steps=total)
+    warm, n_chunks, chunk = offpolicy.schedule(c)
+    per_iter = c.num_envs * c.unroll
     trained = (warm + n_chunks * chunk) * per_iter
     assert trained <= total and total - trained < per_iter * max(n_chunks, 1)
-    assert warm * per_iter >= h["learning_starts"]
+    assert warm * per_iter >= c.learning_starts
 
 
 def test_budget_below_the_warm_up_is_refused():
