@@ -15,16 +15,14 @@ Each algorithm module (``agents.controllers.spgd``, ``agents.learners.brax.ppo``
 ``agents.registry``, its interface ``agents.registry.AlgoModule``) provides
 ``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
 (``env_config``: an ``ops_jax.EnvSpec`` or a dict of its options; ``config``: a preset name or the
-algorithm's config type of ``agents.config``, ``overrides``: its fields;
-``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
-``normalized_power``), ``make_policy(env_spec, config) -> Policy`` and
-``params_template(env_spec, config)`` (a pytree of the parameters' structure, for ``load``), of
-the ``EnvSpec`` and the config object a ``TrainResult`` holds (``env_spec``, ``config``).
-``make_policy`` may depend only on ``config`` and the static ``EnvConfig`` of ``env_spec`` (what
-``env_spec.make()[0].config`` holds): numbers from ``EnvParams`` (mode, noise, action scale) belong
-in the params, so one compiled evaluation serves a policy trained in any mode. Dicts are the
-stored form only: ``save`` writes ``env_spec.as_dict()`` and ``config.to_hyper()``, ``load`` reads
-them back.
+algorithm's config type of ``agents.config``, ``overrides``: its fields; ``progress_fn(step: int,
+metrics: dict)`` after each evaluation, metrics including ``normalized_power``),
+``make_policy(env_spec, config) -> Policy`` and ``params_template(env_spec, config)`` (a pytree of
+the parameters' structure, for ``load``) of a ``TrainResult``'s ``EnvSpec`` and config object.
+``make_policy`` may depend only on ``config`` and the static ``EnvConfig`` of ``env_spec``: numbers
+from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
+serves a policy trained in any mode. Dicts are the stored form only: ``save`` writes
+``env_spec.as_dict()`` and ``config.to_hyper()``, ``load`` reads them back.
 """
 
 from __future__ import annotations
@@ -45,8 +43,7 @@ import numpy as np
 from agents import registry
 from agents.config import AlgoConfig
 from agents.learners import budgets
-from agents.envs import built, check_env_spec
-from agents.envs import check_env_config  # noqa: F401  (agents.api.check_env_config)
+from agents.envs import built, check_env_config, check_env_spec  # noqa: F401  (check_env_config)
 from agents.evaluation import cached_evaluator, episode_ids
 from agents.io import dumps_json, read_json, temp_dir
 from ops_jax import EnvSpec
@@ -86,16 +83,12 @@ class TrainResult:
     state: Any = None
 
     def __post_init__(self):
-        if not isinstance(self.env_spec, EnvSpec):
-            raise TypeError(
-                f"env_spec must be an ops_jax.EnvSpec, got {type(self.env_spec).__name__} "
-                "(ops_jax.EnvSpec.from_options makes one of a dict)"
-            )
-        if not isinstance(self.config, AlgoConfig):
-            raise TypeError(
-                f"config must be an agents.config.AlgoConfig, got {type(self.config).__name__} "
-                "(its type's from_hyper makes one of a stored dict)"
-            )
+        for name, kind, said in (
+            ("env_spec", EnvSpec, "ops_jax.EnvSpec (of a dict: EnvSpec.from_options)"),
+            ("config", AlgoConfig, "agents.config.AlgoConfig (of a dict: its type's from_hyper)"),
+        ):
+            if not isinstance(value := getattr(self, name), kind):
+                raise TypeError(f"{name} must be an {said}, got {type(value).__name__}")
 
     @property
     def env_steps(self) -> int:

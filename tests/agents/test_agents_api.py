@@ -115,12 +115,12 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
         (
             lambda: TrainResult("spgd", {"stages": 5}, SPGDConfig.make(), None, {}, {}, 0),
             TypeError,
-            "env_spec must be an ops_jax.EnvSpec, got dict",
+            r"env_spec must be an ops_jax.EnvSpec \(of a dict: EnvSpec.from_options\), got dict",
         ),
         (
             lambda: TrainResult("spgd", EnvSpec(), {"kp": 0.5}, None, {}, {}, 0),
             TypeError,
-            "config must be an agents.config.AlgoConfig, got dict",
+            r"config must be an agents.config.AlgoConfig .*, got dict",
         ),
         (
             lambda: agents.api.algo_module("spgd").make_policy(ENV, {"kp": 0.5}),
