@@ -176,8 +176,8 @@ def test_cli_logdir_writes_the_curve_to_tensorboard(tmp_path):
     steps, values = scalars["eval/normalized_power"]
     assert steps == [int(r["step"]) for r in rows]
     np.testing.assert_allclose(values, [float(r["normalized_power"]) for r in rows], rtol=1e-6)
-    h = summary["hyper"]
-    ratio = replay.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+    c = TD3Config.from_hyper(summary["hyper"])  # the summary's stored form
+    ratio = replay.updates_per_iter(c) / (c.num_envs * c.unroll)
     np.testing.assert_allclose(scalars["train/update_ratio"][1], ratio, rtol=1e-6)
     assert scalars["loss/critic_loss"][0] == steps[1:]  # losses from the first training chunk on
     assert np.all(np.isfinite(scalars["loss/critic_loss"][1]))
