@@ -518,7 +518,7 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
                 assert np.array_equal(learning.prev[1], done) == (kind == "fit")
         learning.finish()
     assert n[0] == 0 and learning.error is None and np.all(np.abs(actions) <= 1)
-    _, batch = replay.replay_buffer(learning.train_env, learning.h).sample(learning.ts.buffer)
+    _, batch = replay.replay_buffer(learning.train_env, learning.config).sample(learning.ts.buffer)
     fitted = np.asarray(batch["obs"])[:, d:]
     assert fitted.shape[1] == 2 and np.any(fitted != 0) and np.all(np.abs(fitted) <= 0.25)
     sent = np.asarray(actions)
