@@ -14,14 +14,15 @@ move it sent instead.
 Each algorithm module (``agents.controllers.spgd``, ``agents.learners.brax.ppo``, ...; registered in
 ``agents.registry``, its interface ``agents.registry.AlgoModule``) provides
 ``train(env_config, *, seed, total_steps, progress_fn, config, **overrides) -> TrainResult``
-(``config``: a preset name or the algorithm's config type of ``agents.config``, ``overrides``: its
-fields; ``progress_fn(step: int, metrics: dict)`` after each evaluation, metrics including
-``normalized_power``), ``make_policy(env_config, hyper) -> Policy`` and
-``params_template(env_config, hyper)`` (a pytree of the parameters' structure, for ``load``);
-``hyper`` is the stored form ``TrainResult.hyper`` (``Config.to_hyper()``). ``make_policy`` may
-depend only on ``hyper`` and the static ``EnvConfig`` of ``env_config`` (what
-``ops_jax.make(**env_config)[0].config`` holds): numbers from ``EnvParams`` (mode, noise, action
-scale) belong in the params, so one compiled evaluation serves a policy trained in any mode.
+(``env_config``: an ``ops_jax.EnvSpec`` or a dict of its options; ``config``: a preset name or the
+algorithm's config type of ``agents.config``, ``overrides``: its fields; ``progress_fn(step: int,
+metrics: dict)`` after each evaluation, metrics including ``normalized_power``),
+``make_policy(env_spec, config) -> Policy`` and ``params_template(env_spec, config)`` (a pytree of
+the parameters' structure, for ``load``) of a ``TrainResult``'s ``EnvSpec`` and config object.
+``make_policy`` may depend only on ``config`` and the static ``EnvConfig`` of ``env_spec``: numbers
+from ``EnvParams`` (mode, noise, action scale) belong in the params, so one compiled evaluation
+serves a policy trained in any mode. Dicts are the stored form only: ``save`` writes
+``env_spec.as_dict()`` and ``config.to_hyper()``, ``load`` reads them back.
 """
 
 from __future__ import annotations
@@ -40,8 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import registry
+from agents.config import AlgoConfig
 from agents.learners import budgets
-from agents.envs import built, check_env_config
+from agents.envs import built, check_env_config, check_env_spec  # noqa: F401  (check_env_config)
 from agents.evaluation import cached_evaluator, episode_ids
 from agents.io import dumps_json, read_json, temp_dir
 from ops_jax import EnvSpec
@@ -65,18 +67,28 @@ class Policy(NamedTuple):
 class TrainResult:
     """What training returns. ``curve``: arrays keyed 'step' (env steps) and at least
     'normalized_power' (evaluation P/Pmax at that step); ``wall_time``: seconds split into
-    'simulation', 'optimisation' and 'total'; ``state``: the off-policy learners' training state
-    without replay buffer and environment (critics, targets, optimiser states), which a later run
-    continues with ``start_from``; kept in memory only (``save`` writes the policy)."""
+    'simulation', 'optimisation' and 'total'; ``env_spec``: the training environment's
+    ``ops_jax.EnvSpec``; ``config``: the algorithm's config (``agents.config.AlgoConfig``) it
+    trained with; ``state``: the off-policy learners' training state without replay buffer and
+    environment (critics, targets, optimiser states), which a later run continues with
+    ``start_from``; kept in memory only (``save`` writes the policy)."""
 
     algo: str
-    env_config: dict
-    hyper: dict
+    env_spec: EnvSpec
+    config: AlgoConfig
     params: Any
     curve: dict
     wall_time: dict
     seed: int
     state: Any = None
+
+    def __post_init__(self):
+        for name, kind, said in (
+            ("env_spec", EnvSpec, "ops_jax.EnvSpec (of a dict: EnvSpec.from_options)"),
+            ("config", AlgoConfig, "agents.config.AlgoConfig (of a dict: its type's from_hyper)"),
+        ):
+            if not isinstance(value := getattr(self, name), kind):
+                raise TypeError(f"{name} must be an {said}, got {type(value).__name__}")
 
     @property
     def env_steps(self) -> int:
@@ -84,13 +96,8 @@ class TrainResult:
         steps = np.asarray(self.curve.get("step", ()))
         return int(steps[-1]) if steps.size else 0
 
-    @property
-    def env_spec(self) -> EnvSpec:
-        """The training environment's ``ops_jax.EnvSpec``."""
-        return EnvSpec.from_options(self.env_config)
-
     def policy(self) -> Policy:
-        return algo_module(self.algo).make_policy(self.env_config, self.hyper)
+        return algo_module(self.algo).make_policy(self.env_spec, self.config)
 
     def __repr__(self) -> str:
         """The run in one line: algorithm, seed, env steps, the curve's last P/Pmax, wall time (no
@@ -101,7 +108,7 @@ class TrainResult:
         return (
             f"TrainResult(algo={self.algo!r}, seed={self.seed}, env_steps={self.env_steps}, "
             f"curve={npow.size} points{last}, wall_time={wall}, "
-            f"config={self.hyper.get('config')!r})"
+            f"config={getattr(self.config, 'config', None)!r})"
         )
 
 
@@ -144,13 +151,13 @@ def train(
 ) -> TrainResult:
     """Train ``algo`` (a name of ``ALGOS``) on the environment of ``env_config`` (an
     ``ops_jax.EnvSpec`` or a dict of ``ops_jax.make`` options, converted once:
-    ``TrainResult.env_config`` is its dict form). ``hyper``: ``config`` (a preset name or a config
+    ``TrainResult.env_spec``). ``hyper``: ``config`` (a preset name or a config
     of ``agents.config``) and overrides of its fields; ``progress_fn(step, metrics)`` is called
     after each evaluation. ``progress``: a progress bar on stderr
     (``ops_jax.cli.progress.StepProgress``; None: when stderr is a terminal, False: none); a budget
     the warm-up takes most of is warned about first (``agents.learners.budgets.BudgetWarning``)."""
     module = algo_module(algo)
-    env_config = check_env_config(env_config)
+    env_spec = check_env_spec(env_config)
     if total_steps is not None and (
         not isinstance(total_steps, (int, np.integer)) or total_steps < 0
     ):
@@ -158,7 +165,7 @@ def train(
     total = budgets.warn(algo, hyper, total_steps)
     with reporting(progress, progress_fn, total, f"{algo} seed {seed}") as report:
         return module.train(
-            env_config, seed=seed, total_steps=total_steps, progress_fn=report, **hyper
+            env_spec, seed=seed, total_steps=total_steps, progress_fn=report, **hyper
         )
 
 
@@ -176,13 +183,13 @@ def train_seeds(
     (``Algo.vmaps_seeds``, e.g. ``agents.learners.offpolicy.td3.train_seeds``; one progress bar),
     else one call per seed."""
     module = algo_module(algo)
-    env_config = check_env_config(env_config)
+    env_spec = check_env_spec(env_config)
     seeds = list(seeds)
     if not registry.get(algo).vmaps_seeds:
         return [
             train(
                 algo,
-                env_config,
+                env_spec,
                 seed=s,
                 total_steps=total_steps,
                 progress_fn=progress_fn,
@@ -194,14 +201,14 @@ def train_seeds(
     total = budgets.warn(algo, hyper, total_steps)
     with reporting(progress, progress_fn, total, f"{algo} {len(seeds)} seeds") as report:
         return module.train_seeds(
-            env_config, seeds=seeds, total_steps=total_steps, progress_fn=report, **hyper
+            env_spec, seeds=seeds, total_steps=total_steps, progress_fn=report, **hyper
         )
 
 
 def evaluated_result(
     algo: str,
-    env_config: dict,
-    hyper: dict,
+    env_spec: EnvSpec,
+    config: AlgoConfig,
     params,
     seed: int,
     episodes: int = 32,
@@ -214,8 +221,8 @@ def evaluated_result(
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"curve_episodes must be an integer >= 1, got {episodes!r}")
     t0 = time.perf_counter()
-    result = TrainResult(algo, env_config, hyper, params, {}, {}, int(seed))
-    npow = evaluate(result, env_config, episodes=episodes, seed=int(seed)).normalized_power.mean(0)
+    result = TrainResult(algo, env_spec, config, params, {}, {}, int(seed))
+    npow = evaluate(result, env_spec, episodes=episodes, seed=int(seed)).normalized_power.mean(0)
     total = time.perf_counter() - t0
     result.curve = {"step": np.arange(1, npow.size + 1), "normalized_power": npow}
     result.wall_time = {"simulation": total, "optimisation": 0.0, "total": total}
@@ -257,10 +264,9 @@ def evaluate(
     from its training environment's raises ValueError naming both layouts."""
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
-    env_config = check_env_config(env_config)
-    env, env_params = built(env_config)
+    env, env_params = built(check_env_spec(env_config))
     if isinstance(result_or_policy, TrainResult):
-        trained_layout = built(result_or_policy.env_config)[0].layout
+        trained_layout = built(result_or_policy.env_spec)[0].layout
         if trained_layout != env.layout:
             raise ValueError(
                 f"the {result_or_policy.algo} policy was trained on observations of "
@@ -321,16 +327,9 @@ def summarize(npow: np.ndarray, **extra) -> dict:
 
 def _source_ident(source, policy: Policy):
     """What the evaluated program is built from: a ``TrainResult``'s algorithm, static training
-    configuration (not its mode: see the module docstring) and hyperparameters, or a policy's
-    identity."""
+    configuration (not its mode: see the module docstring) and config, or a policy's identity."""
     if isinstance(source, TrainResult):
-        static = built(source.env_config)[0].config
-        return (
-            "result",
-            source.algo,
-            static,
-            json.dumps(source.hyper, sort_keys=True, default=str),
-        )
+        return ("result", source.algo, built(source.env_spec)[0].config, source.config)
     return ("policy", policy)
 
 
@@ -349,8 +348,8 @@ def save(path, result: TrainResult) -> Path:
     meta = dict(
         version=CHECKPOINT_VERSION,
         algo=result.algo,
-        env_config=result.env_config,
-        hyper=result.hyper,
+        env_config=result.env_spec.as_dict(),
+        hyper=result.config.to_hyper(),
         seed=result.seed,
         wall_time=result.wall_time,
         curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
@@ -382,15 +381,17 @@ def load(path) -> TrainResult:
             raise ValueError("params.msgpack does not match the checksum in meta.json")
         state = serialization.msgpack_restore(blob)
         module = algo_module(meta["algo"])
-        template = module.params_template(meta["env_config"], meta["hyper"])
+        env_spec = EnvSpec.from_options(meta["env_config"])
+        config = registry.get(meta["algo"]).config.from_stored(meta["hyper"])
+        template = module.params_template(env_spec, config)
         params = serialization.from_state_dict(template, state) if template is not None else state
     except (ValueError, KeyError, TypeError, json.JSONDecodeError) as exc:
         raise ValueError(f"corrupt checkpoint at {path}: {exc}") from exc
     curve = {k: np.asarray(v) for k, v in meta["curve"].items()}
     return TrainResult(
         meta["algo"],
-        meta["env_config"],
-        meta["hyper"],
+        env_spec,
+        config,
         params,
         curve,
         meta["wall_time"],

@@ -14,7 +14,6 @@ any output (``agents.learners.budgets``). Ctrl-C: one line saying what was kept,
 from __future__ import annotations
 
 import ast
-import csv
 import dataclasses
 import json
 import shlex
@@ -24,13 +23,12 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 import agents
 from agents import api as base, registry
 from agents.learners import budgets
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
+from agents.outputs import plot_curve, wall_time_line, write_curve_csv
 from agents.learners.offpolicy.checkpoint import EVERY as CHECKPOINT_EVERY
 from ops_jax.cli.progress import StepProgress, exit_interrupted, keep_ctrl_c
 from ops_jax.cli.parser import ArgumentParser
@@ -90,7 +88,7 @@ def refusal(args, out: Path) -> str | None:
     return None
 
 
-def check_resume(args, out: Path, env_config: dict, config) -> bool:
+def check_resume(args, out: Path, env_spec, config) -> bool:
     """With --resume: ValueError unless ``out/checkpoint`` holds the training state of a run with
     these settings (False: train on), or the trained policy of one stopped before its evaluation was
     written (True: that is left)."""
@@ -102,7 +100,7 @@ def check_resume(args, out: Path, env_config: dict, config) -> bool:
         raise ValueError(f"--resume: the run in {out} is finished; --overwrite trains it again")
     if args.steps is not None:
         config = dataclasses.replace(config, total_steps=args.steps)
-    wanted = checkpoint.identity(args.algo, env_config, config.to_hyper(), [args.seed])
+    wanted = checkpoint.identity(args.algo, env_spec.as_dict(), config.to_hyper(), [args.seed])
     try:
         if checkpoint.check_fits(out / "checkpoint", wanted) is not None:
             return False
@@ -167,31 +165,6 @@ def interrupted(argv, out: Path, at: str, checkpoints, stop) -> tuple[str, int]:
         f"reads it); continue it with: {again}",
         status,
     )
-
-
-def write_curve_csv(path: Path, curve: dict) -> None:
-    """curve.csv: every column of ``curve`` as long as its env steps."""
-    cols = [k for k, v in curve.items() if np.ndim(v) == 1 and len(v) == len(curve["step"])]
-    with open(path, "w", newline="") as f:
-        csv.writer(f).writerows([cols, *zip(*(np.asarray(curve[c]).tolist() for c in cols))])
-
-
-def plot_curve(path: Path, curve: dict, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(curve["step"], curve["normalized_power"], marker="o", ms=3)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("evaluation P / P_max")
-    ax.set_ylim(0, 1.02)
-    ax.grid(alpha=0.3)
-    ax.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def parser() -> ArgumentParser:
@@ -266,8 +239,20 @@ def main(argv=None) -> dict:
     except KeyboardInterrupt:
         exit_interrupted(f"stopped while starting; nothing written to {out}")
     ap.check_least(args, steps=0, episodes=1, checkpoint_every=1)
-    try:  # every argument checked before the progress starts: a mistake is one line
-        env_config = base.check_env_config(
+    env_spec, config, trained, warning = checked_run(ap, args, out, module)
+    if trained:
+        return finish_kept(args, out, env_spec, agents.load(out / "checkpoint"))
+    if warning:
+        print(f"{ap.prog}: warning: {warning}", file=sys.stderr, flush=True)
+    return finish_kept(args, out, env_spec, trained_run(ap, args, argv, out, env_spec, config))
+
+
+def checked_run(ap, args, out: Path, module) -> tuple:
+    """(the run's EnvSpec, its config, whether only the evaluation of a trained policy is left, the
+    budget's warning or None), every argument checked before the progress starts: a mistake exits
+    with one line."""
+    try:
+        env_spec = base.check_env_spec(
             {"stages": args.stages, "mode": args.mode, **parse_set(args.env)}
         )
         config = CONFIG_TYPES[args.algo].make(args.config, **parse_set(args.set))
@@ -276,24 +261,25 @@ def main(argv=None) -> dict:
                 f"--steps: {args.algo} trains nothing (its curve is a short evaluation); leave it "
                 "out"
             )
-        module.make_policy(env_config, config.to_hyper())
-        trained = check_resume(args, out, env_config, config)  # True: only its evaluation is left
-        total = args.steps if args.steps is not None else getattr(config, "total_steps", None)
+        module.make_policy(env_spec, config)
+        trained = check_resume(args, out, env_spec, config)  # True: only its evaluation is left
+        total = run_total(args, config)
         warning = None if total is None or trained else budgets.check(config, total, "--steps", " ")
     except (TypeError, ValueError) as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
-    if trained:
-        return finish_kept(args, out, env_config, agents.load(out / "checkpoint"))
-    if warning:
-        print(f"{ap.prog}: warning: {warning}", file=sys.stderr, flush=True)
-    logger = None
-    if args.logdir is not None:
-        from agents.tensorboard import TensorBoardLogger
+    return env_spec, config, trained, warning
 
-        try:
-            logger = TensorBoardLogger(args.logdir)
-        except ImportError as e:  # one line naming the extra, not a traceback
-            raise SystemExit(f"python -m agents --logdir: {e}") from None
+
+def run_total(args, config) -> int | None:
+    """The env steps the run trains: ``--steps``, else the config's (None: it trains nothing)."""
+    return args.steps if args.steps is not None else getattr(config, "total_steps", None)
+
+
+def trained_run(ap, args, argv, out: Path, env_spec, config):
+    """The TrainResult of the run, its progress on a bar (and TensorBoard with ``--logdir``); a
+    budget the trainer refuses exits with one line, a Ctrl-C with what was kept."""
+    logger = tensorboard_logger(args)
+    total = run_total(args, config)
     bar = StepProgress(total, f"{args.algo} {args.mode} N={args.stages}")
     checkpoints = checkpointing(args, out)
     show = bar
@@ -302,9 +288,9 @@ def main(argv=None) -> dict:
     try:
         with warnings.catch_warnings():  # the budget's warning is said above
             warnings.simplefilter("ignore", budgets.BudgetWarning)
-            result = base.train(
+            return base.train(
                 args.algo,
-                env_config,
+                env_spec,
                 seed=args.seed,
                 total_steps=args.steps,
                 progress_fn=replacing(args, out, show),
@@ -330,14 +316,25 @@ def main(argv=None) -> dict:
         bar.close()
         if logger is not None:
             logger.close()
-    return finish_kept(args, out, env_config, result)
 
 
-def finish_kept(args, out: Path, env_config: dict, result) -> dict:
+def tensorboard_logger(args):
+    """The ``--logdir`` TensorBoard logger, or None; without the extra, exits with one line."""
+    if args.logdir is None:
+        return None
+    from agents.tensorboard import TensorBoardLogger
+
+    try:
+        return TensorBoardLogger(args.logdir)
+    except ImportError as e:  # one line naming the extra, not a traceback
+        raise SystemExit(f"python -m agents --logdir: {e}") from None
+
+
+def finish_kept(args, out: Path, env_spec, result) -> dict:
     """``finish``; a Ctrl-C there is one line saying what was kept (the trained policy: --resume
     evaluates it)."""
     try:
-        return finish(args, out, env_config, result)
+        return finish(args, out, env_spec, result)
     except KeyboardInterrupt:
         kept = ", ".join(sorted(p.name for p in out.iterdir())) if out.is_dir() else "nothing"
         exit_interrupted(
@@ -347,7 +344,7 @@ def finish_kept(args, out: Path, env_config: dict, result) -> dict:
         )
 
 
-def finish(args, out: Path, env_config: dict, result) -> dict:
+def finish(args, out: Path, env_spec, result) -> dict:
     """Write the checkpoint, curve and evaluation summary of a finished training into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     agents.save(out / "checkpoint", result)
@@ -357,12 +354,12 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
         result.curve,
         f"{args.algo}, {args.stages}-stage {args.mode}, seed {args.seed}",
     )
-    ev = agents.evaluate(result, env_config, episodes=args.episodes, seed=args.eval_seed)
+    ev = agents.evaluate(result, env_spec, episodes=args.episodes, seed=args.eval_seed)
     summary = dict(
         algo=args.algo,
-        env_config=env_config,
+        env_config=env_spec.as_dict(),
         seed=args.seed,
-        hyper=result.hyper,
+        hyper=result.config.to_hyper(),
         wall_time=result.wall_time,
         evaluation=ev.summary,
         train_steps=result.env_steps,
@@ -381,18 +378,6 @@ def finish(args, out: Path, env_config: dict, result) -> dict:
         f"to {out}"
     )
     return summary
-
-
-def wall_time_line(wall: dict) -> str:
-    """The wall time of a training in words (s): its parts, compiling among them where the trainer
-    timed it apart (the off-policy learners), else said to be inside them."""
-    total = wall.get("total", float("nan"))
-    parts = [k for k in ("compile", "simulation", "optimisation", "evaluation") if k in wall]
-    said = [f"{k} {wall[k]:.1f} s" for k in parts]
-    if "compile" not in wall:
-        return f"wall time {total:.1f} s ({', '.join(said)}; both include compiling)"
-    other = total - sum(wall[k] for k in parts)
-    return f"wall time {total:.1f} s ({', '.join(said)}, other {max(0.0, other):.1f} s)"
 
 
 def run() -> None:

@@ -4,14 +4,14 @@ all exported by ``agents``), with named presets overridable per field, validated
 
     PPOConfig.preset("fast", learning_rate=1e-3)   # a preset with one field changed
     TD3Config.make("paper")                        # make(config, **overrides): a preset or a config
-    SPGDConfig.from_hyper(result.hyper)            # back from the stored dict (``to_hyper``)
+    SPGDConfig.from_hyper(meta["hyper"])           # back from the stored dict (``to_hyper``)
 
 A value out of range raises ValueError naming the field and its accepted range
 (``ops_jax.ranges.Range``, the one range check of the package); an unknown field raises TypeError
-listing the accepted ones. ``to_hyper()`` is the stored form (``TrainResult.hyper``, checkpoints):
-the fields (tuples as lists) and, for the learners, ``config``, the preset's name. The field checks
-shared by several algorithms (``flag``, ``widths``, ``choice``, ``optional`` and the ranges below)
-are here; the presets' tuning is described in each algorithm's module.
+listing the accepted ones. ``to_hyper()`` is the stored form (checkpoints' ``meta.json``, the
+sweep): the fields (tuples as lists) and, for the learners, ``config``, the preset's name. The
+field checks shared by several algorithms (``flag``, ``widths``, ``choice``, ``optional`` and the
+ranges below) are here; the presets' tuning is described in each algorithm's module.
 """
 
 from __future__ import annotations
@@ -145,11 +145,31 @@ class AlgoConfig:
         return cls.preset(config, **overrides)
 
     @classmethod
+    def of(cls, config):
+        """``config`` (a config of this type) or, for None, the default preset; TypeError for
+        anything else (a stored dict: ``from_hyper``)."""
+        if config is None:
+            return cls.preset()
+        if not isinstance(config, cls):
+            raise TypeError(
+                f"config must be a {cls.__name__} or None (the default preset), got "
+                f"{type(config).__name__}"
+            )
+        return config
+
+    @classmethod
     def from_hyper(cls, hyper: dict | None):
         """The config of a stored ``to_hyper()`` dict (or any
         ``{"config": name, field: value}``)."""
         hyper = dict(hyper or {})
         return cls.make(hyper.pop("config", None), **hyper)
+
+    @classmethod
+    def from_stored(cls, hyper: dict | None):
+        """The config of a checkpoint's stored ``hyper`` (keys that are not fields are left
+        out)."""
+        names = {*cls.names(), "config"}
+        return cls.from_hyper({k: v for k, v in (hyper or {}).items() if k in names})
 
     def to_hyper(self) -> dict:
         """The stored form: field -> value (tuples as lists), with ``config`` for the learners."""

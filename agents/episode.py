@@ -52,7 +52,7 @@ def get_policy(name: str, env_config: dict, seed: int = 0):
             f"{name!r} is none of these"
         )
     result = base.load(path)
-    return result.policy(), result.params, dict(result.env_config)
+    return result.policy(), result.params, result.env_spec.as_dict()
 
 
 def builtin_policy(kind: str, stages: int) -> base.Policy:

@@ -53,6 +53,33 @@ def cached_evaluator(ident, policy, env, steps: int, drift_episode: int):
     return _EVALUATORS[key]
 
 
+def _step_probe(env, env_params, ids, k_env, probes: list, now: list, made: list):
+    """``probe(offsets (B, N), active=None) -> P / P_max (B,)`` within one control step: each probe
+    of the step its own key (``probes[0]`` counts them), the state after the step's probes so far in
+    ``now[0]`` (``EnvConfig.probe="frame"`` moves it), the readings made per episode in
+    ``made[0]``; where ``active`` is False nothing moves and the reading is NaN."""
+
+    def probe(offsets, active=None):
+        probes[0] += 1
+        keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.fold_in(k_env, probes[0]), ids)
+        p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(
+            keys, now[0], offsets, env_params
+        )
+        if active is None:
+            now[0] = probed
+            made[0] = made[0] + 1
+            return p
+        made[0] = made[0] + active.astype(jnp.int32)
+        now[0] = jax.tree.map(
+            lambda a, b: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b),
+            probed,
+            now[0],
+        )
+        return jnp.where(active, p, jnp.nan)
+
+    return probe
+
+
 def evaluator(env, policy, steps: int, drift_episode: int, trajectory: bool = False):
     """``run(params, env_params, key, ids)``: the jitted episode rollout (no auto-reset) returning
     P/Pmax, terminated flags and the readings made per step (the observation's frame and the probes
@@ -74,33 +101,8 @@ def evaluator(env, policy, steps: int, drift_episode: int, trajectory: bool = Fa
         def body(c, t):
             obs, states, carry = c
             k_act, k_env = jax.random.split(jax.random.fold_in(k_run, t))
-            now = [
-                states
-            ]  # the state after the step's probes so far (``EnvConfig.probe="frame"`` moves it)
-            made = [jnp.ones(ids.shape, jnp.int32)]  # readings this step, per episode
-
-            def probe(offsets, active=None):
-                probes[0] += 1
-                keys = jax.vmap(jax.random.fold_in, (None, 0))(
-                    jax.random.fold_in(k_env, probes[0]), ids
-                )
-                p, probed = jax.vmap(env.probe_step, in_axes=(0, 0, 0, None))(
-                    keys, now[0], offsets, env_params
-                )
-                if active is None:
-                    now[0] = probed
-                    made[0] = made[0] + 1
-                    return p
-                made[0] = made[0] + active.astype(jnp.int32)
-                now[0] = jax.tree.map(
-                    lambda a, b: jnp.where(
-                        active.reshape(active.shape + (1,) * (a.ndim - 1)), a, b
-                    ),
-                    probed,
-                    now[0],
-                )
-                return jnp.where(active, p, jnp.nan)
-
+            now, made = [states], [jnp.ones(ids.shape, jnp.int32)]  # readings this step
+            probe = _step_probe(env, env_params, ids, k_env, probes, now, made)
             probes[0] = 0
             action, carry = policy.act(params, carry, obs, k_act, probe)
             keys = jax.vmap(jax.random.fold_in, (None, 0))(k_env, ids)

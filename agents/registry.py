@@ -20,13 +20,17 @@ import importlib
 from collections.abc import Mapping
 from typing import Any, Callable, Protocol
 
+from ops_jax import EnvSpec
+
 
 class AlgoModule(Protocol):
-    """What an algorithm's module provides (see ``agents.api``)."""
+    """What an algorithm's module provides (see ``agents.api``): ``train`` of an ``EnvSpec`` (or a
+    dict of its options) and a preset or config with overrides; ``make_policy`` and
+    ``params_template`` of a ``TrainResult``'s ``env_spec`` and ``config``."""
 
     def train(
         self,
-        env_config: dict,
+        env_config: EnvSpec | dict,
         *,
         seed: int,
         total_steps: int | None,
@@ -34,18 +38,22 @@ class AlgoModule(Protocol):
         **hyper,
     ): ...  # -> TrainResult
 
-    def make_policy(self, env_config: dict, hyper: dict): ...  # -> Policy
+    def make_policy(self, env_spec: EnvSpec, config): ...  # -> Policy
 
-    def params_template(
-        self, env_config: dict, hyper: dict
-    ): ...  # pytree of the parameters' structure
+    def params_template(self, env_spec: EnvSpec, config): ...  # pytree of the parameters' structure
 
 
 class SeedsModule(AlgoModule, Protocol):
     """An ``AlgoModule`` that trains several seeds in one vmapped call (``Algo.vmaps_seeds``)."""
 
     def train_seeds(
-        self, env_config: dict, *, seeds, total_steps: int | None = None, progress_fn=None, **hyper
+        self,
+        env_config: EnvSpec | dict,
+        *,
+        seeds,
+        total_steps: int | None = None,
+        progress_fn=None,
+        **hyper,
     ): ...  # -> list[TrainResult]
 
 

@@ -23,6 +23,7 @@ is recorded with its error and printed; nothing is skipped silently.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -45,8 +46,8 @@ def expected_hyper(algo: str, steps, config) -> dict:
     from agents.registry import CONFIG_TYPES
 
     learner_config = CONFIG_TYPES[algo].make(config)
-    if steps is not None and "total_steps" in learner_config.names():
-        learner_config = CONFIG_TYPES[algo].make(learner_config, total_steps=int(steps))
+    if steps is not None and hasattr(learner_config, "total_steps"):
+        learner_config = dataclasses.replace(learner_config, total_steps=int(steps))
     return json.loads(json.dumps(learner_config.to_hyper()))
 
 
@@ -120,7 +121,7 @@ def run_one(
         wall_time=dict(result.wall_time),
         train_call_s=train_s,
         curve={k: np.asarray(v).tolist() for k, v in result.curve.items()},
-        hyper=result.hyper,
+        hyper=result.config.to_hyper(),
     )
 
 

@@ -69,13 +69,13 @@ def run_reads_lengths(args, mapping: dict, items: list, checkpoint) -> bool:
     if args.learn:
         start = checkpoint or args.from_
         lengths = not missing_lengths(mapping)
-        env_config = base.load(start).env_config if start else {"observe_lengths": lengths}
+        env_config = base.load(start).env_spec.as_dict() if start else {"observe_lengths": lengths}
         return _observes_lengths({"stages": stages, **env_config, **env_options})
     if args.controller in ("spgd", "physics"):
         algo, hyper, env_config = args.controller, parse_set(items), {}
     else:
         saved = base.load(args.controller)
-        algo, hyper, env_config = saved.algo, saved.hyper, saved.env_config
+        algo, hyper, env_config = saved.algo, saved.config.to_hyper(), saved.env_spec.as_dict()
     observes = _observes_lengths({"stages": stages, **env_config, **env_options})
     return observes and reads_lengths(algo, hyper)
 

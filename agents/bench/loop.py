@@ -147,7 +147,8 @@ def load_controller(
     if spec in ("spgd", "physics"):
         env_config = {"stages": stages, **env_options}
         module = base.algo_module(spec)
-        policy, params = module.make_policy(env_config, hyper or None), None
+        config = base.ALGOS[spec].config.from_hyper(hyper)
+        policy, params = module.make_policy(env_config, config), None
         algo = spec
     else:
         if hyper:
@@ -155,9 +156,9 @@ def load_controller(
                 "--set applies to spgd and physics only; a saved policy keeps its own settings"
             )
         result = base.load(spec)
-        env_config = {**result.env_config, **env_options}
+        env_config = {**result.env_spec.as_dict(), **env_options}
         policy, params = result.policy(), result.params
-        algo, hyper = result.algo, result.hyper
+        algo, hyper = result.algo, result.config.to_hyper()
     if trim_hyper is not None:
         policy, params = trim.trimmed((policy, params), trim_hyper, env_config)
     env, env_params = ops_jax.make(**base.check_env_config(env_config))

@@ -99,7 +99,7 @@ def _stages(args, checkpoint: Path | None) -> int:
     if args.learn:
         return bench_learn.default_stages(args, checkpoint)
     saved = args.controller not in FROZEN
-    return base.load(args.controller).env_config.get("stages", 5) if saved else 5
+    return base.load(args.controller).env_spec.stages if saved else 5
 
 
 def _mapping(args, checkpoint: Path | None) -> dict:

@@ -69,6 +69,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ops_jax import EnvSpec
 from ops_jax.ranges import Range
 from agents.controllers import spgd
 from agents.controllers.identification import FIT_VAR0, fuse, theta_layout, wrap
@@ -78,7 +79,7 @@ from agents.controllers.physics_fit import steps_of, theta_of
 from agents.api import Policy, TrainResult, evaluated_result
 from agents.config import HISTORY, AlgoConfig, field, flag, optional
 from agents.registry import Algo
-from agents.envs import built, check_env_config
+from agents.envs import built, check_env_spec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,12 +151,12 @@ ALGO = Algo("physics", __name__, PhysicsConfig, "Physics")
 HOLD_STREAM = 1
 
 
-def params_template(env_config, hyper):
-    del env_config, hyper
+def params_template(env_spec, config):
+    del env_spec, config
     return {"action_scale": np.float32(0), "window": np.float32(0)}
 
 
-def policy_params(env_config: dict) -> dict:
+def policy_params(env_config: EnvSpec | dict) -> dict:
     """The controller's numbers from its environment: ``action_scale`` (wl per action unit) and
     ``window`` (wl, the observation's length normalisation). Parameters, not constants of the
     program, so one compiled policy serves every mode (make_policy reads only the static config)."""
@@ -304,15 +305,15 @@ def act_step(shape: Shape, steps: Steps, obs_layout, params: dict, carry: dict, 
     return action, {**step, **new, **estimated}
 
 
-def make_policy(env_config: dict, hyper: dict | PhysicsConfig | None = None) -> Policy:
-    """The physics-informed policy; ``params``: ``policy_params(...)`` (None: those of
-    ``env_config``)."""
-    env_config = check_env_config(env_config)
-    config = hyper if isinstance(hyper, PhysicsConfig) else PhysicsConfig.from_hyper(hyper)
-    env, _ = built(env_config)
+def make_policy(env_spec: EnvSpec, config: PhysicsConfig | None = None) -> Policy:
+    """The physics-informed policy on the environment of ``env_spec`` (an ``EnvSpec`` or a dict of
+    its options), with ``config`` (None: the default preset); ``params``: ``policy_params(...)``
+    (None: those of ``env_spec``)."""
+    env_spec = check_env_spec(env_spec)
+    env, _ = built(env_spec)
     obs_layout = env.layout
-    shape = shape_of(config, env.config, obs_layout)
-    default = policy_params(env_config)
+    shape = shape_of(PhysicsConfig.of(config), env.config, obs_layout)
+    default = policy_params(env_spec)
     theta = theta_of(shape)
     steps = steps_of(shape, env.config.detector, theta)
 
@@ -344,8 +345,8 @@ def train(
     """Nothing to learn (the model is the simulator): validates; the curve is
     ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
     ``progress_fn(0, metrics)``. ``total_steps`` is ignored."""
-    env_config = check_env_config(env_config)
-    h = PhysicsConfig.make(config, **hyper).to_hyper()
+    env_spec = check_env_spec(env_config)
+    c = PhysicsConfig.make(config, **hyper)
     return evaluated_result(
-        "physics", env_config, h, policy_params(env_config), seed, curve_episodes, progress_fn
+        "physics", env_spec, c, policy_params(env_spec), seed, curve_episodes, progress_fn
     )

@@ -45,8 +45,9 @@ from agents.controllers import escape
 from agents.api import Policy, TrainResult, evaluated_result
 from agents.config import DITHER, field
 from agents.registry import Algo
+from ops_jax import EnvSpec
 from ops_jax.ranges import Range
-from agents.envs import built, check_env_config
+from agents.envs import built, check_env_spec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,18 +147,18 @@ def scaled(config, action_scale: float) -> dict:
     }
 
 
-def params_template(env_config, hyper):
-    del env_config, hyper
+def params_template(env_spec, config):
+    del env_spec, config
     return None
 
 
-def make_policy(env_config: dict, hyper: dict | None = None) -> Policy:
-    """SPGD-PID policy. ``params``: ``gains(hyper, action_scale)``; ``None`` uses ``hyper`` and
-    the environment's default action scale."""
-    env_config = check_env_config(env_config)
-    env, env_params = built(env_config)
+def make_policy(env_spec: EnvSpec, config: SPGDConfig | None = None) -> Policy:
+    """SPGD-PID policy on the environment of ``env_spec`` (an ``EnvSpec`` or a dict of its
+    options). ``params``: ``gains(config, action_scale)``; ``None`` uses ``config`` (None: the
+    default preset) and the environment's default action scale."""
+    env, env_params = built(check_env_spec(env_spec))
     n, layout = env.num_actions, env.layout
-    default = gains(hyper or {}, float(env_params.action_scale))
+    default = gains(SPGDConfig.of(config), float(env_params.action_scale))
     cands = escape.candidates(n)
 
     def init(key, obs):
@@ -201,13 +202,11 @@ def train(
     environment's action scale. The curve is
     ``agents.evaluate(result, env_config, episodes=curve_episodes, seed=seed)``, reported once to
     ``progress_fn(0, metrics)``; ``total_steps`` is ignored (0 env steps used)."""
-    env_config = check_env_config(env_config)
+    env_spec = check_env_spec(env_config)
     c = SPGDConfig.make(config, **hyper)
-    _, env_params = built(env_config)
+    _, env_params = built(env_spec)
     params = {k: np.asarray(v) for k, v in gains(c, float(env_params.action_scale)).items()}
-    return evaluated_result(
-        "spgd", env_config, c.to_hyper(), params, seed, curve_episodes, progress_fn
-    )
+    return evaluated_result("spgd", env_spec, c, params, seed, curve_episodes, progress_fn)
 
 
 def search(

@@ -49,8 +49,9 @@ import jax.numpy as jnp
 from agents.controllers import escape, spgd
 from agents.api import Policy, TrainResult
 from agents.config import DITHER, field, optional
+from ops_jax import EnvSpec
 from ops_jax.ranges import Range
-from agents.envs import built, check_env_config
+from agents.envs import built, check_env_spec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,11 +105,11 @@ def gains(hyper: dict | TrimConfig | None = None, action_scale: float = 0.01) ->
     }
 
 
-def make_policy(policy: Policy, env_config: dict) -> Policy:
+def make_policy(policy: Policy, env_config: EnvSpec | dict) -> Policy:
     """``policy`` with the trim; the wrapped program's params are
     ``{"policy": its params, "trim": gains(...)}`` (``None``: the wrapped policy's default params
     and the default trim)."""
-    env, env_params = built(check_env_config(env_config))
+    env, env_params = built(check_env_spec(env_config))
     n, layout = env.num_actions, env.layout
     default = gains(None, float(env_params.action_scale))
     cands = escape.candidates(n)
@@ -154,13 +155,13 @@ def make_policy(policy: Policy, env_config: dict) -> Policy:
 def trimmed(
     result: TrainResult | tuple,
     hyper: dict | TrimConfig | None = None,
-    env_config: dict | None = None,
+    env_config: EnvSpec | dict | None = None,
 ):
     """``(Policy, params)`` of a ``TrainResult`` (or a ``(Policy, params)`` pair, with
     ``env_config``) with the trim (``hyper``: a ``TrimConfig`` or overrides of its default preset),
     for ``agents.evaluate`` or the bench."""
     if isinstance(result, TrainResult):
-        policy, params, env_config = result.policy(), result.params, env_config or result.env_config
+        policy, params, env_config = result.policy(), result.params, env_config or result.env_spec
     elif isinstance(result, tuple) and len(result) == 2 and isinstance(result[0], Policy):
         if env_config is None:
             raise ValueError(
@@ -171,5 +172,5 @@ def trimmed(
         raise TypeError(
             f"trimmed takes a TrainResult or a (Policy, params) pair, got {type(result).__name__}"
         )
-    trim = gains(hyper, float(built(check_env_config(env_config))[1].action_scale))
+    trim = gains(hyper, float(built(check_env_spec(env_config))[1].action_scale))
     return make_policy(policy, env_config), {"policy": params, "trim": trim}

@@ -47,6 +47,7 @@ The presets are benchmarks/budget/presets.py. Finished cells are stored in ``<ou
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -259,7 +260,7 @@ def _snapshot_run(cell: Cell, start_from=None):
     marks = set(cell.checkpoints)
     learner_config = module.LEARNER.config_type.make(**cell.hyper)
     warm, n_chunks, chunk = offpolicy.schedule(
-        {**learner_config.to_hyper(), "total_steps": max(marks)}
+        dataclasses.replace(learner_config, total_steps=max(marks))
     )
     per_iter = learner_config.num_envs * learner_config.unroll
     ends = {per_iter * (warm + chunk * i) for i in range(n_chunks + 1)}

@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 import agents
+from agents import SPGDConfig
 from agents.api import Policy, TrainResult
+from ops_jax import EnvSpec
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {"stages": 3, "mode": "hard"}
@@ -70,8 +72,8 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
     params = {"k": np.float32(5.0), "w": np.arange(6, dtype=np.float32).reshape(2, 3)}
     result = TrainResult(
         "spgd",
-        {"stages": 3, "mode": "easy"},
-        {"gain": 1.0},
+        EnvSpec(stages=3, mode="easy"),
+        SPGDConfig.make(kp=0.5),
         params,
         {"step": np.array([0, 10]), "normalized_power": np.array([0.5, 0.9])},
         {"simulation": 1.0, "optimisation": 0.0, "total": 1.0},
@@ -81,7 +83,10 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
     (tmp_path / "plain").mkdir()
     assert path.stat().st_mode == (tmp_path / "plain").stat().st_mode  # its neighbours' permissions
     back = agents.load(path)
-    assert back.algo == "spgd" and back.seed == 7 and back.hyper == {"gain": 1.0}
+    assert back.algo == "spgd" and back.seed == 7 and back.config == SPGDConfig.make(kp=0.5)
+    assert back.env_spec == EnvSpec(stages=3, mode="easy")
+    meta = json.loads((path / "meta.json").read_text())  # the stored form: dicts
+    assert meta["env_config"] == {"stages": 3, "mode": "easy"} and meta["hyper"]["kp"] == 0.5
     np.testing.assert_array_equal(np.asarray(back.curve["normalized_power"]), [0.5, 0.9])
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         agents.load(tmp_path / "nothing")
@@ -102,10 +107,25 @@ def test_checkpoint_round_trip_missing_and_corrupt(tmp_path):
         (lambda: agents.evaluate("policy", ENV), TypeError, "evaluate takes"),
         (
             lambda: agents.evaluate(
-                TrainResult("spgd", {"stages": 5, "mode": "hard"}, {}, None, {}, {}, 0), ENV
+                TrainResult("spgd", EnvSpec(stages=5), SPGDConfig.make(), None, {}, {}, 0), ENV
             ),
             ValueError,
             r"trained on observations of stages=5.*env_config gives stages=3",
+        ),
+        (
+            lambda: TrainResult("spgd", {"stages": 5}, SPGDConfig.make(), None, {}, {}, 0),
+            TypeError,
+            r"env_spec must be an ops_jax.EnvSpec \(of a dict: EnvSpec.from_options\), got dict",
+        ),
+        (
+            lambda: TrainResult("spgd", EnvSpec(), {"kp": 0.5}, None, {}, {}, 0),
+            TypeError,
+            r"config must be an agents.config.AlgoConfig .*, got dict",
+        ),
+        (
+            lambda: agents.api.algo_module("spgd").make_policy(ENV, {"kp": 0.5}),
+            TypeError,
+            "config must be a SPGDConfig or None",
         ),
     ],
 )

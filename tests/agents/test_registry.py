@@ -35,12 +35,13 @@ class TinyConfig(AlgoConfig):
     total_steps: int = field(Range(0, integer=True))
 
 
-def params_template(env_config, hyper):
+def params_template(env_spec, config):
     return {"gain": jnp.zeros(())}
 
 
-def make_policy(env_config, hyper):
-    env, _ = ops_jax.make(**env_config)
+def make_policy(env_spec, config):
+    assert isinstance(env_spec, ops_jax.EnvSpec) and isinstance(config, TinyConfig)
+    env, _ = env_spec.make()
     n = env.num_actions
 
     def act(params, carry, obs, key, probe):
@@ -54,7 +55,7 @@ def train(env_config, *, seed=0, total_steps=None, progress_fn=None, config=None
     c = TinyConfig.make(config, **hyper)
     steps = c.total_steps if total_steps is None else total_steps
     gains = np.linspace(0.1, c.max_gain, 3)
-    result = base.TrainResult("tiny", env_config, c.to_hyper(), None, {}, {}, seed)
+    result = base.TrainResult("tiny", env_config, c, None, {}, {}, seed)
     scores = []
     for g in gains:
         result.params = {"gain": jnp.float32(g)}

@@ -69,7 +69,9 @@ def test_controllers_on_frames_only():
     module = agents.api.algo_module
     ev = agents.evaluate((module("spgd").make_policy(env), None), env, episodes=4, seed=1, steps=40)
     assert ev.summary["final_mean"] > 0.9 > ev.normalized_power[:, 0].mean()
-    physics = module("physics").make_policy(env, {"config": "frames", "iters": 2, "starts": 2})
+    physics = module("physics").make_policy(
+        env, agents.PhysicsConfig.from_hyper({"config": "frames", "iters": 2, "starts": 2})
+    )
     obs = jnp.zeros((3, 4), jnp.float32)
     action, _ = jax.eval_shape(
         lambda: physics.act(

@@ -79,7 +79,8 @@ def test_bad_options_fail_when_built(options, exc, words):
 def test_agents_take_a_spec_or_a_dict():
     spec = EnvSpec(stages=2, mode="easy", model="phasor", max_steps=5)
     result = agents.train("spgd", spec, curve_episodes=1)
-    assert result.env_config == spec.as_dict() and result.env_spec == spec
+    of_dict = agents.train("spgd", spec.as_dict(), curve_episodes=1)
+    assert isinstance(of_dict.env_spec, EnvSpec) and result.env_spec == of_dict.env_spec == spec
     zero = (
         agents.Policy(
             lambda key, obs: (), lambda p, c, obs, key, probe: (jnp.zeros((obs.shape[0], 2)), c)

@@ -25,6 +25,7 @@ from agents.learners.offpolicy.checkpoint import raw_keys
 from agents.io import kept_dir  # noqa: E402
 from agents.bench import runner  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
+from ops_jax import EnvSpec  # noqa: E402
 
 TINY = [
     "--set",
@@ -137,7 +138,7 @@ def test_learning_run_checkpoints_a_policy_the_runner_runs(ioc, tmp_path):
         16,
     ]
     result = base.load(tmp_path / "out" / "checkpoint")
-    assert result.algo == "droq" and result.env_config["observe_lengths"] is False
+    assert result.algo == "droq" and result.env_spec.observe_lengths is False
     assert (
         float(np.abs(result.params["obs_norm"]["std"] - 1).max()) > 0
     )  # fitted to the warm-up's frames
@@ -234,13 +235,13 @@ def test_the_lab_benchmark_kills_a_learning_run_past_its_first_checkpoint_and_re
 
 def _saved_policy(path, stages: int, lengths: bool):
     """A DroQ policy of the tiny networks saved by ``agents.save`` (untrained)."""
-    env_config, hyper = {"stages": stages, "observe_lengths": lengths}, {"hidden": [16, 16]}
-    hyper = base.ALGOS["droq"].settings(hyper)
-    params = base.algo_module("droq").params_template(env_config, hyper)
+    env_spec = EnvSpec(stages=stages, observe_lengths=lengths)
+    config = base.ALGOS["droq"].config.make(hidden=(16, 16))
+    params = base.algo_module("droq").params_template(env_spec, config)
     base.save(
         path,
         base.TrainResult(
-            "droq", env_config, hyper, params, {"step": [0], "normalized_power": [0.0]}, {}, 0
+            "droq", env_spec, config, params, {"step": [0], "normalized_power": [0.0]}, {}, 0
         ),
     )
     return path
@@ -518,7 +519,7 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
                 assert np.array_equal(learning.actor.prev[1], done) == (kind == "fit")
         learning.thread.finish()
     assert n[0] == 0 and learning.thread.error is None and np.all(np.abs(actions) <= 1)
-    _, batch = replay.replay_buffer(learning.parts.train_env, learning.parts.hyper).sample(
+    _, batch = replay.replay_buffer(learning.parts.train_env, learning.parts.config).sample(
         learning.state.ts.buffer
     )
     fitted = np.asarray(batch["obs"])[:, d:]
@@ -529,6 +530,6 @@ def test_learner_with_the_fit_stores_frames_and_offsets_and_its_policy_reads_fra
     )
     assert was_sent == 1.0 if kind == "fit" else was_sent < 0.05, was_sent
     result = base.load(tmp_path / "checkpoint")
-    assert result.hyper["observer"] == kind and result.params["obs_norm"]["mean"].shape == (d + 2,)
-    ev = base.evaluate(result, result.env_config, episodes=2, seed=0, steps=5)
+    assert result.config.observer == kind and result.params["obs_norm"]["mean"].shape == (d + 2,)
+    ev = base.evaluate(result, result.env_spec, episodes=2, seed=0, steps=5)
     assert np.all(np.isfinite(ev.normalized_power))

@@ -151,7 +151,7 @@ def _the_same_as_never_stopped(argv, cwd: Path) -> None:
     never_stopped = _files(cwd / "run")
     summary = [json.loads(files["summary.json"]) for files in (resumed, never_stopped)]
     h = CONFIG_TYPES[summary[0]["algo"]].make(None, total_steps=STEPS, **SMALL[summary[0]["algo"]])
-    warm, n_chunks, chunk = schedule(h.to_hyper())
+    warm, n_chunks, chunk = schedule(h)
     assert summary[0]["train_steps"] == summary[1]["train_steps"] == (warm + n_chunks * chunk) * 4
     assert _score(resumed) == _score(never_stopped)
     for name in ("checkpoint/params.msgpack", "curve.csv"):

@@ -16,6 +16,7 @@ import pytest
 import agents
 from agents.io import dumps_json, read_json, write_json_atomic
 from benchmarks.cells import CellStore
+from ops_jax import EnvSpec
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -96,8 +97,8 @@ def test_a_tiny_training_on_the_command_line_writes_strict_json(tmp_path):
 def test_agents_save_and_a_sweep_cell_write_strict_json(tmp_path):
     result = agents.api.TrainResult(
         "spgd",
-        {"stages": 2},
-        {},
+        EnvSpec(stages=2),
+        agents.SPGDConfig.make(),
         {"w": np.zeros(2, np.float32)},
         {"step": np.arange(2), "normalized_power": np.array([np.nan, 0.5])},
         {"total": 1.0},

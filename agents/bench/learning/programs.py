@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from agents.envs import built, train_env_config
 from agents.learners.offpolicy import observer, replay
+from ops_jax import EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +31,7 @@ class Built:
     env: Any
     train_env: Any
     observer: Any
-    fns: dict
+    fns: Any  # agents.learners.offpolicy.replay.Loop
     ratio: float  # the target gradient steps per env step (the config's update-to-data ratio)
 
 
@@ -38,9 +39,9 @@ def build(learner, env_config: dict, config, seed: int):
     """(``Built`` of ``learner`` with ``config`` on ``env_config``, the env params)."""
     hyper = config.to_hyper()
     env, env_params = built(train_env_config(env_config, config.train_reward))
-    train_env = learner.training_env(env, env_config, hyper)
+    train_env = learner.training_env(env, EnvSpec.from_options(env_config), config)
     seen = train_env.observer if isinstance(train_env, observer.Observed) else None
-    fns = learner.build(train_env, hyper)
+    fns = learner.build(train_env, config)
     ratio = config.updates_per_step()
     parts = Built(learner, env_config, config, hyper, seed, env, train_env, seen, fns, ratio)
     return parts, env_params
@@ -75,7 +76,7 @@ def _explore(parts: Built):
     k_act = jax.random.fold_in(jax.random.key(parts.seed), 1)
 
     def explore(snap, t, obs, random):
-        return parts.fns["explore"](snap, jax.random.fold_in(k_act, t), obs[None], random)[0]
+        return parts.fns.explore(snap, jax.random.fold_in(k_act, t), obs[None], random)[0]
 
     return explore
 
@@ -84,7 +85,7 @@ def _insert(parts: Built):
     """Store one transition, its reward the configuration's at the next frame's power, discount 1
     (a continuing task)."""
     env, d_raw = parts.env, parts.env.observation_size
-    buffer = replay.replay_buffer(parts.train_env, parts.hyper)
+    buffer = replay.replay_buffer(parts.train_env, parts.config)
 
     def insert(ts, obs, action, next_obs, p_init):
         power = env.layout.power(next_obs[:d_raw]) * env.p_max
@@ -134,7 +135,7 @@ def compile_programs(parts: Built, ts) -> Programs:
         acts = _observed(parts, ts, act)
     scalar = jax.ShapeDtypeStruct((), jnp.float32)
     insert = jax.jit(_insert(parts), donate_argnums=0).lower(ts, obs, act, obs, scalar).compile()
-    update = jax.jit(lambda ts: parts.fns["update"](ts, None)[0], donate_argnums=0)
+    update = jax.jit(lambda ts: parts.fns.update(ts, None)[0], donate_argnums=0)
     warm = jax.ShapeDtypeStruct((parts.config.learning_starts, d), jnp.float32)
-    fit_norm = jax.jit(parts.fns["fit_norm"]).lower(ts, warm).compile()
+    fit_norm = jax.jit(parts.fns.fit_norm).lower(ts, warm).compile()
     return Programs(insert=insert, update=update.lower(ts).compile(), fit_norm=fit_norm, **acts)

@@ -82,7 +82,7 @@ def check_args(args) -> Path | None:
 def default_stages(args, checkpoint: Path | None) -> int:
     """The simulated bench's stages: the resumed run's, the ``--from`` policy's, else 5."""
     source = checkpoint or args.from_
-    return base.load(source).env_config.get("stages", 5) if source else 5
+    return base.load(source).env_spec.stages if source else 5
 
 
 def settings(args, learner, mapping: dict, checkpoint: Path | None, env_options: dict, hyper: dict):
@@ -104,11 +104,9 @@ def settings(args, learner, mapping: dict, checkpoint: Path | None, env_options:
     what = "--from" if checkpoint is None else f"the checkpoint in {args.out}"
     if start.algo != learner.name:
         raise ValueError(f"--learn {learner.name}: {what} holds a {start.algo} policy")
-    config = learner.config_type.from_hyper(
-        {**learner.stored_config(start.hyper).to_hyper(), **hyper}
-    )
+    config = learner.config_type.from_hyper({**start.config.to_hyper(), **hyper})
     seed = start.seed if checkpoint else args.seed
-    return {**start.env_config, **env_options}, config, seed, start
+    return {**start.env_spec.as_dict(), **env_options}, config, seed, start
 
 
 def _check_env(args, parts: Built, mapping: dict) -> None:

@@ -18,6 +18,7 @@ from agents.bench.learning.programs import Built
 from agents.io import replace_dir, temp_dir, write_json_atomic
 from agents.learners.offpolicy import driver as offpolicy
 from agents.learners.offpolicy.checkpoint import is_key, raw_keys
+from ops_jax import EnvSpec
 
 # training-state fields of a simulated run: not saved, fresh on resume
 LIVE = ("env_state", "obs", "env_params")
@@ -57,8 +58,8 @@ class State:
 
 
 def fresh(parts: Built, env_params) -> State:
-    """A run from scratch: the training state ``parts.fns["init"]`` draws from the seed."""
-    return State(jax.jit(parts.fns["init"])(jax.random.key(parts.seed), env_params))
+    """A run from scratch: the training state ``parts.fns.init`` draws from the seed."""
+    return State(jax.jit(parts.fns.init)(jax.random.key(parts.seed), env_params))
 
 
 def start_from(state: State, result: base.TrainResult, path: str) -> None:
@@ -137,8 +138,8 @@ class Checkpoints:
         host = jax.device_get(raw_keys(state.saved()))
         result = base.TrainResult(
             p.learner.name,
-            p.env_config,
-            p.hyper,
+            EnvSpec.from_options(p.env_config),
+            p.config,
             offpolicy.policy_params(state.ts),
             dict(c.curve),
             {"total": c.seconds},

@@ -42,6 +42,7 @@ from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo
+from ops_jax import EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,14 +159,14 @@ def _network_factory(c: PPOConfig):
     )
 
 
-def _networks(env_config: dict, c: PPOConfig):
-    return brax_training.networks(env_config, _network_factory(c), c.normalize_observations)
+def _networks(env_spec: EnvSpec, c: PPOConfig):
+    return brax_training.networks(env_spec, _network_factory(c), c.normalize_observations)
 
 
-def params_template(env_config: dict, hyper: dict):
+def params_template(env_spec: EnvSpec, config: PPOConfig):
     """brax's PPO params tuple (normalizer state, policy params, value params), freshly
     initialised."""
-    net, d = _networks(env_config, PPOConfig.from_hyper(hyper))
+    net, d = _networks(env_spec, PPOConfig.of(config))
     key = jax.random.PRNGKey(0)
     return (
         brax_training.normalizer_template(d),
@@ -180,7 +181,7 @@ make_policy = brax_training.policy_maker("brax.training.agents.ppo.networks", _n
 
 
 def train(
-    env_config: dict,
+    env_config: EnvSpec | dict,
     *,
     seed: int = 0,
     total_steps: int | None = None,
@@ -190,7 +191,7 @@ def train(
 ) -> base.TrainResult:
     """Train PPO with ``brax.training.agents.ppo.train`` (arguments and progress metrics:
     ``agents.train``)."""
-    env_config, c = brax_training.training_config(PPOConfig, env_config, config, total_steps, hyper)
+    env_spec, c = brax_training.training_config(PPOConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.ppo import train as ppo_train
 
     per_iteration = c.batch_size * c.unroll_length * c.num_minibatches  # env steps
@@ -200,7 +201,7 @@ def train(
     return brax_training.trained(
         "ppo",
         ppo_train.train,
-        env_config,
+        env_spec,
         c,
         seed,
         progress_fn,

@@ -33,6 +33,7 @@ from agents.learners import budgets
 from agents.config import ACTIVATION, COUNT, COUNT0, NONNEG, POSITIVE, UNIT, AlgoConfig
 from agents.config import choice, field, flag, widths
 from agents.registry import Algo
+from ops_jax import EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,13 +150,13 @@ def _network_factory(c: SACConfig):
     )
 
 
-def _networks(env_config: dict, c: SACConfig):
-    return brax_training.networks(env_config, _network_factory(c), c.normalize_observations)
+def _networks(env_spec: EnvSpec, c: SACConfig):
+    return brax_training.networks(env_spec, _network_factory(c), c.normalize_observations)
 
 
-def params_template(env_config: dict, hyper: dict):
+def params_template(env_spec: EnvSpec, config: SACConfig):
     """brax's SAC policy params tuple (normalizer state, policy params), freshly initialised."""
-    net, d = _networks(env_config, SACConfig.from_hyper(hyper))
+    net, d = _networks(env_spec, SACConfig.of(config))
     return (brax_training.normalizer_template(d), net.policy_network.init(jax.random.PRNGKey(0)))
 
 
@@ -165,7 +166,7 @@ make_policy = brax_training.policy_maker("brax.training.agents.sac.networks", _n
 
 
 def train(
-    env_config: dict,
+    env_config: EnvSpec | dict,
     *,
     seed: int = 0,
     total_steps: int | None = None,
@@ -175,7 +176,7 @@ def train(
 ) -> base.TrainResult:
     """Train SAC with ``brax.training.agents.sac.train`` (arguments and progress metrics:
     ``agents.train``)."""
-    env_config, c = brax_training.training_config(SACConfig, env_config, config, total_steps, hyper)
+    env_spec, c = brax_training.training_config(SACConfig, env_config, config, total_steps, hyper)
     from brax.training.agents.sac import train as sac_train
 
     if c.min_replay_size >= c.total_steps:
@@ -189,7 +190,7 @@ def train(
     return brax_training.trained(
         "sac",
         sac_train.train,
-        env_config,
+        env_spec,
         c,
         seed,
         progress_fn,

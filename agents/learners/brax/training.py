@@ -16,7 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import api as base
-from agents.envs import train_env_config
+from agents.envs import check_env_spec, train_env_config
+from ops_jax import EnvSpec
 
 EVAL_FIRST_EPISODE = 10
 
@@ -27,10 +28,10 @@ def activation(name: str):
     return {"tanh": nn.tanh, "relu": nn.relu, "swish": nn.swish, "elu": nn.elu}[name]
 
 
-def make_brax_env(env_config: dict, first_episode: int = 0):
+def make_brax_env(env_spec: EnvSpec, first_episode: int = 0):
     from ops_jax.adapters.brax import OPSBraxEnv
 
-    return OPSBraxEnv(first_episode=first_episode, **train_env_config(env_config))
+    return OPSBraxEnv(first_episode=first_episode, **train_env_config(env_spec).as_dict())
 
 
 def obs_spec(size: int):
@@ -39,14 +40,14 @@ def obs_spec(size: int):
     return specs.Array((size,), jnp.dtype("float32"))
 
 
-def networks(env_config: dict, factory, normalize_observations: bool):
-    """(brax's networks of ``factory`` for the training environment of ``env_config``, observation
+def networks(env_spec: EnvSpec, factory, normalize_observations: bool):
+    """(brax's networks of ``factory`` for the training environment of ``env_spec``, observation
     size)."""
     from brax.training.acme import running_statistics
 
     from agents.envs import built
 
-    env, _ = built(train_env_config(env_config))
+    env, _ = built(train_env_config(env_spec))
     normalize = running_statistics.normalize if normalize_observations else (lambda x, y: x)
     net = factory(
         observation_size=env.observation_size,
@@ -66,7 +67,7 @@ def normalizer_template(size: int):
 def trained(
     algo: str,
     train_fn,
-    env_config: dict,
+    env_spec: EnvSpec,
     c,
     seed: int,
     progress_fn,
@@ -75,10 +76,10 @@ def trained(
     **options,
 ) -> base.TrainResult:
     """The TrainResult of brax's ``train_fn`` (its own ``options``) with config ``c`` on the Brax
-    adapter of ``env_config``, evaluated deterministically from ``EVAL_FIRST_EPISODE``, its curve
+    adapter of ``env_spec``, evaluated deterministically from ``EVAL_FIRST_EPISODE``, its curve
     recorded."""
-    env = make_brax_env(env_config)
-    eval_env = make_brax_env(env_config, EVAL_FIRST_EPISODE)
+    env = make_brax_env(env_spec)
+    eval_env = make_brax_env(env_spec, EVAL_FIRST_EPISODE)
     rec = Recorder(progress_fn)
     t0 = time.perf_counter()
     _, params, _ = train_fn(
@@ -94,7 +95,7 @@ def trained(
         progress_fn=rec,
         **options,
     )
-    return rec.result(algo, env, env_config, c, params, time.perf_counter() - t0, seed)
+    return rec.result(algo, env, env_spec, c, params, time.perf_counter() - t0, seed)
 
 
 _SIM_SECONDS: dict = {}
@@ -178,7 +179,7 @@ class Recorder:
         }
 
     def result(
-        self, algo: str, env, env_config: dict, c, params, total: float, seed: int
+        self, algo: str, env, env_spec: EnvSpec, c, params, total: float, seed: int
     ) -> base.TrainResult:
         """The TrainResult of a brax training call of ``total`` seconds (wall time split as
         above)."""
@@ -188,8 +189,8 @@ class Recorder:
         sim = seconds_per_env_step(env, c.num_envs, seed=seed)
         return base.TrainResult(
             algo,
-            env_config,
-            c.to_hyper(),
+            env_spec,
+            c,
             jax.device_get(params),
             curve,
             wall_split(total, sim, steps + eval_steps),
@@ -222,8 +223,10 @@ def wall_split(total: float, sim_per_step: float, env_steps: int) -> dict:
     return {"simulation": sim, "optimisation": total - sim, "total": total}
 
 
-def training_config(config_type, env_config: dict, config, total_steps: int | None, hyper: dict):
-    """``(env_config checked, config)`` of a brax training: ``config`` (a preset name or a
+def training_config(
+    config_type, env_config: EnvSpec | dict, config, total_steps: int | None, hyper: dict
+):
+    """``(its EnvSpec checked, config)`` of a brax training: ``config`` (a preset name or a
     ``config_type``) with the ``hyper`` overrides and ``total_steps`` (None: the config's); brax
     made runnable on this JAX."""
     from agents.learners.brax import compat as brax_compat
@@ -232,17 +235,17 @@ def training_config(config_type, env_config: dict, config, total_steps: int | No
     c = config_type.make(config, **hyper)
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
-    return base.check_env_config(env_config), c
+    return check_env_spec(env_config), c
 
 
 def policy_maker(networks_module: str, networks_of: Callable, config_type) -> Callable:
-    """A brax trainer's ``make_policy(env_config, hyper)``: ``make_inference_fn`` of the module
-    ``networks_module`` at the networks ``networks_of(env_config, config)``, with deterministic
+    """A brax trainer's ``make_policy(env_spec, config)``: ``make_inference_fn`` of the module
+    ``networks_module`` at the networks ``networks_of(env_spec, config)``, with deterministic
     actions."""
 
-    def make_policy(env_config: dict, hyper: dict) -> base.Policy:
+    def make_policy(env_spec: EnvSpec, config) -> base.Policy:
         module = importlib.import_module(networks_module)
-        net, _ = networks_of(env_config, config_type.from_hyper(hyper))
+        net, _ = networks_of(env_spec, config_type.of(config))
         return deterministic_policy(module.make_inference_fn, net)
 
     return make_policy

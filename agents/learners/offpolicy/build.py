@@ -1,13 +1,17 @@
-"""The seed-vmapped, jitted training functions of an off-policy learner
-(``agents.learners.offpolicy.driver``), built once per learner, static environment configuration and
-hyperparameters in a process."""
+"""The seed-vmapped, jitted training programs of an off-policy learner
+(``agents.learners.offpolicy.driver``), a ``Programs`` record built once per learner, static
+environment configuration and config in a process."""
 
 from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
 
 import jax
 
 from agents import evaluation
 from agents.envs import built, train_env_config
+from ops_jax import EnvSpec
 
 
 def seed_axes(ts):
@@ -25,7 +29,35 @@ def _placed_first(place, out):
     return place(out[0]), out[1]
 
 
-def _over_seeds(fns: dict, evaluate_fn, ts_shape, num_seeds: int, sharding) -> dict:
+@dataclasses.dataclass(frozen=True)
+class Programs:
+    """An off-policy learner's jitted training programs on a leading seed axis (``cached_build``):
+    ``init(keys, env_params)``, ``warmup(ts, n, random)``, ``fit_norm(ts, obs)``,
+    ``train_chunk(ts, n)`` (donates ``ts``), ``evaluate(params, env_params, keys, ids)``; the seed
+    axis's ``sharding`` (None: one device); ``compiled(name, *args)`` each compiled ahead of time
+    once per argument signature."""
+
+    init: Callable
+    warmup: Callable
+    fit_norm: Callable
+    train_chunk: Callable
+    evaluate: Callable
+    sharding: Any
+    _compiled: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    def compiled(self, name: str, *args):
+        """The program ``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts,
+        length); "evaluate": its args) compiled for ``args``."""
+        static = args[1:] if name in ("warmup", "train_chunk") else None
+        arrays = args[:1] if static is not None else args
+        layout = jax.tree.map(lambda x: (x.shape, x.dtype, getattr(x, "sharding", None)), arrays)
+        sig = (name, static, str(layout))
+        if sig not in self._compiled:
+            self._compiled[sig] = getattr(self, name).lower(*args).compile()
+        return self._compiled[sig]
+
+
+def _over_seeds(loop, evaluate_fn, ts_shape, num_seeds: int, sharding) -> Programs:
     """The training functions on a leading seed axis, jitted: vmapped for several seeds; for one,
     the plain functions with that axis squeezed and restored inside the jit (a size-1 vmap
     measured ~10% slower on CPU). With a ``sharding`` of the seed axis, every returned state is
@@ -67,68 +99,44 @@ def _over_seeds(fns: dict, evaluate_fn, ts_shape, num_seeds: int, sharding) -> d
             return one
 
     def train_chunk(ts, n):
-        ts, metrics = over(lambda t: fns["train_chunk"](t, n), (axes,), (axes, 0))(ts)
+        ts, metrics = over(lambda t: loop.train_chunk(t, n), (axes,), (axes, 0))(ts)
         return place(ts), metrics
 
-    return dict(
-        init=jax.jit(lambda k, p: place(over(fns["init"], (0, None), axes)(k, p))),
+    return Programs(
+        init=jax.jit(lambda k, p: place(over(loop.init, (0, None), axes)(k, p))),
         warmup=jax.jit(
             lambda ts, n, random: _placed_first(
-                place, over(lambda t: fns["warmup"](t, n, random), (axes,), (axes, 0))(ts)
+                place, over(lambda t: loop.warmup(t, n, random), (axes,), (axes, 0))(ts)
             ),
             static_argnums=(1, 2),
         ),
-        fit_norm=jax.jit(lambda ts, obs: place(over(fns["fit_norm"], (axes, 0), axes)(ts, obs))),
+        fit_norm=jax.jit(lambda ts, obs: place(over(loop.fit_norm, (axes, 0), axes)(ts, obs))),
         train_chunk=jax.jit(train_chunk, static_argnums=1, donate_argnums=0),
         evaluate=jax.jit(over(evaluate_fn, (0, None, 0, None), 0)),
+        sharding=sharding,
     )
 
 
-# Hyperparameters that leave the compiled training programs unchanged.
-_RUN_KEYS = ("config", "total_steps", "learning_starts", "eval_every", "eval_episodes")
+# The config's fields that leave the compiled training programs unchanged.
+_RUN_FIELDS = ("config", "total_steps", "learning_starts", "eval_every", "eval_episodes")
 _BUILDS: dict = {}
 
 
-def cached_build(learner, env_config: dict, h: dict, num_seeds: int) -> dict:
-    """Seed-vmapped jitted training functions, built once per (learner, static env config,
-    hyperparameters) in this process, so that other seeds or modes (their ``EnvParams`` are
-    arguments) do not recompile. ``compiled(name, *args)`` compiles ahead of time once per argument
-    signature."""
-    env, env_params = built(train_env_config(env_config, h["train_reward"]))
+def cached_build(learner, env_spec: EnvSpec, c, num_seeds: int) -> tuple[Programs, Any]:
+    """(the seed-vmapped jitted training ``Programs``, the training environment's params), built
+    once per (learner, static env config, config fields but ``_RUN_FIELDS``) in this process, so
+    that other seeds or modes (their ``EnvParams`` are arguments) do not recompile."""
+    env, env_params = built(train_env_config(env_spec, c.train_reward))
     sharding = evaluation.split_over_devices(num_seeds, "seeds")
-    key = (
-        learner.name,
-        env.config,
-        repr(sorted((k, v) for k, v in h.items() if k not in _RUN_KEYS)),
-        num_seeds > 1,
-        sharding,
+    fields = tuple(
+        (f.name, getattr(c, f.name)) for f in dataclasses.fields(c) if f.name not in _RUN_FIELDS
     )
+    key = (learner.name, env.config, fields, num_seeds > 1, sharding)
     if key not in _BUILDS:
-        raw = learner.build(learner.training_env(env, env_config, h), h)
+        loop = learner.build(learner.training_env(env, env_spec, c), c)
         evaluate_fn = evaluation.evaluator(
-            env, learner.make_policy(env_config, h), env.config.max_steps, 10
+            env, learner.make_policy(env_spec, c), env.config.max_steps, 10
         )
-        ts_shape = jax.eval_shape(raw["init"], jax.random.key(0), env_params)
-        fns = _over_seeds(raw, evaluate_fn, ts_shape, num_seeds, sharding)
-        fns["sharding"] = sharding
-        compiled = {}
-
-        def get_compiled(name, *args):
-            """``name`` ("warmup": args (ts, length, random); "train_chunk": args (ts, length);
-            "evaluate": its args) compiled."""
-            static = args[1:] if name in ("warmup", "train_chunk") else None
-            arrays = args[:1] if static is not None else args
-            sig = (
-                name,
-                static,
-                str(
-                    jax.tree.map(lambda x: (x.shape, x.dtype, getattr(x, "sharding", None)), arrays)
-                ),
-            )
-            if sig not in compiled:
-                compiled[sig] = fns[name].lower(*args).compile()
-            return compiled[sig]
-
-        fns["compiled"] = get_compiled
-        _BUILDS[key] = fns
+        ts_shape = jax.eval_shape(loop.init, jax.random.key(0), env_params)
+        _BUILDS[key] = _over_seeds(loop, evaluate_fn, ts_shape, num_seeds, sharding)
     return _BUILDS[key], env_params

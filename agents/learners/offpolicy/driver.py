@@ -2,9 +2,10 @@
 ``agents.learners.offpolicy.droq``): seeds vmapped, the warm-up and the training chunks (their
 building blocks: ``agents.learners.offpolicy.replay``), the curve, snapshots and continued runs.
 
-A learner is a ``Learner``: its name, config type, ``build(env, h)`` (its networks, exploration and
-update, wired through ``agents.learners.offpolicy.replay.replay_loop``), ``networks`` and ``greedy``
-(its policy and params template). Its training state is a NamedTuple with at least the fields
+A learner is a ``Learner``: its name, config type, ``build(env, config)`` (its networks, exploration
+and update, wired through ``agents.learners.offpolicy.replay.replay_loop``), ``networks`` and
+``greedy`` (its policy and params template); ``entry_points`` gives its module's ``train`` and
+``train_seeds``. Its training state is a NamedTuple with at least the fields
 ``actor`` (a flax TrainState) and ``agents.learners.offpolicy.replay.STATE``'s (``obs_norm``,
 ``buffer``, ...); the stored policy params are ``{"actor": actor params, "obs_norm": {mean, std}}``.
 
@@ -46,84 +47,17 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from agents import api as base
-from agents.learners.offpolicy import build, checkpoint, observer, replay
-from agents.envs import built, train_env_config
-
-
-class Learner(NamedTuple):
-    """An off-policy learner: ``build(env, h) -> dict(init, warmup, fit_norm, train_chunk)``, its
-    ``networks(h, num_actions) -> (actor, critic)`` (flax modules) and
-    ``greedy(actor, params, obs) -> action`` (its deterministic action at standardised
-    observations)."""
-
-    name: str
-    config_type: type
-    build: Callable
-    networks: Callable
-    greedy: Callable
-
-    def stored_config(self, hyper: dict):
-        """The config of a stored ``hyper`` dict (keys that are not fields are left out)."""
-        names = {*self.config_type.names(), "config"}
-        return self.config_type.from_hyper({k: v for k, v in hyper.items() if k in names})
-
-    def _actor(self, env_config: dict, hyper: dict):
-        """(the actor module, its observation size, the observer or None)."""
-        h = self.stored_config(hyper).to_hyper()
-        env, _ = built(train_env_config(env_config, h["train_reward"]))
-        seen = self._observer(env_config, h)
-        return (
-            self.networks(h, env.num_actions)[0],
-            env.observation_size + (seen.size if seen else 0),
-            seen,
-        )
-
-    def params_template(self, env_config: dict, hyper: dict):
-        """Pytree with the structure of the policy params: {"actor": flax params, "obs_norm": {mean,
-        std}}."""
-        actor, d, _ = self._actor(env_config, hyper)
-        return {
-            "actor": actor.init(jax.random.key(0), jnp.zeros((1, d))),
-            "obs_norm": replay.identity_norm(d),
-        }
-
-    def make_policy(self, env_config: dict, hyper: dict) -> base.Policy:
-        """The deterministic actor at observations standardised by the params' ``obs_norm``; ignores
-        key, carry and probe. With an observer (``agents.learners.offpolicy.observer``), the
-        observer's estimate is appended first (its carry is the policy's)."""
-        actor, _, seen = self._actor(env_config, hyper)
-
-        def greedy(params, obs):
-            return self.greedy(actor, params["actor"], replay.normalise(params["obs_norm"], obs))
-
-        if seen is not None:
-            return observer.policy(seen, greedy)
-
-        def act(params, carry, obs, key, probe):
-            del key, probe
-            return greedy(params, obs), carry
-
-        return base.Policy(lambda key, obs: (), act)
-
-    @staticmethod
-    def _observer(env_config: dict, h: dict):
-        """The observer of the stored hyperparameters ``h`` on the learner's training environment,
-        or None."""
-        return observer.of_learner(train_env_config(env_config, h["train_reward"]), h)
-
-    def training_env(self, env, env_config: dict, h: dict):
-        """The batched env the learner trains on: ``env`` (of
-        ``train_env_config(env_config, h["train_reward"])``), wrapped by
-        ``agents.learners.offpolicy.observer.Observed`` with an observer."""
-        seen = self._observer(env_config, h)
-        return env if seen is None else observer.Observed(env, seen)
+from agents.learners.offpolicy import build, checkpoint, replay
+from agents.learners.offpolicy.learner import Learner
+from agents.envs import check_env_spec
+from ops_jax import EnvSpec
 
 
 def check_seed(seed):
@@ -132,37 +66,37 @@ def check_seed(seed):
     return int(seed)
 
 
-def schedule(h: dict) -> tuple[int, int, int]:
-    """(warm-up iterations, training chunks, iterations per chunk) of ``h["total_steps"]`` env
-    steps: the warm-up collects at least ``learning_starts`` steps, then chunks of about
-    ``eval_every`` steps run whole iterations of ``num_envs * unroll`` steps, never past
-    ``total_steps`` (the remainder of less than one iteration per chunk is not run)."""
-    per_iter = h["num_envs"] * h["unroll"]
-    warm_iters = -(-h["learning_starts"] // per_iter)
-    if warm_iters * per_iter > h["total_steps"]:
+def schedule(c) -> tuple[int, int, int]:
+    """(warm-up iterations, training chunks, iterations per chunk) of ``c.total_steps`` env steps
+    (``c`` a ``replay.ReplayConfig``): the warm-up collects at least ``learning_starts`` steps, then
+    chunks of about ``eval_every`` steps run whole iterations of ``num_envs * unroll`` steps, never
+    past ``total_steps`` (the remainder of less than one iteration per chunk is not run)."""
+    per_iter = c.num_envs * c.unroll
+    warm_iters = -(-c.learning_starts // per_iter)
+    if warm_iters * per_iter > c.total_steps:
         raise ValueError(
-            f"total_steps must be >= the warm-up of learning_starts = {h['learning_starts']} "
+            f"total_steps must be >= the warm-up of learning_starts = {c.learning_starts} "
             f"rounded up to whole iterations of num_envs * unroll = {per_iter} "
-            f"({warm_iters * per_iter}), got {h['total_steps']}"
+            f"({warm_iters * per_iter}), got {c.total_steps}"
         )
-    train_iters = max(0, (h["total_steps"] - warm_iters * per_iter) // per_iter)
-    n_chunks = -(-train_iters // max(1, h["eval_every"] // per_iter)) if train_iters else 0
+    train_iters = max(0, (c.total_steps - warm_iters * per_iter) // per_iter)
+    n_chunks = -(-train_iters // max(1, c.eval_every // per_iter)) if train_iters else 0
     return warm_iters, n_chunks, (train_iters // n_chunks if n_chunks else 0)
 
 
-def _warm_up(fns: dict, ts, warm_iters: int, timing: dict, random: bool = True):
+def _warm_up(programs: build.Programs, ts, warm_iters: int, timing: dict, random: bool = True):
     """(state after the warm-up (uniform random actions, then the observation statistics frozen; or,
     with ``random=False``, the policy's exploration and the statistics kept), simulation seconds per
     iteration); adds the compile and simulation time to ``timing``."""
     t0 = time.perf_counter()
-    warmup = fns["compiled"]("warmup", ts, warm_iters, random)
+    warmup = programs.compiled("warmup", ts, warm_iters, random)
     t1 = time.perf_counter()
     ts, warm_obs = jax.block_until_ready(warmup(ts))
     t2 = time.perf_counter()
     jax.block_until_ready(warmup(ts))  # a second, discarded timing run: the first one is noisier
     timing["compile"] += t1 - t0
     timing["simulation"] += t2 - t1
-    return (fns["fit_norm"](ts, warm_obs) if random else ts), min(
+    return (programs.fit_norm(ts, warm_obs) if random else ts), min(
         t2 - t1, time.perf_counter() - t2
     ) / warm_iters
 
@@ -204,7 +138,7 @@ def _continued(ts, learner: Learner, start_from, seeds, sharding) -> object:
 
 def train_seeds(
     learner: Learner,
-    env_config: dict,
+    env_config: EnvSpec | dict,
     *,
     seeds: Sequence[int],
     total_steps: int | None = None,
@@ -225,21 +159,21 @@ def train_seeds(
     ``start_from``): an ``agents.learners.offpolicy.checkpoint.Checkpoints``: the run checkpoints as
     it trains, continues the run stored there, and stops on SIGINT or SIGTERM at the end of the
     current chunk with a checkpoint (raising ``checkpoint.Stopped``)."""
-    env_config = base.check_env_config(env_config)
-    seeds, h = _run_settings(learner, seeds, total_steps, config, hyper)
+    env_spec = check_env_spec(env_config)
+    seeds, c = _run_settings(learner, seeds, total_steps, config, hyper)
     if checkpoints is not None and (len(seeds) > 1 or start_from is not None):
         raise ValueError("checkpoints take one seed and no start_from")
-    warm_iters, n_chunks, chunk = schedule(h)
-    fns, env_params = build.cached_build(learner, env_config, h, len(seeds))
-    trainer = _Trainer(learner, env_config, h, seeds, fns, env_params)
+    warm_iters, n_chunks, chunk = schedule(c)
+    programs, env_params = build.cached_build(learner, env_spec, c, len(seeds))
+    trainer = _Trainer(learner, env_spec, c, seeds, programs, env_params)
     trainer.progress_fn, trainer.snapshot_fn = progress_fn, snapshot_fn
     with checkpoints.stop_requests() if checkpoints else contextlib.nullcontext():
-        ts = fns["init"](trainer.k_init, env_params)
+        ts = programs.init(trainer.k_init, env_params)
         run = checkpoints.restore(ts, trainer.wanted) if checkpoints else None
         trainer.checkpoints = checkpoints
         if run is None:
             if start_from is not None:
-                ts = _continued(ts, learner, start_from, seeds, fns["sharding"])
+                ts = _continued(ts, learner, start_from, seeds, programs.sharding)
             run = trainer.start(ts, warm_iters, random=start_from is None)
             trainer.record(run, None, last=n_chunks == 0)
         else:  # this call's seconds add to the stored run's
@@ -255,21 +189,21 @@ class _Trainer:
 
     progress_fn = snapshot_fn = checkpoints = None
 
-    def __init__(self, learner, env_config, h, seeds, fns, env_params):
-        self.learner, self.env_config, self.h, self.seeds = learner, env_config, h, seeds
-        self.fns, self.env_params, self.t_start = fns, env_params, time.perf_counter()
-        self.eval_ids, self.per_iter = jnp.arange(h["eval_episodes"]), h["num_envs"] * h["unroll"]
-        self.wanted = checkpoint.identity(learner.name, env_config, h, seeds)
+    def __init__(self, learner, env_spec: EnvSpec, c, seeds, programs, env_params):
+        self.learner, self.env_spec, self.config, self.seeds = learner, env_spec, c, seeds
+        self.programs, self.env_params, self.t_start = programs, env_params, time.perf_counter()
+        self.eval_ids, self.per_iter = jnp.arange(c.eval_episodes), c.num_envs * c.unroll
+        self.wanted = checkpoint.identity(learner.name, env_spec.as_dict(), c.to_hyper(), seeds)
         keys = jax.vmap(jax.random.split)(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
         self.k_init, self.k_eval = keys[:, 0], keys[:, 1]
-        if fns["sharding"] is not None:
-            self.k_init, self.k_eval = jax.device_put((self.k_init, self.k_eval), fns["sharding"])
+        if programs.sharding is not None:
+            self.k_init, self.k_eval = jax.device_put((self.k_init, self.k_eval), programs.sharding)
 
     def start(self, ts, warm_iters: int, random: bool):
         """The ``Run`` after the warm-up of the fresh (or continued) state ``ts``, its evaluation
         compiled."""
         timing = dict(simulation=0.0, optimisation=0.0, evaluation=0.0, compile=0.0)
-        ts, sim_per_iter = _warm_up(self.fns, ts, warm_iters, timing, random)
+        ts, sim_per_iter = _warm_up(self.programs, ts, warm_iters, timing, random)
         curve = {k: [] for k in checkpoint.CURVE}
         run = checkpoint.Run(ts, warm_iters * self.per_iter, 0, curve, timing, sim_per_iter)
         self.compile_evaluation(run)
@@ -278,7 +212,7 @@ class _Trainer:
     def compile_evaluation(self, run) -> None:
         t0 = time.perf_counter()
         args = (policy_params(run.ts), self.env_params, self.k_eval, self.eval_ids)
-        self.evaluate = self.fns["compiled"]("evaluate", *args)
+        self.evaluate = self.programs.compiled("evaluate", *args)
         run.timing["compile"] += time.perf_counter() - t0
 
     def record(self, run, m, last: bool) -> None:
@@ -323,7 +257,7 @@ class _Trainer:
                 dict(
                     normalized_power=float(npow.mean()),
                     elapsed_s=time.perf_counter() - self.t_start,
-                    update_ratio=replay.updates_per_iter(self.h) / self.per_iter,
+                    update_ratio=replay.updates_per_iter(self.config) / self.per_iter,
                     **_chunk_metrics(m),
                 ),
             )
@@ -333,7 +267,7 @@ class _Trainer:
         if run.chunks >= n_chunks:
             return
         t0 = time.perf_counter()
-        train_compiled = self.fns["compiled"]("train_chunk", run.ts, chunk)
+        train_compiled = self.programs.compiled("train_chunk", run.ts, chunk)
         run.timing["compile"] += time.perf_counter() - t0
         sim_per_chunk = run.sim_per_iter * chunk
         while run.chunks < n_chunks:
@@ -357,8 +291,8 @@ class _Trainer:
         return [
             base.TrainResult(
                 self.learner.name,
-                self.env_config,
-                dict(self.h),
+                self.env_spec,
+                self.config,
                 jax.tree.map(lambda x: x[i], params),
                 dict(step=np.asarray(run.curve["step"]), **{k: v[i] for k, v in curve.items()}),
                 dict(timing, seeds_in_call=n),
@@ -391,13 +325,30 @@ def _chunk_metrics(m) -> dict:
     )
 
 
-def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> tuple[list, dict]:
-    """(the checked seeds, the run's stored hyperparameters: ``config`` and ``hyper`` resolved,
-    ``total_steps`` over the preset's)."""
+def _run_settings(learner: Learner, seeds, total_steps, config, hyper: dict) -> tuple[list, object]:
+    """(the checked seeds, the run's config: ``config`` and ``hyper`` resolved, ``total_steps`` over
+    the preset's)."""
     seeds = [check_seed(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be a non-empty sequence of distinct ints, got {seeds!r}")
     c = learner.config_type.make(config, **hyper)
     if total_steps is not None:
         c = dataclasses.replace(c, total_steps=total_steps)
-    return seeds, c.to_hyper()
+    return seeds, c
+
+
+def entry_points(learner: Learner, module: str, train_doc: str, seeds_doc: str):
+    """(``train``, ``train_seeds``) of the module ``module`` of ``learner``, with these docstrings:
+    ``train_seeds(env_config, *, seeds, **options)`` is the one above for ``learner``,
+    ``train(env_config, *, seed=0, **options)`` the same for one seed."""
+
+    def learner_seeds(env_config, *, seeds, **options) -> list[base.TrainResult]:
+        return train_seeds(learner, env_config, seeds=seeds, **options)
+
+    def train(env_config, *, seed=0, **options) -> base.TrainResult:
+        return learner_seeds(env_config, seeds=[check_seed(seed)], **options)[0]
+
+    for f, name, doc in ((train, "train", train_doc), (learner_seeds, "train_seeds", seeds_doc)):
+        f.__name__ = f.__qualname__ = name
+        f.__module__, f.__doc__ = module, doc
+    return train, learner_seeds

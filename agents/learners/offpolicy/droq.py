@@ -22,7 +22,7 @@ same, learning a bounded correction to the physics-informed fit's move
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, ClassVar, NamedTuple, Sequence
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -121,7 +121,7 @@ ALGO = Algo("droq", __name__, DroQConfig, "DroQ", vmaps_seeds=True, off_policy=T
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
 
-def _networks(h: dict, num_actions: int):
+def _networks(c: DroQConfig, num_actions: int):
     import flax.linen as nn
 
     MLP = replay.mlp_module()
@@ -131,7 +131,7 @@ def _networks(h: dict, num_actions: int):
 
         @nn.compact
         def __call__(self, obs):
-            out = MLP(tuple(h["hidden"]), 2 * num_actions)(obs)
+            out = MLP(c.hidden, 2 * num_actions)(obs)
             mean, log_std = jnp.split(out, 2, axis=-1)
             return mean, jnp.clip(log_std, LOG_STD_MIN, LOG_STD_MAX)
 
@@ -140,8 +140,7 @@ def _networks(h: dict, num_actions: int):
         def __call__(self, obs, action, train: bool = False):
             x = jnp.concatenate([obs, action], -1)
             q = [
-                MLP(tuple(h["critic_hidden"]), 1, h["layer_norm"], h["dropout"])(x, train)[..., 0]
-                for _ in range(2)
+                MLP(c.critic_hidden, 1, c.layer_norm, c.dropout)(x, train)[..., 0] for _ in range(2)
             ]
             return jnp.stack(q)
 
@@ -176,21 +175,23 @@ def _sample(actor, params, obs, key):
     return a, logp - jnp.sum(jnp.log(1 - a**2 + 1e-6), -1)
 
 
-def _build(env, h):
-    import optax
-
-    actor, critic = _networks(h, env.num_actions)
-    d, n = env.observation_size, env.num_actions
-    buffer = replay.replay_buffer(env, h)
-    gamma, tau, target_entropy = h["gamma"], h["tau"], h["target_entropy"] * n
-    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
-    alpha_tx = optax.adam(h["alpha_lr"]) if h["alpha_lr"] > 0 else optax.set_to_zero()
+def _explorer(actor):
+    """``explore(ts, key, obs, random)``: an action sampled from the policy, or a uniform random one
+    where ``random``."""
 
     def explore(ts, key, obs, random):
         k1, k2 = jax.random.split(key)
         sampled, _ = _sample(actor, ts.actor.params, replay.normalise(ts.obs_norm, obs), k1)
         uniform = jax.random.uniform(k2, sampled.shape, minval=-1, maxval=1)
         return jnp.where(random, uniform, sampled)
+
+    return explore
+
+
+def _losses(actor, critic, c: DroQConfig):
+    """(``critic_loss(critic params, ts, obs, batch, key)``: both critics' squared errors to the
+    soft target, dropout on; ``actor_loss(actor params, ts, obs, key) -> (loss, log probs)``:
+    alpha log pi - the critics' mean Q)."""
 
     def critic_loss(cp, ts, obs, batch, key):
         k_pi, k_drop_t, k_drop = jax.random.split(key, 3)
@@ -199,7 +200,7 @@ def _build(env, h):
         q_t = critic.apply(ts.critic_target, nobs, a2, True, rngs={"dropout": k_drop_t}).min(0)
         alpha = jnp.exp(ts.log_alpha.params["log_alpha"])
         y = jax.lax.stop_gradient(
-            batch["reward"] + gamma * batch["discount"] * (q_t - alpha * logp2)
+            batch["reward"] + c.gamma * batch["discount"] * (q_t - alpha * logp2)
         )
         q = critic.apply(cp, obs, batch["action"], True, rngs={"dropout": k_drop})
         return jnp.mean(jnp.sum((q - y) ** 2, 0))
@@ -210,102 +211,78 @@ def _build(env, h):
         q = critic.apply(ts.critic.params, obs, a, True, rngs={"dropout": k_drop}).mean(0)
         return jnp.mean(jnp.exp(ts.log_alpha.params["log_alpha"]) * logp - q), logp
 
+    return critic_loss, actor_loss
+
+
+def _updater(buffer, c: DroQConfig, num_actions: int, critic_loss, actor_loss):
+    """``update(ts, _)``: one critic step on a sampled batch, the critic target moved by ``tau``;
+    every ``policy_delay`` steps an actor step and a temperature step towards the entropy
+    ``target_entropy`` per action dimension."""
+    import optax
+
+    target_entropy = c.target_entropy * num_actions
+
+    def actor_step(ts, obs, key):
+        (aloss, logp), new_actor = replay.gradient_step(
+            ts.actor, actor_loss, ts, obs, key, has_aux=True
+        )
+        alpha_grad = jax.lax.stop_gradient(-logp.mean() - target_entropy)  # d/d log_alpha
+        return ts._replace(
+            actor=new_actor,
+            log_alpha=ts.log_alpha.apply_gradients(grads={"log_alpha": alpha_grad}),
+        ), aloss
+
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
         key, k_critic, k_actor = jax.random.split(ts.key, 3)
         obs = replay.normalise(ts.obs_norm, batch["obs"])
-        closs, grads = jax.value_and_grad(critic_loss)(ts.critic.params, ts, obs, batch, k_critic)
-        new_critic = ts.critic.apply_gradients(grads=grads)
+        closs, new_critic = replay.gradient_step(ts.critic, critic_loss, ts, obs, batch, k_critic)
         ts = ts._replace(
             critic=new_critic,
             buffer=buf,
             key=key,
-            critic_target=optax.incremental_update(new_critic.params, ts.critic_target, tau),
+            critic_target=optax.incremental_update(new_critic.params, ts.critic_target, c.tau),
         )
-
-        def actor_step(ts):
-            (aloss, logp), g = jax.value_and_grad(actor_loss, has_aux=True)(
-                ts.actor.params, ts, obs, k_actor
-            )
-            alpha_grad = jax.lax.stop_gradient(
-                -logp.mean() - target_entropy
-            )  # d/d log_alpha of its loss
-            return ts._replace(
-                actor=ts.actor.apply_gradients(grads=g),
-                log_alpha=ts.log_alpha.apply_gradients(grads={"log_alpha": alpha_grad}),
-            ), aloss
-
-        ts, aloss = replay.delayed(ts, h, actor_step)
+        ts, aloss = replay.delayed(ts, c, lambda ts: actor_step(ts, obs, k_actor))
         return ts, (closs, aloss)
 
-    def init(key, env_params):
-        ap, cp, buf, env_state, obs, k_run = replay.start(
-            env, h, buffer, actor, critic, key, env_params
-        )
-        log_alpha = {"log_alpha": jnp.log(jnp.float32(h["init_alpha"]))}
-        return DroQState(
-            replay.train_state(ap, actor_tx),
-            replay.train_state(cp, critic_tx),
-            cp,
-            replay.train_state(log_alpha, alpha_tx),
-            replay.identity_norm(d),
-            buf,
-            env_state,
-            obs,
-            k_run,
-            jnp.int32(0),
-            env_params,
-        )
+    return update
 
-    return dict(init=init, **replay.replay_loop(env, h, buffer, explore, update))
+
+def _build(env, c: DroQConfig) -> replay.Loop:
+    """DroQ's training ``Loop`` on ``env``."""
+    import optax
+
+    actor, critic = _networks(c, env.num_actions)
+    buffer = replay.replay_buffer(env, c)
+    actor_tx, critic_tx = optax.adam(c.actor_lr), optax.adam(c.critic_lr)
+    alpha_tx = optax.adam(c.alpha_lr) if c.alpha_lr > 0 else optax.set_to_zero()
+
+    def learned(ap, cp):  # the actor and critic states, the critic target, the temperature
+        log_alpha = {"log_alpha": jnp.log(jnp.float32(c.init_alpha))}
+        states = replay.train_state(ap, actor_tx), replay.train_state(cp, critic_tx)
+        return *states, cp, replay.train_state(log_alpha, alpha_tx)
+
+    init = replay.initial_state(DroQState, env, c, buffer, actor, critic, learned)
+    update = _updater(buffer, c, env.num_actions, *_losses(actor, critic, c))
+    return replay.replay_loop(env, c, buffer, init, _explorer(actor), update)
 
 
 LEARNER = offpolicy.Learner("droq", DroQConfig, _build, _networks, _greedy)
 make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 
-def train(
-    env_config: dict,
-    *,
-    seed: int = 0,
-    total_steps: int | None = None,
-    progress_fn: Callable[[int, dict], None] | None = None,
-    config: DroQConfig | str | None = None,
-    **hyper,
-) -> base.TrainResult:
-    """Train DroQ on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env steps
-    (default: the config's). ``config``: a ``DroQConfig`` or a preset name ("budget"), ``hyper``:
-    overrides of its fields; ``progress_fn`` and the curve as in
+train, train_seeds = offpolicy.entry_points(
+    LEARNER,
+    __name__,
+    """Train DroQ on ``built(env_config)`` (an ``ops_jax.EnvSpec`` or a dict of its options;
+    phasor model unless set) for ``total_steps`` env steps (default: the config's); ``seed``
+    (default 0). ``config``: a ``DroQConfig`` or a preset name ("budget" default | "bench"), the
+    other keywords: overrides of its fields; ``progress_fn`` and the curve as in
     ``agents.learners.offpolicy.td3.train``; ``start_from=result`` continues from an earlier run in
     this process (``agents.learners.offpolicy.driver``), ``checkpoints=Checkpoints(folder)``
-    checkpoints it as it trains (``agents.learners.offpolicy.checkpoint``)."""
-    return train_seeds(
-        env_config,
-        seeds=[offpolicy.check_seed(seed)],
-        total_steps=total_steps,
-        progress_fn=progress_fn,
-        config=config,
-        **hyper,
-    )[0]
-
-
-def train_seeds(
-    env_config: dict,
-    *,
-    seeds: Sequence[int],
-    total_steps: int | None = None,
-    progress_fn: Callable[[int, dict], None] | None = None,
-    config: DroQConfig | str | None = None,
-    **hyper,
-) -> list[base.TrainResult]:
-    """``train`` for several seeds in one vmapped call (as
-    ``agents.learners.offpolicy.td3.train_seeds``)."""
-    return offpolicy.train_seeds(
-        LEARNER,
-        env_config,
-        seeds=seeds,
-        total_steps=total_steps,
-        progress_fn=progress_fn,
-        config=config,
-        **hyper,
-    )
+    checkpoints it as it trains (``agents.learners.offpolicy.checkpoint``). Returns a
+    ``TrainResult``.""",
+    """``train`` for several ``seeds`` in one vmapped call (as
+    ``agents.learners.offpolicy.td3.train_seeds``). Returns one ``TrainResult`` per seed.""",
+)

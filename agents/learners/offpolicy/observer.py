@@ -24,6 +24,7 @@ import jax.numpy as jnp
 from agents.controllers import physics_informed
 from agents.api import Policy
 from agents.envs import built
+from ops_jax import EnvSpec
 
 
 class Observer(NamedTuple):
@@ -41,18 +42,19 @@ class Observer(NamedTuple):
 
 
 def fit_observer(
-    env_config: dict,
+    env_config: EnvSpec | dict,
     residual: bool = False,
     residual_scale: float = 1.0,
     starts: int | None = None,
     iters: int | None = None,
     history: int | None = None,
 ) -> Observer:
-    """The fit observer of the environment ``env_config`` (a dict of ``ops_jax.make`` options); with
-    ``residual``, ``residual_scale`` times the learner's action is a correction added to the fitted
-    model's own move (the physics-informed controller's, clipped to [-1, 1] after the sum).
-    ``starts``, ``iters``, ``history``: the fit's random starts, Levenberg-Marquardt iterations per
-    start and earlier frames compared (None: the "frames" preset's)."""
+    """The fit observer of the environment ``env_config`` (an ``EnvSpec`` or a dict of its
+    options); with ``residual``, ``residual_scale`` times the learner's action is a correction
+    added to the fitted model's own move (the physics-informed controller's, clipped to [-1, 1]
+    after the sum). ``starts``, ``iters``, ``history``: the fit's random starts,
+    Levenberg-Marquardt iterations per start and earlier frames compared (None: the "frames"
+    preset's)."""
     sizes = {
         k: v
         for k, v in (("starts", starts), ("iters", iters), ("history", history))
@@ -85,22 +87,19 @@ def fit_observer(
     )  # moved: the fit records the move sent
 
 
-def of_learner(env_config: dict, h: dict) -> Observer | None:
-    """The observer of a learner's hyperparameters ``h`` (``h["observer"]``: "fit", "fit-residual";
-    None for "none"; ``h["residual_scale"]``, ``h["fit_starts"]``, ``h["fit_iters"]``,
-    ``h["fit_history"]``) on its training environment ``env_config``."""
-    kind = h.get("observer", "none")
-    return (
-        None
-        if kind == "none"
-        else fit_observer(
-            env_config,
-            residual=kind == "fit-residual",
-            residual_scale=h.get("residual_scale", 1.0),
-            starts=h.get("fit_starts"),
-            iters=h.get("fit_iters"),
-            history=h.get("fit_history"),
-        )
+def of_learner(env_spec: EnvSpec, c) -> Observer | None:
+    """The observer of a learner's config ``c`` (a ``ReplayConfig``: ``observer`` "fit" or
+    "fit-residual"; None for "none"; ``residual_scale``, ``fit_starts``, ``fit_iters``,
+    ``fit_history``) on its training environment ``env_spec``."""
+    if c.observer == "none":
+        return None
+    return fit_observer(
+        env_spec,
+        residual=c.observer == "fit-residual",
+        residual_scale=c.residual_scale,
+        starts=c.fit_starts,
+        iters=c.fit_iters,
+        history=c.fit_history,
     )
 
 

@@ -1,12 +1,15 @@
 """The building blocks that an off-policy learner's ``build`` wires
 (``agents.learners.offpolicy.td3``, ``agents.learners.offpolicy.droq``; the training driver is
 ``agents.learners.offpolicy.driver``): observation statistics, train states, brax's replay queue,
-the jitted exploration / update loop, the MLP and the fields every training state holds."""
+the jitted exploration / update loop (``replay_loop``, its functions a ``Loop``), the MLP and the
+fields every training state holds. Each reads its settings from the learner's config (a
+``ReplayConfig``)."""
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+import functools
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -61,7 +64,7 @@ class ReplayConfig(AlgoConfig):
         return chunks * (units // chunks) if chunks else 0
 
     def updates_per_step(self) -> float:
-        return updates_per_iter(self.to_hyper()) / (self.num_envs * self.unroll)
+        return updates_per_iter(self) / (self.num_envs * self.unroll)
 
     def check(self):
         """One of updates_per_iter and utd_ratio, a whole number of gradient steps per iteration,
@@ -111,11 +114,11 @@ def normalise(norm, obs):
     return (obs - norm["mean"]) / norm["std"]
 
 
-def updates_per_iter(h: dict) -> int:
+def updates_per_iter(c: ReplayConfig) -> int:
     """Gradient steps per iteration: ``updates_per_iter``, or ``utd_ratio * num_envs * unroll``."""
-    if h["updates_per_iter"] is not None:
-        return h["updates_per_iter"]
-    return round(h["utd_ratio"] * h["num_envs"] * h["unroll"])
+    if c.updates_per_iter is not None:
+        return c.updates_per_iter
+    return round(c.utd_ratio * c.num_envs * c.unroll)
 
 
 def identity_norm(d: int) -> dict:
@@ -130,7 +133,7 @@ def train_state(params, tx):
     return TrainState.create(apply_fn=None, params=params, tx=tx).replace(step=jnp.int32(0))
 
 
-def replay_buffer(env, h):
+def replay_buffer(env, c: ReplayConfig):
     """brax's uniform replay queue of (obs, action, reward, discount, next_obs) transitions."""
     from brax.training.replay_buffers import UniformSamplingQueue
 
@@ -142,48 +145,67 @@ def replay_buffer(env, h):
         discount=jnp.zeros(()),
         next_obs=jnp.zeros(d),
     )
-    return UniformSamplingQueue(h["buffer_size"], dummy, h["batch_size"])
+    return UniformSamplingQueue(c.buffer_size, dummy, c.batch_size)
 
 
-def start(env, h, buffer, actor, critic, key, env_params):
-    """(actor params, critic params, buffer state, env state, first observations, run key) of a
-    fresh run."""
-    k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
-    dummy_obs, dummy_act = jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.num_actions))
-    obs, env_state = env.reset_batch(jax.random.split(k_env, h["num_envs"]), env_params)
-    return (
-        actor.init(k_a, dummy_obs),
-        critic.init(k_c, dummy_obs, dummy_act),
-        buffer.init(k_buf),
-        env_state,
-        obs,
-        k_run,
-    )
+def initial_state(state_type, env, c: ReplayConfig, buffer, actor, critic, learned: Callable):
+    """``init(key, env_params)``: a fresh training state of ``state_type``, its learned fields
+    ``learned(actor params, critic params)`` (a tuple, in the state's order), then ``STATE``'s:
+    identity observation statistics, the empty ``buffer``, the first env states and observations of
+    ``num_envs`` instances, the run key, no gradient step yet."""
+    d, n = env.observation_size, env.num_actions
+
+    def init(key, env_params):
+        k_a, k_c, k_buf, k_env, k_run = jax.random.split(key, 5)
+        dummy_obs, dummy_act = jnp.zeros((1, d)), jnp.zeros((1, n))
+        obs, env_state = env.reset_batch(jax.random.split(k_env, c.num_envs), env_params)
+        ap, cp = actor.init(k_a, dummy_obs), critic.init(k_c, dummy_obs, dummy_act)
+        fresh = (identity_norm(d), buffer.init(k_buf), env_state, obs, k_run, jnp.int32(0))
+        return state_type(*learned(ap, cp), *fresh, env_params)
+
+    return init
 
 
-def delayed(ts, h, actor_step):
+def gradient_step(state, loss: Callable, *args, has_aux: bool = False):
+    """(``loss(state.params, *args)``'s value (with its aux), ``state`` after one gradient step on
+    it): a flax TrainState's step."""
+    value, grads = jax.value_and_grad(loss, has_aux=has_aux)(state.params, *args)
+    return value, state.apply_gradients(grads=grads)
+
+
+def delayed(ts, c: ReplayConfig, actor_step):
     """``actor_step(ts) -> (ts, actor loss)`` every ``policy_delay`` gradient steps (NaN loss
     otherwise), then the gradient step count advanced."""
     ts, aloss = jax.lax.cond(
-        ts.updates % h["policy_delay"] == 0, actor_step, lambda ts: (ts, jnp.float32(jnp.nan)), ts
+        ts.updates % c.policy_delay == 0, actor_step, lambda ts: (ts, jnp.float32(jnp.nan)), ts
     )
     return ts._replace(updates=ts.updates + 1), aloss
 
 
-def replay_loop(env, h, buffer, explore, update) -> dict:
-    """The jitted-scan pieces of training around ``explore(ts, key, obs, random) -> actions`` and
-    ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
-    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's
-    exploration with ``random=False``; returns their observations (T, D)), ``fit_norm(ts, obs)`` and
-    ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics); and ``explore`` and
-    ``update`` themselves (a bench learner steps them one at a time, ``agents.bench.learning``)."""
-    b, d = h["num_envs"], env.observation_size
+class Loop(NamedTuple):
+    """A learner's training functions (what its ``build`` returns): ``init(key, env_params) -> ts``,
+    ``warmup(ts, n, random) -> (ts, observations (T, D))``, ``fit_norm(ts, obs) -> ts``,
+    ``train_chunk(ts, n) -> (ts, chunk-mean metrics)``, ``explore(ts, key, obs, random) -> actions``
+    and ``update(ts, _) -> (ts, (critic_loss, actor_loss))``."""
+
+    init: Callable
+    warmup: Callable
+    fit_norm: Callable
+    train_chunk: Callable
+    explore: Callable
+    update: Callable
+
+
+def collector(env, c: ReplayConfig, buffer, explore):
+    """``collect(ts, random) -> (ts, (rewards, observations))``: ``unroll`` batched env steps of
+    ``num_envs`` instances at ``explore``'s actions (uniform random ones with ``random``), each
+    step's transitions inserted into ``buffer``."""
 
     def env_step(ts, key, random):
         k_act, k_env = jax.random.split(key)
         action = explore(ts, k_act, ts.obs, random)
         obs2, env_state, reward, term, _, info = env.step_batch(
-            jax.random.split(k_env, b), ts.env_state, action, ts.env_params
+            jax.random.split(k_env, c.num_envs), ts.env_state, action, ts.env_params
         )
         tr = dict(
             obs=ts.obs,
@@ -200,11 +222,35 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
             ts, tr = env_step(ts._replace(key=key), k, random)
             return ts._replace(buffer=buffer.insert(ts.buffer, tr)), (tr["reward"], tr["obs"])
 
-        return jax.lax.scan(body, ts, None, length=h["unroll"])
+        return jax.lax.scan(body, ts, None, length=c.unroll)
+
+    return collect
+
+
+def fit_norm(c: ReplayConfig, ts, obs):
+    """``ts`` with the observation statistics frozen from the warm-up's observations ``obs`` (T, D)
+    that the buffer holds (the last ``buffer_size``); std floored at 1e-2. Unchanged without
+    ``normalize_obs``."""
+    if not c.normalize_obs:
+        return ts
+    kept = obs[-c.buffer_size :]
+    mean = kept.mean(0)
+    std = jnp.sqrt(((kept - mean) ** 2).mean(0))
+    return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(std, 1e-2)})
+
+
+def replay_loop(env, c: ReplayConfig, buffer, init, explore, update) -> Loop:
+    """The ``Loop`` around ``init``, ``explore(ts, key, obs, random) -> actions`` and
+    ``update(ts, _) -> (ts, (critic_loss, actor_loss))`` (one gradient step, sampling ``buffer``):
+    ``warmup(ts, n, random)`` (n iterations of uniform random actions, or of the policy's
+    exploration with ``random=False``; returns their observations (T, D)), ``fit_norm`` and
+    ``train_chunk(ts, n)`` (n iterations, returns chunk-mean metrics); ``explore`` and ``update``
+    are kept as they are (a bench learner steps them one at a time, ``agents.bench.learning``)."""
+    collect, d = collector(env, c, buffer, explore), env.observation_size
 
     def iteration(ts, _):
         ts, (reward, _) = collect(ts, False)
-        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=updates_per_iter(h))
+        ts, (closs, aloss) = jax.lax.scan(update, ts, None, length=updates_per_iter(c))
         return ts, dict(
             reward=reward.mean(), critic_loss=closs.mean(), actor_loss=jnp.nanmean(aloss)
         )
@@ -221,19 +267,7 @@ def replay_loop(env, h, buffer, explore, update) -> dict:
         ts, obs = jax.lax.scan(body, ts, None, length=length)
         return ts, obs.reshape(-1, d)
 
-    def fit_norm(ts, obs):
-        """Freeze the observation statistics from the warm-up's observations ``obs`` (T, D) that
-        the buffer holds (the last ``buffer_size``); std floored at 1e-2."""
-        if not h["normalize_obs"]:
-            return ts
-        kept = obs[-h["buffer_size"] :]
-        mean = kept.mean(0)
-        std = jnp.sqrt(((kept - mean) ** 2).mean(0))
-        return ts._replace(obs_norm={"mean": mean, "std": jnp.maximum(std, 1e-2)})
-
-    return dict(
-        warmup=warmup, fit_norm=fit_norm, train_chunk=train_chunk, explore=explore, update=update
-    )
+    return Loop(init, warmup, functools.partial(fit_norm, c), train_chunk, explore, update)
 
 
 def mlp_module():

@@ -22,7 +22,7 @@ docs/learners.md).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, ClassVar, NamedTuple, Sequence
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -155,8 +155,7 @@ ALGO = Algo("td3", __name__, TD3Config, "TD3", vmaps_seeds=True, off_policy=True
 # -- networks -----------------------------------------------------------------------------------
 
 
-def _networks(h: dict, num_actions: int):
-    hidden = h["hidden"]
+def _networks(c: TD3Config, num_actions: int):
     import flax.linen as nn
 
     MLP = replay.mlp_module()
@@ -164,13 +163,13 @@ def _networks(h: dict, num_actions: int):
     class Actor(nn.Module):
         @nn.compact
         def __call__(self, obs):
-            return jnp.tanh(MLP(tuple(hidden), num_actions)(obs))
+            return jnp.tanh(MLP(c.hidden, num_actions)(obs))
 
     class Critic(nn.Module):
         @nn.compact
         def __call__(self, obs, action):
             x = jnp.concatenate([obs, action], -1)
-            return MLP(tuple(hidden), 1)(x)[..., 0], MLP(tuple(hidden), 1)(x)[..., 0]
+            return MLP(c.hidden, 1)(x)[..., 0], MLP(c.hidden, 1)(x)[..., 0]
 
     return Actor(), Critic()
 
@@ -194,33 +193,34 @@ TD3State = NamedTuple(
 )
 
 
-def _build(env, h):
-    import optax
-
-    actor, critic = _networks(h, env.num_actions)
-    d = env.observation_size
-    buffer = replay.replay_buffer(env, h)
-    actor_tx, critic_tx = optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"])
-    gamma, tau = h["gamma"], h["tau"]
+def _explorer(actor, c: TD3Config):
+    """``explore(ts, key, obs, random)``: the greedy action plus Gaussian noise ``expl_std``
+    (clipped to [-1, 1]), or uniform random actions where ``random``."""
 
     def explore(ts, key, obs, random):
         k1, k2 = jax.random.split(key)
         greedy = actor.apply(ts.actor.params, replay.normalise(ts.obs_norm, obs))
-        noisy = jnp.clip(greedy + h["expl_std"] * jax.random.normal(k1, greedy.shape), -1, 1)
+        noisy = jnp.clip(greedy + c.expl_std * jax.random.normal(k1, greedy.shape), -1, 1)
         uniform = jax.random.uniform(k2, greedy.shape, minval=-1, maxval=1)
         return jnp.where(random, uniform, noisy)
+
+    return explore
+
+
+def _losses(actor, critic, c: TD3Config):
+    """(``critic_loss(critic params, ts, batch, key)``: the twin critics' squared TD errors to the
+    clipped double-Q target at the smoothed target action; ``actor_loss(actor params, ts, batch)``:
+    minus the first critic's Q)."""
 
     def critic_loss(cp, ts, batch, key):
         nobs = replay.normalise(ts.obs_norm, batch["next_obs"])
         obs = replay.normalise(ts.obs_norm, batch["obs"])
         a2 = actor.apply(ts.actor_target, nobs)
-        eps = jnp.clip(
-            h["target_noise"] * jax.random.normal(key, a2.shape), -h["noise_clip"], h["noise_clip"]
-        )
-        a2 = jnp.clip(a2 + eps, -1, 1)
+        noise = c.target_noise * jax.random.normal(key, a2.shape)
+        a2 = jnp.clip(a2 + jnp.clip(noise, -c.noise_clip, c.noise_clip), -1, 1)
         q1t, q2t = critic.apply(ts.critic_target, nobs, a2)
         y = jax.lax.stop_gradient(
-            batch["reward"] + gamma * batch["discount"] * jnp.minimum(q1t, q2t)
+            batch["reward"] + c.gamma * batch["discount"] * jnp.minimum(q1t, q2t)
         )
         q1, q2 = critic.apply(cp, obs, batch["action"])
         return jnp.mean((q1 - y) ** 2 + (q2 - y) ** 2)
@@ -230,100 +230,74 @@ def _build(env, h):
         q1, _ = critic.apply(ts.critic.params, obs, actor.apply(ap, obs))
         return -jnp.mean(q1)
 
+    return critic_loss, actor_loss
+
+
+def _updater(buffer, c: TD3Config, critic_loss, actor_loss):
+    """``update(ts, _)``: one critic step on a sampled batch; every ``policy_delay`` steps an actor
+    step and both targets moved by ``tau``."""
+    import optax
+
+    def actor_step(ts, batch):
+        aloss, new_actor = replay.gradient_step(ts.actor, actor_loss, ts, batch)
+        return ts._replace(
+            actor=new_actor,
+            actor_target=optax.incremental_update(new_actor.params, ts.actor_target, c.tau),
+            critic_target=optax.incremental_update(ts.critic.params, ts.critic_target, c.tau),
+        ), aloss
+
     def update(ts, _):
         buf, batch = buffer.sample(ts.buffer)
         key, k_noise = jax.random.split(ts.key)
-        closs, grads = jax.value_and_grad(critic_loss)(ts.critic.params, ts, batch, k_noise)
-        ts = ts._replace(critic=ts.critic.apply_gradients(grads=grads), buffer=buf, key=key)
-
-        def actor_step(ts):
-            aloss, g = jax.value_and_grad(actor_loss)(ts.actor.params, ts, batch)
-            new_actor = ts.actor.apply_gradients(grads=g)
-            return ts._replace(
-                actor=new_actor,
-                actor_target=optax.incremental_update(new_actor.params, ts.actor_target, tau),
-                critic_target=optax.incremental_update(ts.critic.params, ts.critic_target, tau),
-            ), aloss
-
-        ts, aloss = replay.delayed(ts, h, actor_step)
+        closs, new_critic = replay.gradient_step(ts.critic, critic_loss, ts, batch, k_noise)
+        ts = ts._replace(critic=new_critic, buffer=buf, key=key)
+        ts, aloss = replay.delayed(ts, c, lambda ts: actor_step(ts, batch))
         return ts, (closs, aloss)
 
-    def init(key, env_params):
-        ap, cp, buf, env_state, obs, k_run = replay.start(
-            env, h, buffer, actor, critic, key, env_params
-        )
-        return TD3State(
-            replay.train_state(ap, actor_tx),
-            replay.train_state(cp, critic_tx),
-            ap,
-            cp,
-            replay.identity_norm(d),
-            buf,
-            env_state,
-            obs,
-            k_run,
-            jnp.int32(0),
-            env_params,
-        )
+    return update
 
-    return dict(init=init, **replay.replay_loop(env, h, buffer, explore, update))
+
+def _build(env, c: TD3Config) -> replay.Loop:
+    """TD3's training ``Loop`` on ``env``."""
+    import optax
+
+    actor, critic = _networks(c, env.num_actions)
+    buffer = replay.replay_buffer(env, c)
+    actor_tx, critic_tx = optax.adam(c.actor_lr), optax.adam(c.critic_lr)
+
+    def learned(ap, cp):  # the actor and critic states, then their targets
+        return replay.train_state(ap, actor_tx), replay.train_state(cp, critic_tx), ap, cp
+
+    init = replay.initial_state(TD3State, env, c, buffer, actor, critic, learned)
+    update = _updater(buffer, c, *_losses(actor, critic, c))
+    return replay.replay_loop(env, c, buffer, init, _explorer(actor, c), update)
 
 
 LEARNER = offpolicy.Learner("td3", TD3Config, _build, _networks, _greedy)
 make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 
-def train(
-    env_config: dict,
-    *,
-    seed: int = 0,
-    total_steps: int | None = None,
-    progress_fn: Callable[[int, dict], None] | None = None,
-    config: TD3Config | str | None = None,
-    **hyper,
-) -> base.TrainResult:
-    """Train TD3 on ``built(env_config)`` (phasor model unless set) for ``total_steps`` env steps
-    (default: the config's). ``config``: a ``TD3Config`` or a preset name ("fast" default |
-    "paper" | "budget"), ``hyper``: overrides of its fields. ``progress_fn(step, metrics)`` is
+train, train_seeds = offpolicy.entry_points(
+    LEARNER,
+    __name__,
+    """Train TD3 on ``built(env_config)`` (an ``ops_jax.EnvSpec`` or a dict of its options;
+    phasor model unless set) for ``total_steps`` env steps (default: the config's); ``seed``
+    (default 0). ``config``: a ``TD3Config`` or a preset name ("fast" default | "paper" |
+    "budget"), the other keywords: overrides of its fields. ``progress_fn(step, metrics)`` is
     called after every evaluation with metrics normalized_power, critic_loss, actor_loss, reward,
     elapsed_s. Trains at most ``total_steps`` env steps (whole iterations,
     ``agents.learners.offpolicy.driver.schedule``); the curve's 'step' holds the true counts.
     ``start_from=result`` continues from an earlier run in this process
-    (``agents.learners.offpolicy.driver``); ``checkpoints=Checkpoints(folder)`` checkpoints the run
-    as it trains and continues the one stored there (``agents.learners.offpolicy.checkpoint``)."""
-    return train_seeds(
-        env_config,
-        seeds=[offpolicy.check_seed(seed)],
-        total_steps=total_steps,
-        progress_fn=progress_fn,
-        config=config,
-        **hyper,
-    )[0]
-
-
-def train_seeds(
-    env_config: dict,
-    *,
-    seeds: Sequence[int],
-    total_steps: int | None = None,
-    progress_fn: Callable[[int, dict], None] | None = None,
-    config: TD3Config | str | None = None,
-    **hyper,
-) -> list[base.TrainResult]:
-    """``train`` for several seeds at once: one jitted call vmapped over the seeds (sharded over the
-    local devices when they divide the seed count). Each seed makes the same random draws as when
-    trained alone, but the batched matrix products round differently and training amplifies the
-    difference (measured, 5-stage hard: parameters equal to 4e-7 after 40 gradient steps, apart by
-    0.13 after 800), so a seed's result depends on the seed list it was trained with, bitwise
-    reproducibly for the same list; on as many devices as seeds it is the solo result. Wall times
-    are the call's divided by the number of seeds (``wall_time["seeds_in_call"]``); ``progress_fn``
-    gets means over seeds."""
-    return offpolicy.train_seeds(
-        LEARNER,
-        env_config,
-        seeds=seeds,
-        total_steps=total_steps,
-        progress_fn=progress_fn,
-        config=config,
-        **hyper,
-    )
+    (``agents.learners.offpolicy.driver``); ``checkpoints=Checkpoints(folder)`` checkpoints the
+    run as it trains and continues the one stored there
+    (``agents.learners.offpolicy.checkpoint``). Returns a ``TrainResult``.""",
+    """``train`` for several ``seeds`` at once: one jitted call vmapped over the seeds (sharded
+    over the local devices when they divide the seed count). Each seed makes the same random
+    draws as when trained alone, but the batched matrix products round differently and training
+    amplifies the difference (measured, 5-stage hard: parameters equal to 4e-7 after 40 gradient
+    steps, apart by 0.13 after 800), so a seed's result depends on the seed list it was trained
+    with, bitwise reproducibly for the same list; on as many devices as seeds it is the solo
+    result. Wall times are the call's divided by the number of seeds
+    (``wall_time["seeds_in_call"]``); ``progress_fn`` gets means over seeds. Returns one
+    ``TrainResult`` per seed.""",
+)

@@ -17,7 +17,11 @@ ENV = {"stages": 3, "mode": "hard", "model": "phasor"}
 
 def test_reaches_high_power_quickly_without_probes():
     res = agents.evaluate(
-        pi.make_policy(ENV, {"starts": 8, "iters": 6}), ENV, episodes=16, seed=11, steps=40
+        pi.make_policy(ENV, pi.PhysicsConfig.from_hyper({"starts": 8, "iters": 6})),
+        ENV,
+        episodes=16,
+        seed=11,
+        steps=40,
     )
     assert res.summary["measurements_per_step"] == 1
     assert res.summary["final_mean"] > 0.98
@@ -32,7 +36,7 @@ def test_length_channel_is_ignored_from_frames():
         ({"config": "frames"}, True),
         ({"use_lengths": True, "lengths_only": True}, False),
     ):
-        pol = pi.make_policy(ENV, hyper)
+        pol = pi.make_policy(ENV, pi.PhysicsConfig.from_hyper(hyper))
         key = jax.random.key(1)
         act = jax.jit(lambda o: pol.act(None, pol.init(key, o), o, key, None)[0])
         a, b = act(obs), act(garbled)
@@ -70,16 +74,16 @@ def test_same_seed_same_result():
 )
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
-        pi.make_policy(ENV, hyper)
+        pi.make_policy(ENV, pi.PhysicsConfig.from_hyper(hyper))
     with pytest.raises(TypeError, match="unknown physics hyperparameter.*foo"):
-        pi.make_policy(ENV, {"foo": 1})
+        pi.make_policy(ENV, pi.PhysicsConfig.from_hyper({"foo": 1}))
 
 
 def _identified(env_config, hyper, episodes=8, steps=80, seed=3):
     """(P / P_best per instance, mean of the last 10 of ``steps`` control steps; the controller's
     carry)."""
     env, params = ops_jax.make(**env_config)
-    pol = pi.make_policy(dict(ENV, stages=env_config["stages"]), hyper)
+    pol = pi.make_policy(dict(ENV, stages=env_config["stages"]), pi.PhysicsConfig.from_hyper(hyper))
     keys = jax.random.split(jax.random.key(seed), episodes)
     obs, states = env.reset_batch(keys, params)
     carry = pol.init(jax.random.key(0), obs)
@@ -178,7 +182,10 @@ def test_more_frames_compared_win_back_what_the_vibration_takes():
     held = {}
     for history in (1, 3):
         pol = pi.make_policy(
-            env_config, {"config": "frames", "starts": 4, "iters": 4, "history": history}
+            env_config,
+            pi.PhysicsConfig.from_hyper(
+                {"config": "frames", "starts": 4, "iters": 4, "history": history}
+            ),
         )
         res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
         held[history] = (
@@ -200,7 +207,9 @@ def test_the_hold_steps_up_the_probed_slope_near_the_top_and_the_fit_follows_the
     probe = lambda offsets, active=None: p0 + slope * offsets[:, 0]  # noqa: E731
 
     def act(hyper, probe):
-        pol = pi.make_policy(ENV, dict(config="frames", starts=1, iters=1, **hyper))
+        pol = pi.make_policy(
+            ENV, pi.PhysicsConfig.from_hyper(dict(config="frames", starts=1, iters=1, **hyper))
+        )
         return pol.act(None, pol.init(key, obs), obs, key, probe)
 
     action, carry = act({"hold": 0.0}, probe)
@@ -238,7 +247,10 @@ def test_the_hold_keeps_more_than_the_fit_where_the_vibration_moves_the_lines():
     held = {}
     for hold in (None, 0.85):
         pol = pi.make_policy(
-            env_config, {"config": "frames", "starts": 4, "iters": 4, "hold": hold}
+            env_config,
+            pi.PhysicsConfig.from_hyper(
+                {"config": "frames", "starts": 4, "iters": 4, "hold": hold}
+            ),
         )
         res = agents.evaluate(pol, env_config, episodes=32, seed=5, steps=100)
         held[hold] = (

@@ -73,7 +73,9 @@ def test_frame_probes_are_deterministic_spgds_fine_dither_drowns_in_frame_noise_
     assert spgd.HOLD["delta"] == pytest.approx(0.002)
     assert large.summary["final_mean_best"] < instant.summary["final_mean_best"] - 0.2
     # the bench preset's dither is above it
-    bench = base.algo_module("spgd").make_policy(_config("frame"), {"config": "bench"})
+    bench = base.algo_module("spgd").make_policy(
+        _config("frame"), spgd.SPGDConfig.from_hyper({"config": "bench"})
+    )
     above = agents.evaluate((bench, None), _config("frame"), episodes=6, seed=7)
     assert above.summary["final_mean_best"] > large.summary["final_mean_best"] + 0.2
 

@@ -21,7 +21,7 @@ def _zero_policy():
 
 
 def test_spgd_raises_power_and_counts_probes():
-    policy = spgd.make_policy(ENV, {})
+    policy = spgd.make_policy(ENV, spgd.SPGDConfig.from_hyper({}))
     res = agents.evaluate((policy, spgd.gains({})), ENV, episodes=32, seed=5, steps=60)
     idle = agents.evaluate(_zero_policy(), ENV, episodes=32, seed=5, steps=60)
     assert res.summary["measurements_per_step"] == 2  # observation + one probe
@@ -65,7 +65,7 @@ def test_train_same_seed_same_result_and_params_are_gains():
 )
 def test_bad_hyperparameters_raise(hyper, word):
     with pytest.raises(ValueError, match=word):
-        spgd.make_policy(ENV, hyper)
+        spgd.make_policy(ENV, spgd.SPGDConfig.from_hyper(hyper))
 
 
 def test_unknown_hyperparameter_lists_the_accepted_ones():
@@ -85,7 +85,7 @@ def test_stalled_instance_tests_each_line_then_commits_a_jump():
     a line that beats P by `margin` is moved by `jump` at full action, one probe per step
     throughout."""
     n, hyper = 3, {"patience": 2.0, "jump": 0.05, "p_stall": 0.9, "margin": 0.02}
-    policy = spgd.make_policy(ENV, hyper)
+    policy = spgd.make_policy(ENV, spgd.SPGDConfig.from_hyper(hyper))
     obs = jnp.zeros((1, 2**n + n)).at[0, 0].set(2 * 0.4 - 1)  # P/Pmax = 0.4
     carry = policy.init(jax.random.key(0), obs)
     seen = []

@@ -183,7 +183,9 @@ def test_the_wrapped_fit_is_told_the_move_the_trim_sent(inner):
         "observe_lengths": False,
     }
     if inner == "physics":
-        wrapped = physics_informed.make_policy(env_config, {"config": "frames"})
+        wrapped = physics_informed.make_policy(
+            env_config, physics_informed.PhysicsConfig.from_hyper({"config": "frames"})
+        )
     else:
         wrapped = observer.policy(
             observer.fit_observer(env_config), lambda params, seen: jnp.zeros((seen.shape[0], 3))
@@ -222,9 +224,16 @@ def test_the_trims_hold_around_the_fit_is_the_fits_own_hold():
         "observe_lengths": False,
     }
     small = {"starts": 4, "iters": 4}
-    own = physics_informed.make_policy(env_config, {"config": "frames-hold", **small})
+    own = physics_informed.make_policy(
+        env_config, physics_informed.PhysicsConfig.from_hyper({"config": "frames-hold", **small})
+    )
     wrapped = trim.trimmed(
-        (physics_informed.make_policy(env_config, {"config": "frames", **small}), None),
+        (
+            physics_informed.make_policy(
+                env_config, physics_informed.PhysicsConfig.from_hyper({"config": "frames", **small})
+            ),
+            None,
+        ),
         {"ki": 0.0, "hold": 0.85},
         env_config,
     )

@@ -1,5 +1,6 @@
 """Budgets that cannot learn, the training progress bar, and results that print as their numbers."""
 
+import dataclasses
 import io
 import random
 import warnings
@@ -12,6 +13,7 @@ from agents.learners import budgets
 from agents.api import EvalResult, TrainResult
 from agents import DroQConfig, PPOConfig, SACConfig, TD3Config
 from agents.learners.offpolicy.driver import schedule
+from ops_jax import EnvSpec
 from ops_jax.cli import progress as progress_module
 from ops_jax.cli.progress import StepProgress
 
@@ -32,7 +34,7 @@ def test_trained_steps_are_the_drivers_schedule(config):
         rng.randrange(60_000) for _ in range(100)
     ]:
         try:
-            warm_iters, chunks, chunk = schedule(dict(config.to_hyper(), total_steps=total))
+            warm_iters, chunks, chunk = schedule(dataclasses.replace(config, total_steps=total))
             expected = chunks * chunk * config.num_envs * config.unroll
         except ValueError:  # under the warm-up
             expected = 0
@@ -131,7 +133,7 @@ def test_results_print_their_numbers_not_their_arrays():
     )
     curve = {"step": np.array([4096, 8192]), "normalized_power": np.array([0.2, 0.61])}
     wall = {"total": 13.33, "compile": 9.71}
-    result = TrainResult("td3", {"stages": 2}, {"config": "fast"}, {}, curve, wall, 0)
+    result = TrainResult("td3", EnvSpec(stages=2), TD3Config.make("fast"), {}, curve, wall, 0)
     assert repr(result) == (
         "TrainResult(algo='td3', seed=0, env_steps=8192, curve=2 points, last "
         "normalized_power=0.61, wall_time={'total': 13.33, 'compile': 9.71}, config='fast')"

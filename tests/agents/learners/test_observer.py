@@ -69,7 +69,9 @@ def test_a_residual_learner_sends_its_correction_added_to_the_fits_move():
     obs, _ = env.reset_batch(jax.random.split(jax.random.key(3), 4), params)
     correction = jax.random.uniform(jax.random.key(5), (4, 5), minval=-1, maxval=1)
     for scale in (1.0, 0.25):  # ``residual_scale``: the correction per unit of the learner's action
-        ob = observer.of_learner(FRAMES, {"observer": "fit-residual", "residual_scale": scale})
+        ob = observer.of_learner(
+            FRAMES, DroQConfig.make(observer="fit-residual", residual_scale=scale)
+        )
         _, carry = ob.observe(None, ob.init(None, obs), obs, jax.random.key(4))
         np.testing.assert_allclose(
             np.asarray(ob.command(carry, correction)),
@@ -139,7 +141,7 @@ def test_the_fits_history_holds_the_frames_and_the_moves_really_sent():
     and the two before it) and the moves the residual learner really sent after each (the fit's move
     plus its correction, clipped), newest first."""
     env, params = built(FRAMES)
-    ob = observer.of_learner(FRAMES, {"observer": "fit-residual", "fit_history": 3})
+    ob = observer.of_learner(FRAMES, DroQConfig.make(observer="fit-residual", fit_history=3))
     key = jax.random.key(11)
     obs, state = env.reset_batch(jax.random.split(key, 4), params)
     carry, frames, sent, observe = ob.init(key, obs), [], [], jax.jit(ob.observe)
@@ -174,7 +176,9 @@ def test_the_fits_history_holds_the_frames_and_the_moves_really_sent():
         np.stack([sent[2], sent[1]], axis=1)[..., :fit] * scale,
         atol=1e-6,
     )
-    assert "y_older" not in observer.of_learner(FRAMES, {"observer": "fit"}).init(key, obs)
+    assert "y_older" not in observer.of_learner(FRAMES, DroQConfig.make(observer="fit")).init(
+        key, obs
+    )
 
 
 def test_the_fits_size_reaches_the_observer():
@@ -186,7 +190,7 @@ def test_the_fits_size_reaches_the_observer():
     truth = np.asarray(state.deltas)[:, :4]
 
     def error(h):
-        ob = observer.of_learner(FRAMES, dict(observer="fit", **h))
+        ob = observer.of_learner(FRAMES, DroQConfig.make(observer="fit", **h))
         seen, _ = ob.observe(None, ob.init(None, obs), obs, jax.random.key(8))
         z = np.asarray(seen[:, env.observation_size :])
         return np.minimum(np.abs(np.asarray(wrap(z - truth))), np.abs(np.asarray(wrap(z + truth))))
@@ -216,7 +220,7 @@ def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
     )
     result = agents.train("droq", config, **kw)
     env, _ = built(config)
-    assert result.hyper["observer"] == "fit"
+    assert result.config.observer == "fit"
     assert result.params["obs_norm"]["mean"].shape == (env.observation_size + 4,)
     agents.save(tmp_path / "p", result)
     loaded = agents.load(tmp_path / "p")
@@ -227,6 +231,6 @@ def test_droq_with_the_fit_trains_saves_and_acts_on_raw_frames(tmp_path):
         np.array_equal(a, b)
         for a, b in zip(jax.tree.leaves(result.params), jax.tree.leaves(again.params))
     )
-    assert droq.LEARNER.make_policy(config, result.hyper).init(
+    assert droq.LEARNER.make_policy(result.env_spec, result.config).init(
         None, jnp.zeros((1, env.observation_size))
     )["z"].shape == (1, 4)

@@ -30,7 +30,7 @@ def _check(result, baseline, margin, tmp_path, reported):
         [m["normalized_power"] for _, m in reported], result.curve["normalized_power"]
     )
     assert (
-        0.9 * result.hyper["total_steps"] < result.env_steps <= result.hyper["total_steps"]
+        0.9 * result.config.total_steps < result.env_steps <= result.config.total_steps
     )  # the budget is kept
     assert np.isfinite(result.curve["normalized_power"]).all()
     assert set(result.wall_time) == {"simulation", "optimisation", "total"}

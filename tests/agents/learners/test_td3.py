@@ -176,8 +176,8 @@ def test_cli_logdir_writes_the_curve_to_tensorboard(tmp_path):
     steps, values = scalars["eval/normalized_power"]
     assert steps == [int(r["step"]) for r in rows]
     np.testing.assert_allclose(values, [float(r["normalized_power"]) for r in rows], rtol=1e-6)
-    h = summary["hyper"]
-    ratio = replay.updates_per_iter(h) / (h["num_envs"] * h["unroll"])
+    c = TD3Config.from_hyper(summary["hyper"])  # the summary's stored form
+    ratio = replay.updates_per_iter(c) / (c.num_envs * c.unroll)
     np.testing.assert_allclose(scalars["train/update_ratio"][1], ratio, rtol=1e-6)
     assert scalars["loss/critic_loss"][0] == steps[1:]  # losses from the first training chunk on
     assert np.all(np.isfinite(scalars["loss/critic_loss"][1]))
@@ -241,12 +241,12 @@ def test_seeds_in_one_call_and_on_two_devices(tmp_path, this_build):
 
 @pytest.mark.parametrize("total", [4_096, 20_000, 60_000, 60_160, 300_000])
 def test_schedule_keeps_the_budget(total):
-    h = TD3Config.preset("fast", eval_every=5_000).to_hyper() | {"total_steps": total}
-    warm, n_chunks, chunk = offpolicy.schedule(h)
-    per_iter = h["num_envs"] * h["unroll"]
+    c = TD3Config.preset("fast", eval_every=5_000, total_steps=total)
+    warm, n_chunks, chunk = offpolicy.schedule(c)
+    per_iter = c.num_envs * c.unroll
     trained = (warm + n_chunks * chunk) * per_iter
     assert trained <= total and total - trained < per_iter * max(n_chunks, 1)
-    assert warm * per_iter >= h["learning_starts"]
+    assert warm * per_iter >= c.learning_starts
 
 
 def test_budget_below_the_warm_up_is_refused():

@@ -37,7 +37,7 @@ def test_droq_learns_a_small_configuration(trained):
     learned = summary["final_mean"]
     assert learned >= max(0.8, baseline + 0.25), (learned, baseline)
     assert trained.curve["step"].tolist() == [256 + 512 * k for k in range(6)]
-    assert trained.hyper["config"] == "budget" and trained.hyper["utd_ratio"] == 2.0
+    assert trained.config.config == "budget" and trained.config.utd_ratio == 2.0
 
 
 def test_same_seed_same_result_and_checkpoint_round_trip(trained, tmp_path):
@@ -176,8 +176,8 @@ def test_td3_update_to_data_ratio():
     """TD3's utd_ratio sets the gradient steps per iteration (32 envs x 0.25 = 8); presets keep
     updates_per_iter."""
     c = TD3Config.preset("fast", updates_per_iter=None, utd_ratio=0.25)
-    assert replay.updates_per_iter(c.to_hyper()) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
-    assert replay.updates_per_iter(TD3Config.preset("fast").to_hyper()) == 4
+    assert replay.updates_per_iter(c) == 8 and TD3Config.from_hyper(c.to_hyper()) == c
+    assert replay.updates_per_iter(TD3Config.preset("fast")) == 4
     budget_cfg = TD3Config.preset("budget")
     assert (
         budget_cfg.num_envs == 1 and budget_cfg.utd_ratio >= 1 and budget_cfg.total_steps <= 20_000
