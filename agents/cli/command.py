@@ -28,7 +28,7 @@ from agents import api as base, registry
 from agents.learners import budgets
 from agents.registry import CONFIG_TYPES
 from agents.io import write_json_atomic
-from agents.outputs import plot_curve, wall_time_line, write_curve_csv
+from agents.cli.outputs import plot_curve, wall_time_line, write_curve_csv
 from agents.learners.offpolicy.checkpoint import EVERY as CHECKPOINT_EVERY
 from ops_jax.cli.progress import StepProgress, exit_interrupted, keep_ctrl_c
 from ops_jax.cli.parser import ArgumentParser
