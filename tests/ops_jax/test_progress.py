@@ -67,20 +67,3 @@ def test_a_piped_command_writes_no_control_codes():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "\x1b" not in out.stderr and "\r" not in out.stderr
     assert out.stderr.splitlines()[-1].startswith("w: 50/50")
-
-
-def test_a_trainings_remaining_time_leaves_out_the_compilation_after_the_first_report(monkeypatch):
-    """Reports at 10 s (step 0), 40 s (step 100: the training step compiled in between) and 50 s
-    (step 200) of 1,000 steps: 100 steps in the last 10 s leave 80 s, not the 160 s that the rate
-    since the first report (with the compilation in it) would say."""
-    clock = {"now": 0.0}
-    monkeypatch.setattr(prog.time, "monotonic", lambda: clock["now"])
-    bar = prog.StepProgress(1000, "td3", file=io.StringIO())
-    for now, step in ((10.0, 0), (40.0, 100)):
-        clock["now"] = now
-        bar(step, {"normalized_power": 0.5})
-        assert "remaining" not in bar.bar.postfix, bar.bar.postfix
-    clock["now"] = 50.0
-    bar(200, {"normalized_power": 0.6})
-    assert "10 step/s" in bar.bar.postfix and "~1:20 remaining" in bar.bar.postfix, bar.bar.postfix
-    assert bar.n == 200

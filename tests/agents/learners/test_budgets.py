@@ -79,7 +79,7 @@ def test_agents_train_warns_before_it_trains(monkeypatch):
     assert "trains 896 env steps" in str(caught[0].message)
 
 
-def test_step_progress_says_compiling_then_a_rate_from_after_it(monkeypatch):
+def test_step_progress_says_compiling_then_a_rate_from_the_second_report(monkeypatch):
     now = [0.0]
     monkeypatch.setattr(progress_module.time, "monotonic", lambda: now[0])
     out = io.StringIO()
@@ -88,9 +88,12 @@ def test_step_progress_says_compiling_then_a_rate_from_after_it(monkeypatch):
     now[0] = 40.0
     bar(1000, {"normalized_power": 0.25})  # 40 s after the start: compiling and warm-up
     assert bar.bar.postfix == "P/Pmax 0.250, 0:40 compiling and warming up"
-    now[0] = 50.0
-    bar(2000, {"normalized_power": 0.5})  # 1000 steps in 10 s since the first report
-    assert bar.bar.postfix == "P/Pmax 0.500, 100 step/s, ~0:10 remaining" and bar.n == 2000
+    now[0] = 70.0
+    bar(2000, {"normalized_power": 0.5})  # the training step compiled since the first report
+    assert bar.bar.postfix == "P/Pmax 0.500" and bar.n == 2000
+    now[0] = 75.0
+    bar(2500, {"normalized_power": 0.6})  # 500 steps in 5 s since the second report
+    assert bar.bar.postfix == "P/Pmax 0.600, 100 step/s, ~0:05 remaining" and bar.n == 2500
 
 
 def test_agents_train_shows_a_bar_on_a_terminal_and_progress_false_silences_it(monkeypatch):
