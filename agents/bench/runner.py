@@ -68,7 +68,6 @@ from agents.bench.devices import (
     make_bench,
     sim_mapping,
 )
-from agents.bench.flyer import lean_page_checks
 from agents.bench.loop import (
     USER_STOP,
     Loop,
@@ -567,7 +566,7 @@ def _run(loop: Loop, md: dict, out: Path, shown=None) -> float:
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:
-        with user_stops(loop), lean_page_checks():
+        with user_stops(loop):
             RE(control_plan(loop, md))
     except (
         Exception
