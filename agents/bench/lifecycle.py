@@ -37,6 +37,32 @@ def followed_pvs(bench) -> list:
     ]
 
 
+def described(bench) -> tuple[dict, list]:
+    """(the event descriptor's data keys of ``bench``'s readings, [(event key, PV)]): each from the
+    transport's newest value and the signal's metadata as ophyd holds it since the connection (the
+    keys ``describe`` gives, without reading every PV again)."""
+    from ophyd.utils.epics_pvs import data_shape, data_type
+
+    keys, reads = {}, []
+    for walk in bench.walk_signals():
+        sig = walk.item
+        if not (hasattr(sig, "pvname") and sig.kind & Kind.normal):
+            continue
+        value, meta = bench.transport.value(sig.pvname), sig.metadata
+        key = {
+            "source": f"PV:{sig.pvname}",
+            "dtype": data_type(value),
+            "shape": list(data_shape(value)),
+        }
+        key["units"] = meta.get("units") or ""
+        key["lower_ctrl_limit"], key["upper_ctrl_limit"] = sig.limits
+        if sig.precision is not None:
+            key["precision"] = sig.precision
+        keys[sig.name] = key
+        reads.append((sig.name, sig.pvname))
+    return keys, reads
+
+
 def connect(bench, timeout: float) -> None:
     """Wait for every PV; a ``MappingError`` names the ones that did not answer within ``timeout``
     s."""

@@ -20,6 +20,7 @@ from agents.bench.controller import (  # noqa: F401
 )
 from agents.bench.devices import Control, SafetyStop, signals
 from agents.bench.flyer import LoopFlyer, fly
+from agents.bench.lifecycle import described
 
 FLUSH_S = (
     0.2  # a page of the loop's events is due this often (s), collected after the step that ends it
@@ -235,12 +236,9 @@ class Loop:
         every ``page_s``."""
         control = Control(name="control")
         control.put(np.zeros(self.n), np.zeros(self.n), np.zeros(self.agent.probes), 0.0)
-        keys = {**self.bench.describe(), **control.describe()}
-        self.reads = [(k, self._signal(k).pvname) for k in self.bench.read()]
+        readings, self.reads = described(self.bench)
+        keys = {**readings, **control.describe()}
         return LoopFlyer("control_loop", keys, self.start, self.step, self.done, page_s=page_s)
-
-    def _signal(self, name: str):
-        return next(w.item for w in self.bench.walk_signals() if w.item.name == name)
 
     def record(self, latency_ms: list, decide_ms: float):
         ev = getattr(self.bench, "evaluation", None)
