@@ -58,6 +58,12 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--rounds", type=int, default=2, help="runs per row")
     ap.add_argument("--rate", type=float, default=100.0, help="the runner's step cap (Hz)")
     ap.add_argument("--ioc-rate", type=float, default=100.0, help="the bench's frame rate (Hz)")
+    ap.add_argument(
+        "--stale-s",
+        type=float,
+        default=5.0,
+        help="the watchdog's stale_s (s; a shared host stalls)",
+    )
     ap.add_argument("--stages", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, required=True)
@@ -97,7 +103,7 @@ def run_once(args, env: dict, row: tuple, out: Path) -> dict:
         "agents.bench",
         *("--prefix", PREFIX, "--controller", args.controller, "--stages", str(args.stages)),
         *("--seconds", str(args.seconds), "--rate", str(args.rate), "--seed", str(args.seed)),
-        *("--out", str(out)),
+        *("--stale-s", str(args.stale_s), "--out", str(out)),
     ]
     reset(env)
     load = os.getloadavg()[0]
@@ -105,7 +111,7 @@ def run_once(args, env: dict, row: tuple, out: Path) -> dict:
         rc = subprocess.run(
             command, cwd=folder, env=env, stdout=log, stderr=subprocess.STDOUT, timeout=START_S
         ).returncode
-    if rc != 0:
+    if rc not in (0, 3):  # 3: the watchdog stopped it (its reason in the summary)
         raise SystemExit(f"{name}: the runner exited with {rc}; see {out.parent / out.name}.log")
     summary = json.loads((out / "summary.json").read_text())
     return {**summary, "load_before": load, "load_after": os.getloadavg()[0]}
@@ -130,7 +136,9 @@ def measure(args) -> dict:
 
 
 def figures(summary: dict) -> str:
-    return ", ".join(f"{head} {summary[key]:.2f}" for key, head in FIGURES)
+    """One run's figures on a line, and how it ended."""
+    shown = ", ".join(f"{head} {summary[key]:.2f}" for key, head in FIGURES)
+    return f"{shown}, stopped by {summary['stopped_by']}"
 
 
 def medians(runs: list) -> dict:
