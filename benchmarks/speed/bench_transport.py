@@ -161,6 +161,7 @@ def render(table: dict) -> str:
 
 def main(argv=None) -> None:
     keep_ctrl_c()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser().parse_args(argv)
     if args.seconds <= 0 or args.rounds < 1:
         raise SystemExit("--seconds must be > 0 and --rounds >= 1")
@@ -169,7 +170,7 @@ def main(argv=None) -> None:
     print(render(table))
     record = {
         "started": started,
-        "command": " ".join(sys.argv),
+        "command": " ".join(["python -m benchmarks.speed.bench_transport", *map(str, argv)]),
         "host_cores": os.cpu_count(),
         "medians": {name: medians(runs) for name, runs in table.items()},
         "runs": table,
