@@ -1,5 +1,7 @@
 """ophyd devices of an OPS bench (``agents.bench`` drives them), built from its mapping
-(``agents.bench.mapping``)."""
+(``agents.bench.mapping``) on ophyd's public API. The PVs a step reads are followed by the bench's
+transport (``bench.transport``, ``agents.bench.transport``), not by ophyd's monitors, unless that
+transport is ophyd's own."""
 
 from __future__ import annotations
 
@@ -10,14 +12,14 @@ import time
 
 import numpy as np
 
-from agents.bench import transport as transports
 from ophyd import Component as Cpt
 from ophyd import Device, EpicsSignal, EpicsSignalRO, Signal
 from ophyd import FormattedComponent as FCpt
 from ophyd.status import Status
 
-# the lifecycle's and the mapping's names, as the runner, benchmarks.lab and the
-# tests import them
+from agents.bench import transport as transports
+
+# the lifecycle's and the mapping's names, as the runner, benchmarks.lab and the tests import them
 from agents.bench.lifecycle import arm, connect, disconnect, signals  # noqa: F401
 from agents.bench.mapping import (  # noqa: F401
     SAFETY_DEFAULTS,
