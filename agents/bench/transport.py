@@ -2,10 +2,10 @@
 value and IOC time stamp of each, a hook per PV run on every update) and writes the setpoints, each
 through one public Channel Access client API:
 
-- ``pyepics`` (the default where pyepics is installed): libca through pyepics' ``epics.ca`` module:
-  channels, ``create_subscription`` with time stamps, ``put(..., wait=False)``.
+- ``caproto`` (the default): caproto's threading client (``caproto.threading.client.Context``).
+- ``pyepics``: libca through pyepics' ``epics.ca`` module: channels, ``create_subscription`` with
+  time stamps, ``put(..., wait=False)``.
 - ``pyepics-pv``: the same library through ``epics.PV`` objects (their callbacks and ``put``).
-- ``caproto``: caproto's threading client (``caproto.threading.client.Context``).
 - ``ophyd``: the ophyd signals' own monitors (``subscribe``) and ``put``.
 
 ``OPS_BENCH_TRANSPORT`` names the one a run uses; ophyd's control layer follows it
@@ -36,15 +36,9 @@ class SafetyStop(RuntimeError):
 
 
 def chosen(name: str | None = None) -> str:
-    """The transport ``name`` names, else ``OPS_BENCH_TRANSPORT``'s, else ``pyepics`` where pyepics
-    is installed and ``caproto`` elsewhere; ``ValueError`` names the accepted ones."""
-    name = name or os.environ.get(TRANSPORT_ENV) or None
-    if name is None:
-        try:
-            import epics  # noqa: F401
-        except ImportError:
-            return "caproto"
-        return "pyepics"
+    """The transport ``name`` names, else ``OPS_BENCH_TRANSPORT``'s, else ``caproto``;
+    ``ValueError`` names the accepted ones."""
+    name = name or os.environ.get(TRANSPORT_ENV) or "caproto"
     if name not in TRANSPORTS:
         raise ValueError(f"{TRANSPORT_ENV} must be one of {list(TRANSPORTS)}, got {name!r}")
     return name
@@ -214,8 +208,13 @@ class PyepicsPVTransport(Transport):
     def _open(self, signals, followed, setpoints, timeout):
         import epics
 
-        self._pvs = {
-            pv: epics.PV(pv, form="time", auto_monitor=pv in followed)
+        self._pvs = {  # the callback given at once: the first value (a monitor's) reaches it
+            pv: epics.PV(
+                pv,
+                form="time",
+                auto_monitor=pv in followed,
+                callback=self._on_value if pv in followed else None,
+            )
             for pv in {*followed, *setpoints}
         }
         deadline = time.monotonic() + timeout
@@ -226,8 +225,6 @@ class PyepicsPVTransport(Transport):
         ]
         if lost:
             raise MappingError(f"no answer from PV(s) {sorted(lost)} within {timeout:g} s")
-        for pv in followed:
-            self._pvs[pv].add_callback(self._on_value, with_ctrlvars=False)
         self._setpoints = [(pv, self._pvs[pv]) for pv in setpoints]
         self.wait_for_values(followed, max(deadline - time.monotonic(), 0.05))
 
