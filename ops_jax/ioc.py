@@ -47,14 +47,8 @@ from __future__ import annotations
 
 import argparse
 import ast
-import asyncio
-import functools
-import json
 import math
-import os
-import socket
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
@@ -67,8 +61,16 @@ from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c
 from ops_jax.env import option_names
 from ops_jax.adapters.gymnasium.codec import FlatCodec
 
-STATUS_OK, STATUS_OUTSIDE = "running", "outside window"
-TICK_REPORT = 1000  # ticks per line of the tick-time report on stdout
+# the PV group's and the server's names, as benchmarks.lab and the tests import them
+from ops_jax.ioc_group import STATUS_OK, STATUS_OUTSIDE, TICK_REPORT, pv_group  # noqa: F401
+from ops_jax.ioc_server import (  # noqa: F401
+    BATCH_WINDOW_ENV,
+    batch_window,
+    ephemeral_ports,
+    port_warning,
+    serve,
+    set_batch_window,
+)
 
 
 def _literal(text: str):
@@ -211,241 +213,6 @@ class Bench:
         return self.frame
 
 
-def pv_group(bench: Bench, prefix: str, rate: float, lockstep: bool, tick_log=None):
-    """The caproto ``PVGroup`` instance serving ``bench``; ``tick_log``: a text file each tick
-    appends its line to (``--tick-log``; None: none)."""
-    from caproto import ChannelType
-    from caproto.server import pvproperty
-
-    n, m = bench.n, 2**bench.n - 1
-    lim = bench.span / 2 if math.isfinite(bench.span) else 1e6
-    ns = {}
-    for i in range(1, n + 1):
-        ns[f"sp{i}"] = pvproperty(
-            value=0.0,
-            name=f"LINE{i}:SP",
-            lower_ctrl_limit=-lim,
-            upper_ctrl_limit=lim,
-            units="wl",
-            precision=6,
-            doc=f"line {i} setpoint (wl)",
-        )
-        ns[f"rbv{i}"] = pvproperty(
-            value=0.0, name=f"LINE{i}:RBV", read_only=True, units="wl", precision=6
-        )
-        if (
-            bench.env.layout.lengths
-        ):  # a bench without length readouts (observe_lengths=False) serves none
-            ns[f"len{i}"] = pvproperty(
-                value=0.0, name=f"LINE{i}:LEN", read_only=True, units="wl", precision=6
-            )
-    ns["power"] = pvproperty(value=0.0, name="DET:POWER", read_only=True, precision=6)
-    ns["trace"] = pvproperty(value=[0.0] * m, name="SCOPE:TRACE", read_only=True, max_length=m)
-    ns["p_pmax"] = pvproperty(value=0.0, name="EVAL:P_PMAX", read_only=True, precision=6)
-    ns["p_pbest"] = pvproperty(value=0.0, name="EVAL:P_PBEST", read_only=True, precision=6)
-    ns["tick"] = pvproperty(value=0, name="TICK", read_only=True, dtype=ChannelType.LONG)
-    ns["overruns"] = pvproperty(value=0, name="OVERRUNS", read_only=True, dtype=ChannelType.LONG)
-    ns["rate"] = pvproperty(
-        value=0.0 if lockstep else float(rate), name="RATE", read_only=True, units="Hz"
-    )
-    ns["status"] = pvproperty(
-        value="starting", name="STATUS", read_only=True, dtype=ChannelType.STRING
-    )
-    ns["advance"] = pvproperty(
-        value=0, name="ADVANCE", dtype=ChannelType.LONG, doc="lockstep: a write advances one tick"
-    ).putter(_advance)
-    ns["reset"] = pvproperty(
-        value=0, name="RESET", dtype=ChannelType.LONG, doc="a non-zero write starts the bench again"
-    ).putter(_reset)
-    group_type = type("OPSBench", (_group_class(),), ns)
-    return group_type(prefix=prefix, bench=bench, rate=rate, lockstep=lockstep, tick_log=tick_log)
-
-
-class _BenchGroupBase:
-    """Tick logic shared by the generated PV group (mixed into a caproto ``PVGroup``)."""
-
-    async def publish(self, values: dict, stamp: float | None = None):
-        """Write one tick's values, each stamped ``stamp`` (the tick's start, time.time() s; now if
-        None)."""
-        at = {} if stamp is None else {"timestamp": stamp}
-        for i in range(1, self.bench.n + 1):
-            await getattr(self, f"rbv{i}").write(values["position"][i - 1], **at)
-            if values["length"] is not None:
-                await getattr(self, f"len{i}").write(values["length"][i - 1], **at)
-        await self.power.write(values["power"], **at)
-        await self.trace.write(values["trace"], **at)
-        await self.p_pmax.write(values["p_pmax"], **at)
-        await self.p_pbest.write(values["p_pbest"], **at)
-        status = STATUS_OUTSIDE if values["outside"] else STATUS_OK
-        if status != self.status.value:
-            await self.status.write(status, **at)
-        await self.tick.write(self.bench.t, **at)  # last: a new tick means a complete frame
-
-    async def step(self):
-        """One tick: the setpoints as they are now, one simulator step, its frame stamped with this
-        moment."""
-        stamp, t0 = time.time(), time.perf_counter()
-        setpoints = [getattr(self, f"sp{i}").value for i in range(1, self.bench.n + 1)]
-        if self.tick_log is not None:
-            self.tick_log.write(
-                json.dumps(
-                    {"tick": self.bench.t + 1, "stamp": stamp, "setpoints": setpoints},
-                    allow_nan=False,  # strict JSON: setpoints are finite (the PVs refuse others)
-                )
-                + "\n"
-            )
-        values = self.bench.tick(setpoints)
-        t1 = time.perf_counter()
-        await self.publish(values, stamp)
-        self.tick_ms.append((1e3 * (t1 - t0), 1e3 * (time.perf_counter() - t1)))
-        if len(self.tick_ms) == TICK_REPORT:
-            self.report_ticks()
-
-    def report_ticks(self):
-        """One line on the last ``TICK_REPORT`` ticks' host time: the simulator step, then the PV
-        writes (ms)."""
-        step, write = np.percentile(np.asarray(self.tick_ms), [50, 99], axis=0).T
-        print(
-            f"ops_jax.ioc: ticks {self.bench.t - len(self.tick_ms) + 1}-{self.bench.t}: step p50 "
-            f"/ p99 {step[0]:.2f} / {step[1]:.2f} ms, publish {write[0]:.2f} / {write[1]:.2f} "
-            f"ms, overruns {self.overruns.value}",
-            flush=True,
-        )
-        self.tick_ms = []
-
-    async def clock(self):
-        """Tick at ``rate`` Hz on the wall clock; late ticks are counted and caught up."""
-        period, t0, k, late = 1.0 / self.tick_rate, time.monotonic(), 0, 0
-        while True:
-            k += 1
-            delay = t0 + k * period - time.monotonic()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            elif delay < -period / 2:
-                late += 1
-                await self.overruns.write(late)
-            await self.step()
-
-    async def start(self, async_lib):
-        await self.publish(self.bench.frame)
-        print(
-            f"ops_jax.ioc: serving {len(self.pvdb)} PVs under {self.prefix!r}, {self.bench.n} "
-            f"lines, {'lockstep' if self.lockstep else f'{self.tick_rate:g} Hz'}",
-            flush=True,
-        )
-        if not self.lockstep:
-            asyncio.get_running_loop().create_task(self.clock())
-
-
-async def _advance(group, instance, value):
-    if group.lockstep:
-        await group.step()
-    return value
-
-
-async def _reset(group, instance, value):
-    """Setpoints to 0, then the bench's ``reset`` (a tick in between moves towards 0), its frame
-    published."""
-    if value:
-        for i in range(1, group.bench.n + 1):
-            await getattr(group, f"sp{i}").write(0.0)
-        await group.publish(group.bench.reset())
-    return 0
-
-
-@functools.lru_cache(maxsize=None)
-def _group_class():
-    """``_BenchGroupBase`` mixed into caproto's ``PVGroup`` (built on first use: ``import ops_jax``
-    needs no caproto)."""
-    from caproto.server import PVGroup
-
-    class BenchGroup(_BenchGroupBase, PVGroup):
-        def __init__(self, *args, bench, rate, lockstep, tick_log=None, **kwargs):
-            self.bench, self.tick_rate, self.lockstep, self.tick_ms = bench, rate, lockstep, []
-            self.tick_log = tick_log
-            super().__init__(*args, **kwargs)
-
-    return BenchGroup
-
-
-BATCH_WINDOW_ENV = "CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC"
-
-
-def batch_window(rate: float) -> float:
-    """The longest caproto holds a batch of monitor updates while more keep coming (s): a tenth of
-    the tick period, at most caproto's default 10 ms, unless
-    ``CAPROTO_SERVER_HIGH_LOAD_TIMEOUT_SEC`` sets it. With a window as long as the period every
-    update finds the next one coming, and caproto, taking the server for overloaded, lets the
-    batches grow to 1 s of latency."""
-    if os.environ.get(BATCH_WINDOW_ENV):
-        return float(os.environ[BATCH_WINDOW_ENV])
-    return min(0.01, 0.1 / rate)
-
-
-async def _tcp_socket(addr: str, port: int) -> socket.socket:
-    """The server's listening socket, made with the TCP protocol number so that asyncio sets
-    TCP_NODELAY on every accepted connection."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.setblocking(False)
-    sock.bind((addr, port))
-    return sock
-
-
-async def _drained_get(circuit, timeout=None):
-    """A circuit's next queued monitor update; None at once when none is queued (``timeout`` given),
-    so that a batch goes out as soon as the queue is drained; with ``timeout`` None, waits for one.
-    caproto's own waits up to ``timeout`` (the batch window) for more after the last update of a
-    tick, delaying every frame by it."""
-    queue = circuit.subscription_queue
-    try:
-        return queue.get_nowait()
-    except asyncio.QueueEmpty:
-        return None if timeout is not None else await queue.get()
-
-
-def ephemeral_ports() -> tuple[int, int]:
-    """The kernel's range for auto-bound ports (first, last); Linux's default where it cannot be
-    read (other systems: their own, e.g. macOS 49152-65535)."""
-    try:
-        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
-            first, last = map(int, f.read().split())
-        return first, last
-    except (OSError, ValueError):
-        return 32768, 60999
-
-
-def port_warning(port: int) -> str | None:
-    """A line for a Channel Access port inside the kernel's range for auto-bound ports (None:
-    outside it): caproto binds the IOC's UDP port with SO_REUSEADDR and SO_REUSEPORT, as it does its
-    client sockets, so a client socket the kernel auto-binds to the same port takes the IOC's search
-    replies for itself, and that client's search times out."""
-    first, last = ephemeral_ports()
-    if first <= port <= last:
-        return (
-            f"ops_jax.ioc: warning: port {port} lies in the kernel's range for auto-bound ports "
-            f"({first}-{last}); a client given the same port misses the IOC's search replies: set "
-            f"EPICS_CA_SERVER_PORT below {first}"
-        )
-    return None
-
-
-def tune_server(rate: float) -> None:
-    """caproto's server set for a tick-paced IOC: monitor batches sent once the queue is drained
-    (``_drained_get``) and within ``batch_window(rate)`` under load, and replies sent without
-    Nagle's delay. caproto binds with protocol 0, so asyncio leaves Nagle's algorithm on; small
-    replies then wait for the client's delayed acknowledgement (~40 ms a write round trip while
-    monitors flow, where 1.3 ms is the wire's)."""
-    import caproto.asyncio.server
-    import caproto.server.common
-
-    caproto.server.common.HIGH_LOAD_TIMEOUT = batch_window(rate)
-    if hasattr(caproto.asyncio.server, "_create_bound_tcp_socket"):
-        caproto.asyncio.server._create_bound_tcp_socket = _tcp_socket
-    if hasattr(caproto.asyncio.server.VirtualCircuit, "get_from_sub_queue"):
-        caproto.asyncio.server.VirtualCircuit.get_from_sub_queue = _drained_get
-
-
 def main(argv=None) -> None:
     """Serve the IOC until Ctrl-C (or SIGINT): then one line, exit status 130, while starting as
     well."""
@@ -458,9 +225,7 @@ def main(argv=None) -> None:
         group = _start(ap, args)
     except KeyboardInterrupt:
         exit_interrupted("stopped while starting; it served nothing")
-    from caproto.server import run
-
-    run(group.pvdb, interfaces=[args.interface], startup_hook=group.start)  # returns on Ctrl-C
+    serve(group.pvdb, args.interface, group.start)  # returns on Ctrl-C
     exit_interrupted(f"the IOC {args.prefix} stopped; its PVs are gone")
 
 
@@ -484,7 +249,7 @@ def _start(ap, args):
         )  # a line per write
     except OSError as exc:
         raise SystemExit(f"ops_jax.ioc: --tick-log: {exc}")
-    tune_server(args.rate)
+    set_batch_window(args.rate)  # before caproto's server is imported
     from caproto import get_environment_variables
 
     warning = port_warning(int(get_environment_variables()["EPICS_CA_SERVER_PORT"]))

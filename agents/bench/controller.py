@@ -1,5 +1,5 @@
 """The controller protocol of the bench: what the control loop (``agents.bench.loop.Loop``) drives,
-a frozen controller (``agents.bench.loop.Agent``) or an online learner's actor
+a frozen controller (``agents.bench.frozen.Agent``) or an online learner's actor
 (``agents.bench.learning.actor.Actor``).
 
 Per run the loop calls ``start`` with the first observation, then per control step ``offsets`` for

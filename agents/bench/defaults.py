@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from agents import api as base
 from agents.bench.learning import off_policy_learner
-from agents.bench.loop import reads_lengths
+from agents.bench.frozen import reads_lengths
 from agents.bench.mapping import missing_lengths
 from agents.cli import parse_set
 from ops_jax import EnvSpec
@@ -63,7 +63,7 @@ def _observes_lengths(env_config: dict) -> bool:
 
 def run_reads_lengths(args, mapping: dict, items: list, checkpoint) -> bool:
     """Whether the run's controller or learner (``--set`` ``items``; ``checkpoint``: the one
-    resumed) reads the length readouts, before it is built (as ``agents.bench.loop.check_lengths``
+    resumed) reads the length readouts, before it is built (as ``agents.bench.frozen.check_lengths``
     tells)."""
     env_options, stages = parse_set(args.env), len(mapping["lines"])
     if args.learn:

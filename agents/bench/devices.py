@@ -1,5 +1,7 @@
 """ophyd devices of an OPS bench (``agents.bench`` drives them), built from its mapping
-(``agents.bench.mapping``)."""
+(``agents.bench.mapping``) on ophyd's public API. The PVs a step reads are followed by the bench's
+transport (``bench.transport``, ``agents.bench.transport``), not by ophyd's monitors, unless that
+transport is ophyd's own."""
 
 from __future__ import annotations
 
@@ -9,126 +11,17 @@ import threading
 import time
 
 import numpy as np
+
 from ophyd import Component as Cpt
 from ophyd import Device, EpicsSignal, EpicsSignalRO, Signal
 from ophyd import FormattedComponent as FCpt
 from ophyd.status import Status
 
-# the mapping's names, as the runner, benchmarks.lab and the tests import them
-from agents.bench.mapping import (  # noqa: F401
-    SAFETY_DEFAULTS,
-    SETTLE_RANGE_S,
-    SETTLE_S,
-    MappingError,
-    check_mapping,
-    load_mapping,
-    sim_mapping,
-)
+from agents.bench import transport as transports
+
+from agents.bench.transport import SafetyStop
 
 log = logging.getLogger("agents.bench")
-
-
-def monitored(sig):
-    """The newest value of a monitored signal as its monitor callback left it (``get()`` without its
-    connection checks and metadata handling: a control loop reads a dozen per step)."""
-    return sig._readback
-
-
-class RawMonitor:
-    """An ophyd signal's PV followed by caproto's client directly instead of ophyd's monitor: each
-    value lands on the signal as that monitor would leave it (``monitored``, ``.timestamp``), then
-    ``hook(value=, timestamp=)`` runs, in caproto's receiving thread as the value is read off the
-    socket (``hook`` must not block). ophyd's dispatcher thread, its per-value metadata handling and
-    caproto's hand-off of each value to its callback thread, most of a Python client's time per
-    frame, are skipped; alarm fields are not followed. Numeric PVs only; create after ``connect``,
-    once per signal."""
-
-    def __init__(self, sig):
-        read_pv = sig._read_pv
-        read_pv.clear_auto_monitor()  # ophyd's own monitor stops
-        sig._auto_monitor = False  # and does not start again on a reconnection
-        self.sig, self.hook = sig, None
-        self._sub = read_pv._caproto_pv.subscribe(data_type="time")
-        self._sub.add_callback(
-            self._on_value
-        )  # starts the subscription (and renews it on a reconnection)
-        self._sub.process = (
-            self._process
-        )  # each response handled inline instead of queued to the callback thread
-
-    def _process(self, response):
-        self._sub.most_recent_response = response
-        self._on_value(self._sub, response)
-
-    @staticmethod
-    def serves(sig) -> bool:
-        """Whether caproto serves ``sig``'s monitor and its PV is numeric (not another control
-        layer, not a fake signal, not a string)."""
-        read_pv = getattr(sig, "_read_pv", None)
-        pv = getattr(read_pv, "_caproto_pv", None)
-        channel = getattr(pv, "channel", None)
-        if (
-            getattr(sig, "_auto_monitor", False) is not True
-            or not hasattr(read_pv, "clear_auto_monitor")
-            or channel is None
-        ):
-            return False
-        from caproto import ChannelType
-
-        return channel.native_data_type in (
-            ChannelType.INT,
-            ChannelType.FLOAT,
-            ChannelType.LONG,
-            ChannelType.DOUBLE,
-        )
-
-    def _on_value(self, sub, response):
-        try:
-            data = response.data
-            value = data[0] if len(data) == 1 else data
-            stamp = response.metadata.timestamp
-            self.sig._readback, self.sig._metadata["timestamp"] = value, stamp
-            if self.hook is not None:
-                self.hook(value=value, timestamp=stamp)
-        except Exception:  # caproto's executor would drop it unseen
-            log.exception("monitor of PV %s failed", self.sig.pvname)
-
-
-class RawWriter:
-    """Setpoints written through caproto's client directly, every line's in one message per circuit:
-    ophyd's ``put`` (value checks, connection wait, its own callbacks) and one send per PV are
-    skipped. Floating-point PVs served by caproto only (``serves``); nothing waits for the IOC's
-    confirmation, as with ``put``. The ophyd signals' setpoint caches are not updated (``Lines``
-    keeps the setpoints sent)."""
-
-    def __init__(self, sigs):
-        self.pvs = [sig._write_pv._caproto_pv for sig in sigs]
-        self.names = [sig.setpoint_pvname for sig in sigs]
-
-    @staticmethod
-    def serves(sig) -> bool:
-        """Whether ``sig``'s setpoint PV is a floating-point PV that caproto serves (connected)."""
-        channel = getattr(
-            getattr(getattr(sig, "_write_pv", None), "_caproto_pv", None), "channel", None
-        )
-        if channel is None:
-            return False
-        from caproto import ChannelType
-
-        return channel.native_data_type in (ChannelType.FLOAT, ChannelType.DOUBLE)
-
-    def write(self, values) -> None:
-        """Write ``values`` (one per PV, the PVs' units); a PV not connected stops the run
-        (``SafetyStop``)."""
-        circuits: dict = {}
-        for pv, name, value in zip(self.pvs, self.names, values):
-            channel, manager = pv.channel, pv.circuit_manager
-            if channel is None or manager is None or not pv.connected:
-                raise SafetyStop(f"lost connection to PV {name}")
-            command = channel.write((float(value),), ioid=manager._ioid_counter(), notify=False)
-            circuits.setdefault(id(manager), (manager, []))[1].append(command)
-        for manager, commands in circuits.values():
-            manager.send(*commands, extra={"pv": self.names})
 
 
 class DelayLine(Device):
@@ -179,13 +72,16 @@ class Detector(Device):
         self.tick_time = 0.0  # time.perf_counter() when the newest frame arrived
         super().__init__(prefix, **kwargs)
 
-    def arm(self, raw: RawMonitor | None = None):
-        """Start following the counter (after connection; through ``raw`` when given); the frame
-        there now counts as new."""
-        self._latest, self._used, self._stamp = self.tick.get(), None, self.tick.timestamp
-        self.tick_time = time.perf_counter()
-        if raw is not None:
-            raw.hook = self._on_tick
+    def arm(self, feed=None):
+        """Start following the counter (after connection; through ``feed``, a transport, when
+        given, else the signal's own monitor); the frame there now counts as new."""
+        if feed is not None:
+            self._latest, self._stamp = feed.value(self.tick_pv), feed.stamp(self.tick_pv)
+        else:
+            self._latest, self._stamp = self.tick.get(), self.tick.timestamp
+        self._used, self.tick_time = None, time.perf_counter()
+        if feed is not None:
+            feed.on_update(self.tick_pv, self._on_tick)
         else:
             self.tick.subscribe(self._on_tick, run=False)
 
@@ -266,10 +162,6 @@ class Evaluation(Device):
         super().__init__(prefix, **kwargs)
 
 
-class SafetyStop(RuntimeError):
-    """The watchdog stopped the run; the message is its reason."""
-
-
 class Lines(Device):
     """The delay lines moved together: ``set(targets)`` (wl, one per line) clips each move to
     ``max_step_wl``, takes a line that would come within ``wrap_wl`` of a soft limit one ``wrap_wl``
@@ -291,7 +183,7 @@ class Lines(Device):
         wrap_wl: float | None = None,
         **kwargs,
     ):
-        self._lines, self.units_per_wl = lines, units_per_wl
+        self.delay_lines, self.units_per_wl = lines, units_per_wl
         self.max_step_wl, self.soft_range = max_step_wl, np.asarray(soft_range_wl, float)
         self.wrap_wl = wrap_wl
         self.locked: str | None = None
@@ -299,7 +191,7 @@ class Lines(Device):
         self.shift = np.zeros(
             len(lines)
         )  # the last move's wrap shift (wl, one per line; 0 where not wrapped)
-        self.raw: RawWriter | None = None  # set by ``arm`` where caproto serves every setpoint
+        self.writer = None  # the transport that writes the setpoints (``arm``); else ``put``
         super().__init__(prefix, **kwargs)
 
     @property
@@ -307,7 +199,8 @@ class Lines(Device):
         """The setpoints (wl): the last ones written, else as read from the PVs."""
         if self._sent is None:
             return (
-                np.array([line.setpoint.get() for line in self._lines], float) / self.units_per_wl
+                np.array([line.setpoint.get() for line in self.delay_lines], float)
+                / self.units_per_wl
             )
         return self._sent.copy()
 
@@ -315,7 +208,7 @@ class Lines(Device):
         """The shift (wl, one per line) that takes ``positions`` within ``wrap_wl`` of a soft limit
         one ``wrap_wl`` back towards the middle (zeros without ``wrap_wl``)."""
         if self.wrap_wl is None:
-            return np.zeros(len(self._lines))
+            return np.zeros(len(self.delay_lines))
         low, high = self.soft_range[:, 0], self.soft_range[:, 1]
         return self.wrap_wl * (
             (positions < low + self.wrap_wl).astype(float) - (positions > high - self.wrap_wl)
@@ -355,26 +248,40 @@ class Lines(Device):
                 np.round(targets, 6).tolist(),
                 np.round(out, 6).tolist(),
             )
-        if self.raw is not None:
-            self.raw.write(out * self.units_per_wl)
+        if self.writer is not None:
+            self.writer.write(out * self.units_per_wl)
         else:
-            for line, value in zip(self._lines, out):
+            for line, value in zip(self.delay_lines, out):
                 line.setpoint.put(float(value) * self.units_per_wl)
         self._sent, self.shift = out, shift
         return out.copy()
 
 
-def _device_class(mapping: dict):
+def _on_demand(cls):
+    """``cls`` with its monitored signals read on demand instead (no monitor of ophyd's: the
+    transport follows their PVs)."""
+    comps = {}
+    for attr in cls.component_names:
+        cpt = getattr(cls, attr)
+        if cpt.kwargs.get("auto_monitor"):
+            kwargs = {**cpt.kwargs, "auto_monitor": False}
+            comps[attr] = FCpt(cpt.cls, cpt.suffix, kind=cpt.kind, **kwargs)
+    return type(cls.__name__, (cls,), comps)
+
+
+def _device_class(mapping: dict, monitor: bool = True):
     """The bench's ``Device`` subclass: lines ``line1..lineN`` (+ ``length1..``), ``detector``,
-    ``evaluation``."""
+    ``evaluation``; ``monitor`` False: their readings without ophyd's monitors (``_on_demand``)."""
+    kinds = [LengthReadout, Detector, Evaluation]
+    length, detector, evaluation = kinds if monitor else map(_on_demand, kinds)
     comps = {}
     for i, line in enumerate(mapping["lines"], 1):
         comps[f"line{i}"] = Cpt(DelayLine, "", sp_pv=line["setpoint"], rbv_pv=line["readback"])
         if "length" in line:
-            comps[f"length{i}"] = Cpt(LengthReadout, "", len_pv=line["length"])
+            comps[f"length{i}"] = Cpt(length, "", len_pv=line["length"])
     d = mapping["detector"]
     comps["detector"] = Cpt(
-        Detector,
+        detector,
         "",
         power_pv=d["power"],
         trace_pv=d["trace"],
@@ -383,27 +290,33 @@ def _device_class(mapping: dict):
     )
     ev = mapping["evaluation"]
     if ev:
-        comps["evaluation"] = Cpt(Evaluation, "", pmax_pv=ev["p_pmax"], pbest_pv=ev["p_pbest"])
+        comps["evaluation"] = Cpt(evaluation, "", pmax_pv=ev["p_pmax"], pbest_pv=ev["p_pbest"])
     if mapping["advance"]:
         comps["advance"] = Cpt(EpicsSignal, mapping["advance"], kind="omitted")
     return type("OPSBenchDevice", (Device,), comps)
 
 
-def make_bench(mapping: dict, device_class=None, name: str = "bench"):
-    """``(bench device, Lines)`` for a validated mapping. ``device_class(mapping) -> class`` may
-    wrap the device class (``ophyd.sim.make_fake_device`` in tests). The first bench of a process
-    sets ophyd's Channel Access timeouts to the mapping's ``connect_s``."""
+def make_bench(mapping: dict, device_class=None, name: str = "bench", transport: str | None = None):
+    """``(bench device, Lines)`` for a validated mapping, its transport (``transport``, else the
+    default: ``agents.bench.transport.chosen``) in ``bench.transport``, to be opened by ``arm``.
+    ``device_class(mapping) -> class`` may wrap the device class (``ophyd.sim.make_fake_device`` in
+    tests). ophyd's control layer follows the transport; the first bench of a process sets ophyd's
+    Channel Access timeouts to the mapping's ``connect_s``."""
     from ophyd.signal import EpicsSignalBase
 
+    kind, s = transports.chosen(transport), mapping["safety"]["connect_s"]
+    transports.use_control_layer(kind)
     try:
-        s = mapping["safety"]["connect_s"]
         EpicsSignalBase.set_defaults(timeout=s, connection_timeout=s)
     except RuntimeError:  # signals exist already in this process: their timeouts stay
         pass
-    cls = _device_class(mapping)
+    feed = transports.make(kind, s)
+    cls = _device_class(mapping, monitor=not feed.follows_itself)
     if device_class is not None:
         cls = device_class(cls)
-    bench = cls("", name=name)
+    with transports.repeater_start_quiet():  # the signals' channels: libca's first
+        bench = cls("", name=name)
+    bench.transport = feed
     lines = [getattr(bench, f"line{i}") for i in range(1, len(mapping["lines"]) + 1)]
     s = mapping["safety"]
     mover = Lines(
@@ -416,53 +329,6 @@ def make_bench(mapping: dict, device_class=None, name: str = "bench"):
         wrap_wl=s["wrap_wl"],
     )
     return bench, mover
-
-
-def signals(bench) -> dict:
-    """Every Channel Access signal of ``bench`` by its PV name."""
-    out = {}
-    for walk in bench.walk_signals():
-        sig = walk.item
-        if hasattr(sig, "pvname"):
-            out[sig.pvname] = sig
-            if getattr(sig, "setpoint_pvname", sig.pvname) != sig.pvname:
-                out[sig.setpoint_pvname] = sig
-    return out
-
-
-def arm(bench, lines: Lines | None = None) -> None:
-    """Follow ``bench`` (after ``connect``): its monitored PVs through ``RawMonitor`` where caproto
-    serves them (ophyd's monitors elsewhere), the detector's frame counter from now on
-    (``Detector.arm``); ``lines`` (its ``Lines``) write through ``RawWriter`` where caproto serves
-    every setpoint (ophyd's ``put`` elsewhere)."""
-    if not hasattr(bench, "raw_monitors"):  # once: a second call keeps the first's monitors
-        bench.raw_monitors = {
-            w.item.name: RawMonitor(w.item)
-            for w in bench.walk_signals()
-            if RawMonitor.serves(w.item)
-        }
-    bench.detector.arm(bench.raw_monitors.get(bench.detector.tick.name))
-    setpoints = [line.setpoint for line in lines._lines] if lines is not None else []
-    if setpoints and all(RawWriter.serves(sig) for sig in setpoints):
-        lines.raw = RawWriter(setpoints)
-
-
-def connect(bench, timeout: float) -> None:
-    """Wait for every PV; a ``MappingError`` names the ones that did not answer within ``timeout``
-    s."""
-    sigs = signals(bench)
-    deadline = time.monotonic() + timeout
-    for sig in sigs.values():
-        try:
-            sig.wait_for_connection(timeout=max(deadline - time.monotonic(), 0.05))
-        except TimeoutError:
-            pass
-    missing = sorted(name for name, sig in sigs.items() if not sig.connected)
-    if missing:
-        raise MappingError(
-            f"no answer from PV(s) {missing} within {timeout:g} s (is the IOC running, "
-            f"and EPICS_CA_ADDR_LIST / EPICS_CA_SERVER_PORT set to reach it?)"
-        )
 
 
 class Control(Device):
@@ -478,48 +344,3 @@ class Control(Device):
         self.setpoint_wl.put(np.asarray(setpoint_wl, float))
         self.probe_power.put(np.asarray(probe_power, float))
         self.latency_ms.put(float(latency_ms))
-
-
-def disconnect(bench) -> None:
-    """Stop following ``bench``'s PVs and close the Channel Access circuits (a clean exit)."""
-    import ophyd
-
-    bench.destroy()
-    if ophyd.cl.name == "caproto":
-        from caproto.threading.pyepics_compat import PV
-
-        previous = threading.excepthook
-        threading.excepthook = _closing_socket_hook(previous)
-        try:
-            PV.default_context().disconnect()  # joins caproto's threads: none outlives the hook
-        finally:
-            threading.excepthook = previous
-
-
-def _closing_socket_hook(previous):
-    """A ``threading.excepthook`` that drops the network error a caproto thread may raise while its
-    socket is being closed under it (its search-retry thread sends between the close and its join);
-    others go on to ``previous``."""
-
-    def hook(args) -> None:
-        if isinstance(args.exc_value, OSError) and _raised_in_caproto(
-            args.exc_traceback
-        ):  # CaprotoNetworkError too
-            log.debug(
-                "closing Channel Access: %s in thread %s",
-                args.exc_value,
-                args.thread and args.thread.name,
-            )
-            return
-        previous(args)
-
-    return hook
-
-
-def _raised_in_caproto(tb) -> bool:
-    """Whether a frame of traceback ``tb`` is caproto's."""
-    while tb is not None:
-        if tb.tb_frame.f_globals.get("__name__", "").startswith("caproto."):
-            return True
-        tb = tb.tb_next
-    return False

@@ -13,8 +13,7 @@ import time
 from pathlib import Path
 
 from agents.bench import documents
-from agents.bench.devices import SafetyStop
-from agents.bench.flyer import lean_page_checks
+from agents.bench.transport import SafetyStop
 from agents.bench.loop import USER_STOP, Loop, control_plan
 
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the
@@ -91,7 +90,7 @@ def run_plan(loop: Loop, md: dict, out: Path, shown=None) -> float:
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_S)
     try:
-        with user_stops(loop), lean_page_checks():
+        with user_stops(loop):
             RE(control_plan(loop, md))
     except Exception as exc:  # the watchdog (SafetyStop) or a failure: no move, keep the record
         if loop.stop_reason is None:

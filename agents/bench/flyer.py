@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import contextlib
 import threading
 import time
 from concurrent.futures import Future, InvalidStateError
@@ -130,46 +129,3 @@ def _plain(value):
     """``value`` as built-in Python types (numpy arrays and scalars by their ``tolist``): a page
     that needs no ``sanitize_doc`` before JSON."""
     return value.tolist() if hasattr(value, "tolist") else value
-
-
-@contextlib.contextmanager
-def lean_page_checks():
-    """Within: event_model checks an event page's shape (its lists, their lengths, the types of its
-    uids, sequence numbers and times) instead of walking its JSON schema (about 0.15 ms per event on
-    a 2-core host, most of the RunEngine's work per control step). The pages ``LoopFlyer`` hands
-    back have one fixed shape; event_model's own checks that their keys match the descriptor's still
-    run."""
-    from event_model import DocumentNames, schema_validators
-
-    full = schema_validators[DocumentNames.event_page]
-    schema_validators[DocumentNames.event_page] = _PageShape()
-    try:
-        yield
-    finally:
-        schema_validators[DocumentNames.event_page] = full
-
-
-class _PageShape:
-    """``validate(page)``: raises event_model's validation error on a page whose lists do not line
-    up."""
-
-    def validate(self, page: dict) -> None:
-        from event_model import EventModelValidationError
-
-        n = len(page["seq_num"])
-        problems = [
-            name
-            for name, ok in (
-                ("descriptor", isinstance(page["descriptor"], str)),
-                ("uid", len(page["uid"]) == n and all(isinstance(u, str) for u in page["uid"])),
-                ("seq_num", all(isinstance(i, int) for i in page["seq_num"])),
-                ("time", len(page["time"]) == n),
-                ("data", all(len(v) == n for v in page["data"].values())),
-                ("timestamps", all(len(v) == n for v in page["timestamps"].values())),
-            )
-            if not ok
-        ]
-        if problems:
-            raise EventModelValidationError(
-                f"event page: {', '.join(problems)} do not fit its {n} events"
-            )

@@ -1,218 +1,26 @@
-"""The controller and the control loop that ``agents.bench`` runs on a bench, and the Bluesky plan
-around it."""
+"""The control loop that ``agents.bench`` runs on a bench (``Loop``: the watchdog, one step's reads,
+probes and writes, the records) and the Bluesky plan around it; the controller is any
+``agents.bench.controller.Controller`` (a frozen one: ``agents.bench.frozen``)."""
 
 from __future__ import annotations
 
 import logging
 import time
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-import ops_jax
-from agents import api as base
-from agents.controllers import trim
 from agents.bench.controller import Controller
-from agents.bench.devices import Control, MappingError, SafetyStop, monitored, signals
+from agents.bench.devices import Control
+from agents.bench.transport import SafetyStop
+from agents.bench.lifecycle import signals
 from agents.bench.flyer import LoopFlyer, fly
-from agents.bench.mapping import missing_lengths
+from agents.bench.lifecycle import described
 
-MAX_PROBES = 16  # probes per control step a controller may ask for
 FLUSH_S = (
     0.2  # a page of the loop's events is due this often (s), collected after the step that ends it
 )
 USER_STOP = "user"  # the stop reason of a run the user ended at once (a second Ctrl-C or SIGTERM)
 log = logging.getLogger("agents.bench")
-
-
-class Agent(Controller):
-    """A controller on one instance (B = 1): ``start(obs)``, then per step the probe ``offsets`` in
-    turn and the ``act``ion, with probe results filled in as they are measured. One jitted program;
-    a step with K probes calls it K + 1 times (the policy is pure, so each call repeats the same
-    draws)."""
-
-    def __init__(self, policy: base.Policy, params, env, seed: int):
-        self.policy, self.params, self.env = policy, params, env
-        _, self._k_init, self._k_run = jax.random.split(jax.random.key(seed), 3)
-        obs = jnp.zeros((1, env.observation_size), jnp.float32)
-        calls = []
-        jax.eval_shape(
-            lambda: self._act(
-                params,
-                policy.init(self._k_init, obs),
-                obs,
-                self._k_run,
-                jnp.zeros((MAX_PROBES, 1)),
-                calls,
-            )
-        )
-        self.probes = len(calls)
-        self._init = jax.jit(policy.init)
-        self._run = jax.jit(self._step)
-        self._sent = (
-            None if policy.sent is None else jax.jit(lambda p, c, a: policy.sent(p, c, a[None]))
-        )
-        # compile before the run (results discarded: the policy is pure); twice, the second time
-        # with the carry as act returns it (its dtypes may differ from init's)
-        carry = self._init(self._k_init, obs)
-        for _ in range(2):
-            _, carry, _ = self._run(
-                params,
-                carry,
-                np.zeros(obs.shape[1], np.float32),
-                0,
-                np.zeros(self.probes, np.float32),
-            )
-            if self._sent is not None:
-                carry = self._sent(params, carry, np.zeros(env.num_actions, np.float32))
-        jax.block_until_ready(carry)
-        self.carry, self.t = None, 0
-
-    def _act(self, params, carry, obs, key, results, calls):
-        def probe(offsets, active=None):
-            calls.append((offsets, jnp.ones(offsets.shape[:1], bool) if active is None else active))
-            if len(calls) > results.shape[0]:
-                raise ValueError(f"the controller asks for more than {MAX_PROBES} probes per step")
-            return results[len(calls) - 1].astype(jnp.float32)
-
-        action, carry = self.policy.act(params, carry, obs, key, probe)
-        offsets = (
-            jnp.stack([c[0] for c in calls])
-            if calls
-            else jnp.zeros((0, *action.shape), jnp.float32)
-        )
-        active = (
-            jnp.stack([c[1] for c in calls]) if calls else jnp.zeros((0, action.shape[0]), bool)
-        )
-        return action, carry, (offsets, active)
-
-    def _step(self, params, carry, obs, t, results):
-        """Step ``t``'s (action (N,), carry, (probe offsets (K, N), probes made (K,))) from obs (D,)
-        and probe results (K,)."""
-        key = jax.random.split(jax.random.fold_in(self._k_run, t))[0]
-        action, carry, (offsets, active) = self._act(
-            params, carry, obs[None], key, results[:, None], []
-        )
-        return action[0], carry, (offsets[:, 0], active[:, 0])
-
-    def start(self, obs):
-        """The controller's state from the first observation."""
-        self.carry = self._init(self._k_init, jnp.asarray(obs, jnp.float32)[None])
-
-    def _call(self, obs, results):
-        return self._run(
-            self.params,
-            self.carry,
-            np.asarray(obs, np.float32),
-            self.t,
-            np.asarray(results, np.float32),
-        )
-
-    def offsets(self, obs, results, i: int) -> np.ndarray | None:
-        """Probe i's offsets (N,) wl, given the results of probes 0..i-1; None where the controller
-        leaves it out."""
-        offsets, active = self._call(obs, results)[2]
-        return np.asarray(offsets[i], np.float64) if bool(active[i]) else None
-
-    def act(self, obs, results) -> np.ndarray:
-        """The step's action (N,) in [-1, 1]; advances the controller's state."""
-        action, self.carry, _ = self._call(obs, results)
-        self.t += 1
-        return np.asarray(action, np.float64)
-
-    def tell(self, action) -> bool:
-        """Tell a controller that reads its own last move (``Policy.sent``) the action (N,) really
-        sent, where the bench's safety limits cut the one it asked for; False for one that does not
-        read it."""
-        if self._sent is None:
-            return False
-        self.carry = self._sent(self.params, self.carry, np.asarray(action, np.float32))
-        return True
-
-
-def load_controller(
-    spec: str,
-    mapping: dict,
-    env_options: dict,
-    hyper: dict,
-    seed: int,
-    trim_hyper: dict | None = None,
-):
-    """(Agent, env_config, action scale (wl per unit), window (wl)) for ``spgd``, ``physics`` or a
-    saved folder on the bench of ``mapping``; with ``trim_hyper`` (``TrimConfig`` overrides, ``{}``:
-    the default), wrapped in the trim (``agents.controllers.trim``). A controller that reads length
-    readouts the mapping lacks fails (``MappingError``)."""
-    stages = len(mapping["lines"])
-    if spec in ("spgd", "physics"):
-        env_config = {"stages": stages, **env_options}
-        module = base.algo_module(spec)
-        config = base.ALGOS[spec].config.from_hyper(hyper)
-        policy, params = module.make_policy(env_config, config), None
-        algo = spec
-    else:
-        if hyper:
-            raise ValueError(
-                "--set applies to spgd and physics only; a saved policy keeps its own settings"
-            )
-        result = base.load(spec)
-        env_config = {**result.env_spec.as_dict(), **env_options}
-        policy, params = result.policy(), result.params
-        algo, hyper = result.algo, result.config.to_hyper()
-    if trim_hyper is not None:
-        policy, params = trim.trimmed((policy, params), trim_hyper, env_config)
-    env, env_params = ops_jax.make(**base.check_env_config(env_config))
-    if env.num_actions != stages:
-        raise ValueError(f"the controller drives {env.num_actions} lines, the bench has {stages}")
-    if env.config.include_noise:
-        raise ValueError(
-            "controllers built with include_noise=True read the simulator's noise state, "
-            "which no bench can measure"
-        )
-    check_lengths(spec, reads_lengths(algo, hyper), env, mapping)
-    return (
-        Agent(policy, params, env, seed),
-        env_config,
-        float(env_params.action_scale),
-        float(env_params.window),
-    )
-
-
-def observes_lengths(env) -> bool:
-    """Whether ``env``'s observation frame holds the length readouts (power, 2^N - 1 scope samples,
-    then N lengths; frames-only observations stop after the samples)."""
-    return env.layout.lengths
-
-
-def reads_lengths(algo: str, hyper: dict | None) -> bool:
-    """Whether a controller of ``algo`` with settings ``hyper`` uses the length readouts: SPGD
-    never, the physics-informed controller with ``use_lengths`` (or ``lengths_only``), a learned
-    policy always (every input of its networks)."""
-    if algo == "spgd":
-        return False
-    if algo == "physics":
-        config = base.ALGOS["physics"].config.from_hyper(hyper or {})
-        return bool(config.use_lengths or config.lengths_only)
-    return True
-
-
-def check_lengths(controller: str, reads: bool, env, mapping: dict) -> None:
-    """A controller that uses length readouts on a bench that lacks some, or that wraps its lines (a
-    readout jumps by the period), fails here, naming the entries."""
-    if reads and observes_lengths(env) and mapping["safety"]["wrap_wl"] is not None:
-        raise MappingError(
-            f"the controller {controller} reads the length readouts, which jump by a period when "
-            "a line wraps (safety.wrap_wl, --wrap); run it without wrapping, or run a controller "
-            "that does not read them (spgd, physics with use_lengths=False, a policy trained "
-            "without them)"
-        )
-    missing = missing_lengths(mapping)
-    if reads and observes_lengths(env) and missing:
-        raise MappingError(
-            f"the controller {controller} reads the length readouts and the mapping lacks "
-            f"{', '.join(missing)}; map them, or run a controller that does not read them (spgd, "
-            f"physics with use_lengths=False, a policy trained without them)"
-        )
 
 
 class Loop:
@@ -239,7 +47,8 @@ class Loop:
         }
         self.t0 = self.cpu0 = None  # wall-clock and CPU time at the first step
         self.advance = getattr(bench, "advance", None)
-        self.reads = []  # (event key, signal) of the readings recorded at every step
+        self.feed = bench.transport  # the newest readings (``arm``: agents.bench.transport)
+        self.reads = []  # (event key, PV) of the readings recorded at every step
         self.actions_cut = 0  # steps whose action the safety limits cut
 
     # -- watchdog --------------------------------------------------------------------------------
@@ -263,15 +72,20 @@ class Loop:
 
             sig.subscribe(on_meta, event_type=sig.SUB_META, run=False)
 
-    def check(self, sig, value, now: float):
-        """Trip on a non-finite or stale reading of ``sig`` (in lockstep a frame waits for the
+    def read(self, sig, now: float):
+        """The newest value of ``sig``'s PV, checked (``check``) at ``now`` (time.time() s)."""
+        value = self.feed.value(sig.pvname)
+        self.check(sig.pvname, value, now)
+        return value
+
+    def check(self, pv: str, value, now: float):
+        """Trip on a non-finite or stale reading of PV ``pv`` (in lockstep a frame waits for the
         controller: its age is not checked)."""
+        age = now - self.feed.stamp(pv)
         if not np.all(np.isfinite(value)):
-            self.trip(f"non-finite reading on PV {sig.pvname}")
-        elif (
-            not self.mapping["advance"] and now - sig.timestamp > self.mapping["safety"]["stale_s"]
-        ):
-            self.trip(f"stale reading on PV {sig.pvname} ({now - sig.timestamp:.3f} s old)")
+            self.trip(f"non-finite reading on PV {pv}")
+        elif not self.mapping["advance"] and age > self.mapping["safety"]["stale_s"]:
+            self.trip(f"stale reading on PV {pv} ({age:.3f} s old)")
         if self.stop_reason:
             raise SafetyStop(self.stop_reason)
 
@@ -288,17 +102,15 @@ class Loop:
     def observe(self) -> np.ndarray:
         """The controller's observation (the simulator's encoding) from the current readings."""
         d, now = self.mapping["detector"], time.time()
-        power, trace = monitored(self.det.power), np.asarray(monitored(self.det.trace), np.float64)
-        self.check(self.det.power, power, now)
-        self.check(self.det.trace, trace, now)
+        power = self.read(self.det.power, now)
+        trace = np.asarray(self.read(self.det.trace, now), np.float64)
         env = self.agent.env
         lengths = np.zeros(self.n)
         if env.layout.lengths:  # the length readouts (0 where the bench has no sensor)
             for i in range(self.n):
                 sensor = getattr(self.bench, f"length{i + 1}", None)
                 if sensor is not None:
-                    lengths[i] = monitored(sensor.value)
-                    self.check(sensor.value, lengths[i], now)
+                    lengths[i] = self.read(sensor.value, now)
         lengths /= self.mapping["units_per_wl"]
         try:
             frame = env.layout.encode(
@@ -320,15 +132,17 @@ class Loop:
             self.det.after(time.time() + self.mapping["detector"]["settle_s"])
 
     def probe_power(self) -> float:
-        value = monitored(self.det.power)
-        self.check(self.det.power, value, time.time())
-        return float(value) / self.mapping["detector"]["power_full_scale"]
+        return (
+            float(self.read(self.det.power, time.time()))
+            / self.mapping["detector"]["power_full_scale"]
+        )
 
     def readings(self) -> tuple[dict, dict]:
         """The event's readings of the frame just used (the bench's hinted and normal signals):
         values and IOC time stamps."""
-        return {k: monitored(sig) for k, sig in self.reads}, {
-            k: sig.timestamp for k, sig in self.reads
+        feed = self.feed
+        return {k: feed.value(pv) for k, pv in self.reads}, {
+            k: feed.stamp(pv) for k, pv in self.reads
         }
 
     def frame(self):
@@ -418,19 +232,17 @@ class Loop:
         every ``page_s``."""
         control = Control(name="control")
         control.put(np.zeros(self.n), np.zeros(self.n), np.zeros(self.agent.probes), 0.0)
-        keys = {**self.bench.describe(), **control.describe()}
-        self.reads = [(k, sig) for k in self.bench.read() for sig in [self._signal(k)]]
+        readings, self.reads = described(self.bench)
+        keys = {**readings, **control.describe()}
         return LoopFlyer("control_loop", keys, self.start, self.step, self.done, page_s=page_s)
-
-    def _signal(self, name: str):
-        return next(w.item for w in self.bench.walk_signals() if w.item.name == name)
 
     def record(self, latency_ms: list, decide_ms: float):
         ev = getattr(self.bench, "evaluation", None)
         self.rec["time_s"].append(time.perf_counter() - self.t0)
-        self.rec["tick"].append(int(monitored(self.det.tick)))
-        self.rec["p_pmax"].append(float(monitored(ev.p_pmax)) if ev is not None else np.nan)
-        self.rec["p_pbest"].append(float(monitored(ev.p_pbest)) if ev is not None else np.nan)
+        value = self.feed.value
+        self.rec["tick"].append(int(value(self.det.tick.pvname)))
+        self.rec["p_pmax"].append(float(value(ev.p_pmax.pvname)) if ev is not None else np.nan)
+        self.rec["p_pbest"].append(float(value(ev.p_pbest.pvname)) if ev is not None else np.nan)
         self.rec["latency_ms"].extend(latency_ms)
         self.rec["decide_ms"].append(decide_ms)
 

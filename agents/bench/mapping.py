@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ops_jax import pvs
+
 # The simulated bench's optics repeat when a line moves by half a wavelength: a delay of x wl turns
 # the phase of its pulses by 4 pi x (ops_jax.physics, a folded delay line's round trip)
 SIM_PERIOD_WL = 0.5
@@ -66,23 +68,24 @@ class MappingError(ValueError):
 
 def sim_mapping(prefix: str, stages: int, lockstep: bool = False, lengths: bool = True) -> dict:
     """The mapping of the simulated bench ``python -m ops_jax.ioc --prefix PREFIX --stages N``
-    (``lockstep``: started with ``--lockstep``; ``lengths=False``: without its length readouts)."""
+    (``lockstep``: started with ``--lockstep``; ``lengths=False``: without its length readouts), its
+    PV names from ``ops_jax.pvs``."""
     return {
-        "advance": f"{prefix}ADVANCE" if lockstep else None,
+        "advance": prefix + pvs.ADVANCE if lockstep else None,
         "lines": [
             {
-                "setpoint": f"{prefix}LINE{i}:SP",
-                "readback": f"{prefix}LINE{i}:RBV",
-                **({"length": f"{prefix}LINE{i}:LEN"} if lengths else {}),
+                "setpoint": prefix + pvs.line_pv(pvs.LINE_SETPOINT, i),
+                "readback": prefix + pvs.line_pv(pvs.LINE_READBACK, i),
+                **({"length": prefix + pvs.line_pv(pvs.LINE_LENGTH, i)} if lengths else {}),
             }
             for i in range(1, stages + 1)
         ],
         "detector": {
-            "power": f"{prefix}DET:POWER",
-            "trace": f"{prefix}SCOPE:TRACE",
-            "tick": f"{prefix}TICK",
+            "power": prefix + pvs.DETECTOR_POWER,
+            "trace": prefix + pvs.SCOPE_TRACE,
+            "tick": prefix + pvs.TICK,
         },
-        "evaluation": {"p_pmax": f"{prefix}EVAL:P_PMAX", "p_pbest": f"{prefix}EVAL:P_PBEST"},
+        "evaluation": {"p_pmax": prefix + pvs.EVAL_P_PMAX, "p_pbest": prefix + pvs.EVAL_P_PBEST},
         "period_wl": SIM_PERIOD_WL,
     }
 

@@ -1,6 +1,6 @@
 """A run's setup from the command line (``agents.bench.cli``): the arguments checked, the threads
 placed, the bench's mapping with its overrides and defaults (``agents.bench.defaults``), the
-controller built: a frozen one (``agents.bench.loop.load_controller``) or a learner's actor
+controller built: a frozen one (``agents.bench.frozen.load_controller``) or a learner's actor
 (``agents.bench.learning``); ``Setup`` holds what the run needs of it."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import numpy as np
 from agents import api as base
 from agents.bench import defaults, learning as bench_learn
 from agents.bench.controller import Controller
-from agents.bench.devices import SETTLE_RANGE_S, check_mapping, load_mapping, sim_mapping
-from agents.bench.loop import load_controller
+from agents.bench.mapping import SETTLE_RANGE_S, check_mapping, load_mapping, sim_mapping
+from agents.bench.frozen import load_controller
 from agents.bench.report import say
 from agents.cli import parse_set
 from ops_jax.cli import runtime

@@ -55,7 +55,9 @@ import sys
 from pathlib import Path
 
 from agents.bench import cli, documents, prepare, report, template
-from agents.bench.devices import MappingError, arm, connect, disconnect, make_bench
+from agents.bench.mapping import MappingError
+from agents.bench.lifecycle import arm, connect, disconnect
+from agents.bench.devices import make_bench
 from agents.bench.execute import quiet, run_plan, user_stops
 from agents.bench.loop import USER_STOP, Loop
 from agents.bench.report import say

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.bench.devices import connect, disconnect, make_bench, signals
+from agents.bench.lifecycle import connect, disconnect, signals
+from agents.bench.devices import make_bench
 from agents.bench.mapping import MappingError, check_mapping, load_mapping, sim_mapping
 
 COMMANDS = ("template", "check")

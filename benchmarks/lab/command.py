@@ -227,7 +227,7 @@ def _parse(argv) -> argparse.Namespace:
         other_cores(args.cpu)
     except ValueError as exc:
         ap.error(str(exc))
-    from agents.bench.devices import SETTLE_RANGE_S
+    from agents.bench.mapping import SETTLE_RANGE_S
 
     low, high = SETTLE_RANGE_S
     if any(s is not None and not low <= s <= high for s in args.settle_s):

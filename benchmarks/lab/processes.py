@@ -26,7 +26,7 @@ def free_port(other: int | None = None) -> int:
     SO_REUSEADDR and SO_REUSEPORT, as it does its client sockets, so a client socket the kernel
     auto-binds to the IOC's port takes the IOC's search replies for itself and the client's search
     times out."""
-    from ops_jax.ioc import ephemeral_ports
+    from ops_jax.ioc_server import ephemeral_ports
 
     first, last = ephemeral_ports()
     outside = [*range(20_000, first), *range(last + 1, 65_536)] or [*range(1024, first)]

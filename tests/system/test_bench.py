@@ -24,8 +24,10 @@ import jax  # noqa: E402
 from ophyd.sim import make_fake_device  # noqa: E402
 
 import agents  # noqa: E402
-from agents.bench import cli, loop as bench_loop, prepare, runner  # noqa: E402
-from agents.bench.devices import MappingError, SafetyStop, check_mapping, make_bench, sim_mapping  # noqa: E402
+from agents.bench import cli, frozen, loop as bench_loop, prepare, runner  # noqa: E402
+from agents.bench.mapping import MappingError, check_mapping, sim_mapping
+from agents.bench.transport import SafetyStop
+from agents.bench.devices import make_bench
 from benchmarks import lab  # noqa: E402
 from benchmarks.lab import Process, ca_env  # noqa: E402
 import ops_jax  # noqa: E402
@@ -200,45 +202,6 @@ def test_loop_flyer_runs_in_its_own_thread_and_hands_back_pages():
         assert docs[-1][1]["exit_status"] == ("success" if fail_at is None else "fail")
 
 
-def test_lean_page_checks_pass_what_the_schema_passes_and_reject_pages_that_do_not_line_up():
-    """Within ``lean_page_checks`` the flyer's pages are checked by their shape; each still passes
-    event_model's full JSON schema, a page whose lists do not line up fails, and the schema is back
-    afterwards."""
-    from event_model import DocumentNames, EventModelValidationError, schema_validators
-
-    from agents.bench.flyer import LoopFlyer, lean_page_checks
-
-    full = schema_validators[DocumentNames.event_page]
-    keys = {
-        "x": {"source": "loop", "dtype": "number", "shape": []},
-        "v": {"source": "loop", "dtype": "array", "shape": [3]},
-    }
-    n = []
-
-    def step():
-        n.append(1)
-        time.sleep(0.005)
-        return {"x": float(len(n)), "v": [0.0, 1.0, 2.0]}, {"x": time.time(), "v": time.time()}
-
-    docs = []
-    with lean_page_checks():
-        assert schema_validators[DocumentNames.event_page] is not full
-        run_flyer(
-            LoopFlyer("loop", keys, lambda: None, step, lambda: len(n) >= 30, page_s=0.02),
-            lambda name, doc: docs.append((name, doc)),
-        )
-        pages = [d for name, d in docs if name == "event_page"]
-        bad = {**pages[0], "time": pages[0]["time"][:-1] + [1.0, 2.0]}
-        with pytest.raises(EventModelValidationError, match="time"):
-            schema_validators[DocumentNames.event_page].validate(bad)
-    assert schema_validators[DocumentNames.event_page] is full
-    assert sum(len(p["seq_num"]) for p in pages) == 30
-    for page in pages:
-        full.validate(page)
-    with pytest.raises(Exception):
-        full.validate({**pages[0], "seq_num": "not a list"})
-
-
 def test_pin_moves_every_thread_to_the_core_and_rejects_a_core_out_of_reach():
     """``--cpu``: the threads running before and those started after run on that core only."""
     core = sorted(os.sched_getaffinity(0))[-1]
@@ -404,10 +367,10 @@ def test_closing_channel_access_drops_only_caprotos_network_errors():
     """While the circuits close, a caproto thread's send on the socket closed under it is dropped
     (it would print a traceback after the runner's one line); any other thread's error still reaches
     the hook before."""
-    from agents.bench.devices import _closing_socket_hook
+    from agents.bench.lifecycle import closing_socket_hook
 
     seen = []
-    hook = _closing_socket_hook(seen.append)
+    hook = closing_socket_hook(seen.append)
     caproto_code = {"__name__": "caproto.threading.client"}
     exec(
         "def send():\n    raise OSError(9, 'Bad file descriptor')\n"
@@ -451,22 +414,21 @@ def test_pace_keeps_a_fixed_schedule_whatever_each_step_took():
 def test_length_readouts_a_controller_reads_must_be_mapped():
     """Without length PVs, SPGD and the physics-informed controller without use_lengths run; a
     controller reading them fails before it is compiled, naming itself and the missing entries."""
-    from agents.bench import loop as bench_loop
 
-    assert not bench_loop.reads_lengths("spgd", None) and bench_loop.reads_lengths("sac", {})
-    assert bench_loop.reads_lengths("physics", None) and not bench_loop.reads_lengths(
+    assert not frozen.reads_lengths("spgd", None) and frozen.reads_lengths("sac", {})
+    assert frozen.reads_lengths("physics", None) and not frozen.reads_lengths(
         "physics", {"use_lengths": False}
     )
     env, _ = ops_jax.make(3, "hard")
-    assert bench_loop.observes_lengths(env)
+    assert frozen.observes_lengths(env)
     mapping = check_mapping(sim_mapping("T:", 3, lengths=False))
     assert all("length" not in line for line in mapping["lines"])
-    bench_loop.check_lengths("spgd", False, env, mapping)
+    frozen.check_lengths("spgd", False, env, mapping)
     with pytest.raises(
         MappingError,
         match=r"controller physics .*lines\[0\].length, lines\[1\].length, lines\[2\].length",
     ):
-        bench_loop.load_controller("physics", mapping, {}, {}, seed=0)
+        frozen.load_controller("physics", mapping, {}, {}, seed=0)
     partial = check_mapping(
         {
             **sim_mapping("T:", 3),
@@ -477,11 +439,11 @@ def test_length_readouts_a_controller_reads_must_be_mapped():
         }
     )
     with pytest.raises(MappingError, match=r"lacks lines\[2\].length;"):
-        bench_loop.check_lengths("DIR", True, env, partial)
+        frozen.check_lengths("DIR", True, env, partial)
     wrapping = check_mapping({**sim_mapping("T:", 3), "safety": {"wrap_wl": 0.5}})
     with pytest.raises(MappingError, match="jump by a period when a line wraps"):
-        bench_loop.check_lengths("DIR", True, env, wrapping)
-    bench_loop.check_lengths("spgd", False, env, wrapping)
+        frozen.check_lengths("DIR", True, env, wrapping)
+    frozen.check_lengths("spgd", False, env, wrapping)
 
 
 def test_bench_reset_is_a_fresh_start():
@@ -520,13 +482,31 @@ def test_bench_without_length_readouts_serves_no_length_pvs():
     assert group.tick.value == sim.t == 1
 
 
+def test_the_benchs_mapping_names_pvs_the_ioc_serves():
+    """Every PV the simulated bench's mapping names (``sim_mapping``, lengths and lockstep on) is
+    one the IOC's PV group serves: both read ``ops_jax.pvs``."""
+    from ops_jax import pvs
+
+    sim = ioc.Bench(3, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
+    served = set(ioc.pv_group(sim, "PT:", 100.0, lockstep=True).pvdb)
+    mapping = check_mapping(sim_mapping("PT:", 3, lockstep=True))
+    named = {mapping["advance"], *mapping["evaluation"].values()}
+    named |= {mapping["detector"][k] for k in ("power", "trace", "tick")}
+    named |= {pv for line in mapping["lines"] for pv in line.values()}
+    assert named <= served and "PT:" + pvs.RESET in served
+    with pytest.raises(ValueError, match="line i"):
+        pvs.line_pv(pvs.LINE_SETPOINT, 0)
+
+
 def test_ioc_reports_its_ticks_host_time(monkeypatch, capsys):
     """Every TICK_REPORT ticks the IOC prints one line: the ticks covered, the step's and the
     writes' median and 99th percentile (ms), and the overruns; the ticks are those of the bench."""
     import asyncio
     import re
 
-    monkeypatch.setattr(ioc, "TICK_REPORT", 3)
+    from ops_jax import ioc_group
+
+    monkeypatch.setattr(ioc_group, "TICK_REPORT", 3)
     sim = ioc.Bench(2, "hard", {"action_scale": 1.0, "model": "phasor"}, seed=0)
     group = ioc.pv_group(sim, "TT:", 100.0, lockstep=True)
 
@@ -575,12 +555,25 @@ def test_ioc_tick_log_names_each_tick_and_the_setpoints_it_applied():
 
 
 def test_ioc_socket_sends_without_nagle_delay():
-    """The IOC's listening socket gives accepted connections TCP_NODELAY (caproto's own leaves Nagle
-    on)."""
+    """The IOC's server sets TCP_NODELAY on its listening socket (caproto's own leaves Nagle on),
+    and a connection accepted on such a socket (protocol 0, as caproto binds it) inherits it."""
     import asyncio
     import socket
 
-    async def accepted_nodelay():
+    from ops_jax import ioc_server
+
+    def listening() -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)  # protocol 0, as caproto's
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        sock.setblocking(False)
+        return sock
+
+    async def nodelay():
+        context = ioc_server.context_class()({}, ["127.0.0.1"])
+        served = listening()
+        await context.server_accept_loop(served)
+        listener = served.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
         seen = asyncio.get_running_loop().create_future()
 
         def on_client(reader, writer):
@@ -588,15 +581,18 @@ def test_ioc_socket_sends_without_nagle_delay():
             seen.set_result(sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
             writer.close()
 
-        server = await asyncio.start_server(on_client, sock=await ioc._tcp_socket("127.0.0.1", 0))
-        port = server.sockets[0].getsockname()[1]
-        _, writer = await asyncio.open_connection("127.0.0.1", port)
-        value = await asyncio.wait_for(seen, 10)
+        plain = listening()
+        plain.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        server = await asyncio.start_server(on_client, sock=plain)
+        _, writer = await asyncio.open_connection("127.0.0.1", plain.getsockname()[1])
+        accepted = await asyncio.wait_for(seen, 10)
         writer.close()
         server.close()
-        return value
+        served.close()
+        return listener, accepted
 
-    assert asyncio.run(accepted_nodelay()) != 0
+    listener, accepted = asyncio.run(nodelay())
+    assert listener != 0 and accepted != 0
 
 
 def test_ioc_batch_window_is_a_tenth_of_the_tick(monkeypatch):
@@ -606,49 +602,37 @@ def test_ioc_batch_window_is_a_tenth_of_the_tick(monkeypatch):
     )
     monkeypatch.setenv(ioc.BATCH_WINDOW_ENV, "0.004")
     assert ioc.batch_window(100) == 0.004
+    monkeypatch.delenv(ioc.BATCH_WINDOW_ENV)
+    ioc.set_batch_window(200)  # caproto reads it from its environment variable
+    assert float(os.environ[ioc.BATCH_WINDOW_ENV]) == pytest.approx(0.0005)
 
 
-def test_ioc_sends_a_batch_once_no_update_is_queued(monkeypatch):
+def test_ioc_sends_a_batch_once_no_update_is_queued():
     """The server's circuits take queued updates without waiting, answer None at once on an empty
     queue (the batch goes out), and wait for an update only where caproto asks for no timeout."""
     import asyncio
 
-    import caproto.asyncio.server
-    import caproto.server.common
+    from caproto.asyncio.server import VirtualCircuit
 
-    class Circuit:
-        subscription_queue = None
+    from ops_jax import ioc_server
 
     async def takes():
-        circuit = Circuit()
-        circuit.subscription_queue = asyncio.Queue()
-        circuit.subscription_queue.put_nowait("update")
-        first = await ioc._drained_get(circuit, timeout=30)
+        queue = asyncio.Queue()
+        queue.put_nowait("update")
+        first = await ioc_server.drained_get(queue, timeout=30)
         start = time.monotonic()
-        empty = await ioc._drained_get(circuit, timeout=30)
+        empty = await ioc_server.drained_get(queue, timeout=30)
         waited = time.monotonic() - start
-        later = asyncio.get_running_loop().call_later(
-            0.05, circuit.subscription_queue.put_nowait, "next"
-        )
-        blocking = await asyncio.wait_for(ioc._drained_get(circuit, timeout=None), 30)
+        later = asyncio.get_running_loop().call_later(0.05, queue.put_nowait, "next")
+        blocking = await asyncio.wait_for(ioc_server.drained_get(queue, timeout=None), 30)
         later.cancel()
         return first, empty, waited, blocking
 
     first, empty, waited, blocking = asyncio.run(takes())
     assert (first, empty, blocking) == ("update", None, "next") and waited < 5
-    circuit_type = caproto.asyncio.server.VirtualCircuit
-    monkeypatch.setattr(circuit_type, "get_from_sub_queue", circuit_type.get_from_sub_queue)
-    monkeypatch.setattr(
-        caproto.server.common, "HIGH_LOAD_TIMEOUT", caproto.server.common.HIGH_LOAD_TIMEOUT
-    )
-    if hasattr(caproto.asyncio.server, "_create_bound_tcp_socket"):
-        monkeypatch.setattr(
-            caproto.asyncio.server,
-            "_create_bound_tcp_socket",
-            caproto.asyncio.server._create_bound_tcp_socket,
-        )
-    ioc.tune_server(100)
-    assert circuit_type.get_from_sub_queue is ioc._drained_get
+    circuit = ioc_server.context_class().CircuitClass
+    assert issubclass(circuit, VirtualCircuit)
+    assert circuit.get_from_sub_queue is not VirtualCircuit.get_from_sub_queue
 
 
 def test_agent_replays_a_controller_step_probe_by_probe():
@@ -657,7 +641,7 @@ def test_agent_replays_a_controller_step_probe_by_probe():
     env_config = {"stages": 3, "model": "phasor"}
     policy = agents.api.algo_module("spgd").make_policy(env_config, None)
     env, _ = ops_jax.make(**env_config)
-    agent = bench_loop.Agent(policy, None, env, seed=3)
+    agent = frozen.Agent(policy, None, env, seed=3)
     assert agent.probes == 1
     obs = np.linspace(-0.5, 0.5, env.observation_size)
     agent.start(obs)
@@ -687,7 +671,7 @@ def test_agent_leaves_out_the_probes_a_controller_leaves_out():
         {"config": "guarded"},
         env_config,
     )
-    agent = bench_loop.Agent(*wrapped, env, seed=3)
+    agent = frozen.Agent(*wrapped, env, seed=3)
     assert agent.probes == 2  # SPGD's and the trim's
     dark, bright = (
         np.tile(
@@ -720,7 +704,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
     bench, lines = fake_bench(max_step_wl=0.5 * scale, soft_range_wl=[-3.0, 3.0], wrap_wl=0.5)
     for i in range(1, 4):
         getattr(bench, f"line{i}").setpoint.sim_put(2.6)  # within a wrap of the upper limit
-    agent = bench_loop.Agent(
+    agent = frozen.Agent(
         agents.api.algo_module("physics").make_policy(env_config, {"config": "frames"}),
         None,
         env,
@@ -746,7 +730,7 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
         want = np.full(fit, 7.0) if told is None else np.array(told[:fit]) * scale
         np.testing.assert_allclose(np.asarray(agent.carry["dz_prev"])[0], want, rtol=1e-6)
     assert loop.actions_cut == 1 and lines.wraps.get() == 3 and lines.clipped.get() == 1
-    spgd = bench_loop.Agent(
+    spgd = frozen.Agent(
         agents.api.algo_module("spgd").make_policy(env_config, None), None, env, seed=1
     )
     spgd.start(np.zeros(env.observation_size))
@@ -924,6 +908,56 @@ def test_the_ioc_runs_xla_with_one_pool_thread(iocs):
     core."""
     threads, cores = xla_pool_threads(iocs["free"].proc.pid)
     assert (threads, cores) == (1, {frozenset(os.sched_getaffinity(0))})
+
+
+TRANSPORT = """
+import json, sys
+from agents.bench.lifecycle import arm, connect, disconnect
+from agents.bench.mapping import check_mapping, sim_mapping
+from agents.bench.devices import make_bench
+from agents.bench.lifecycle import described
+
+transport = sys.argv[1]
+mapping = check_mapping({**sim_mapping("RW:", 3, lockstep=True), "safety": {"stale_s": 10.0}})
+bench, lines = make_bench(mapping, transport=transport)
+connect(bench, 60)
+arm(bench, lines)
+feed, det = bench.transport, bench.detector
+tick = feed.value("RW:TICK")
+det.use()
+sent = lines.move([0.1, -0.05, 0.02])
+bench.advance.put(1)
+fresh = det.wait(30)
+keys, reads = described(bench)
+print(json.dumps({
+    "name": feed.name, "fresh": fresh, "ticks": int(feed.value("RW:TICK")) - int(tick),
+    "sent": sent.tolist(), "rbv": [getattr(bench, f"line{i}").readback.get() for i in (1, 2, 3)],
+    "keys": sorted(keys), "reads": reads, "shape": keys["bench_detector_trace"]["shape"],
+}))
+disconnect(bench)
+"""
+
+
+@pytest.mark.parametrize("transport", ["pyepics", "pyepics-pv", "caproto", "ophyd"])
+def test_every_transport_follows_the_frames_and_writes_the_setpoints(iocs, transport):
+    """Each transport (``agents.bench.transport``) on a lockstep bench: after a move and one tick
+    its frame counter has gone one on, the IOC's readbacks are the setpoints sent, and the event's
+    readings are described alike."""
+    pytest.importorskip("epics")
+    out = subprocess.run(
+        [sys.executable, "-c", TRANSPORT, transport],
+        capture_output=True,
+        text=True,
+        env={**iocs["raw"].env, "PYTHONPATH": str(ROOT)},
+        timeout=START_S,
+        cwd=ROOT,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert seen["name"] == transport and seen["fresh"] and seen["ticks"] == 1
+    np.testing.assert_allclose(seen["rbv"], seen["sent"], atol=1e-6)
+    assert seen["shape"] == [7] and sorted(k for k, _ in seen["reads"]) == seen["keys"]
+    assert "caRepeater" not in out.stderr, out.stderr
 
 
 def test_lockstep_run_reproduces_the_simulated_trajectory(iocs, tmp_path):
@@ -1346,12 +1380,14 @@ def test_ctrl_c_while_the_runner_starts_prints_one_line_and_records_nothing(tmp_
 INTERRUPTS = """
 import json, os, random, signal, sys, threading, time
 from pathlib import Path
-from agents.bench import execute, loop as bench, report
-from agents.bench.devices import arm, check_mapping, connect, disconnect, make_bench, sim_mapping
+from agents.bench import execute, frozen, loop as bench, report
+from agents.bench.lifecycle import arm, connect, disconnect
+from agents.bench.mapping import check_mapping, sim_mapping
+from agents.bench.devices import make_bench
 
 prefix, out, runs = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
 mapping = check_mapping({**sim_mapping(prefix, 3, lengths=False), "safety": {"stale_s": 5.0}})
-agent, _, scale, window = bench.load_controller("spgd", mapping, {}, {}, seed=0)
+agent, _, scale, window = frozen.load_controller("spgd", mapping, {}, {}, seed=0)
 device, lines = make_bench(mapping)
 connect(device, 30)
 arm(device, lines)

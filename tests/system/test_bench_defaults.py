@@ -164,6 +164,8 @@ def test_the_check_names_the_pvs_that_do_not_answer_at_once(ioc, tmp_path, monke
     for key in ("EPICS_CA_SERVER_PORT", "EPICS_CA_REPEATER_PORT", "EPICS_CA_ADDR_LIST"):
         monkeypatch.setenv(key, ioc.env[key])
     monkeypatch.setenv("EPICS_CA_AUTO_ADDR_LIST", "NO")
+    # caproto's client reads them when it starts; libca read them when this process imported ophyd
+    monkeypatch.setenv("OPS_BENCH_TRANSPORT", "caproto")
     mapping = tmp_path / "mapping.json"
     assert runner.main(["template", "--out", mapping, "--prefix", PREFIX, "--stages", "3"]) == 0
     capsys.readouterr()

@@ -387,7 +387,7 @@ def _learning(out, steps: int, resume: bool, **extra):
     more hyperparameters."""
     from types import SimpleNamespace
 
-    from agents.bench.devices import check_mapping, sim_mapping
+    from agents.bench.mapping import check_mapping, sim_mapping
 
     args = SimpleNamespace(
         learn="droq",
@@ -426,7 +426,7 @@ def test_from_scratch_the_learner_takes_its_budget_preset_or_the_one_named():
     values kept."""
     from types import SimpleNamespace
 
-    from agents.bench.devices import check_mapping, sim_mapping
+    from agents.bench.mapping import check_mapping, sim_mapping
 
     mapping, args = (
         check_mapping(sim_mapping("T:", 3, lengths=False)),

@@ -16,7 +16,7 @@ from agents.bench.learning.actor import Actor, Handover
 from agents.bench.learning.programs import Built, build, compile_programs
 from agents.bench.learning.state import Checkpoints, State, fresh, restore, start_from
 from agents.bench.learning.thread import GradientThread
-from agents.bench.loop import check_lengths
+from agents.bench.frozen import check_lengths
 from agents.io import kept_dir
 from agents.learners.offpolicy import driver as offpolicy
 

@@ -1,6 +1,6 @@
 """``agents.bench.controller.Controller``: the protocol the control loop drives; a frozen controller
-(``agents.bench.loop.Agent``) implements it (the learner's actor: tests/system/test_bench_learn.py),
-an object that lacks one of its members does not."""
+(``agents.bench.frozen.Agent``) implements it (the learner's actor:
+tests/system/test_bench_learn.py), an object that lacks one of its members does not."""
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ pytest.importorskip("ophyd")
 import agents.api  # noqa: E402
 import ops_jax  # noqa: E402
 from agents.bench.controller import Controller  # noqa: E402
-from agents.bench.loop import Agent  # noqa: E402
+from agents.bench.frozen import Agent
 
 
 def test_a_frozen_controller_is_a_controller_and_an_object_without_tell_is_not():
