@@ -1,8 +1,8 @@
 """Noise processes of the OPS control loop (physics.md section 5). Lengths in wavelengths (wl).
 
 All functions are pure. ``draws`` turns one key into every standard draw a control step (or a
-reset) needs, from a single ``jax.random.bits`` call: one threefry hash per pair of 32-bit words
-instead of one per ``split`` / ``normal`` / ``uniform`` call, which shortens both the compiled
+reset) needs, from the words of one ``jax.random.bits`` call: one threefry hash per 32-bit word
+instead of a call per ``split`` / ``normal`` / ``uniform``, which shortens both the compiled
 program and the step. The processes then map standard draws to lengths: ``z`` are standard
 normals, ``u`` uniforms on [-1, 1).
 """
@@ -32,17 +32,24 @@ def _rotl(x, r):
     return (x << np.uint32(r)) | (x >> np.uint32(32 - r))
 
 
-def _threefry_bits(key, n: int):
-    """``jax.random.bits(key, (n,), uint32)`` for a threefry2x32 key (partitionable mode): the same
-    Threefry-2x32 hash of the counters (0, j), unrolled. JAX's CPU lowering runs the 20 rounds as a
-    5-iteration loop that writes both words to memory each pass; unrolled, XLA fuses the hash into
-    the loops that use the bits. Other key types go through ``jax.random.bits``."""
-    if jax.random.key_impl(key) != "threefry2x32" or not jax.config.jax_threefry_partitionable:
+def _unrolled(key) -> bool:
+    """Whether ``_threefry_bits`` hashes ``key`` itself (a threefry2x32 key, partitionable mode)."""
+    return jax.random.key_impl(key) == "threefry2x32" and jax.config.jax_threefry_partitionable
+
+
+def _threefry_bits(key, n: int, start=0):
+    """``jax.random.bits(key, (n,), uint32)`` for a threefry2x32 key (partitionable mode): the
+    same Threefry-2x32 hash of the counters (0, j), unrolled. JAX's CPU lowering runs the 20 rounds
+    as a 5-iteration loop that writes both words to memory each pass; unrolled, XLA fuses the hash
+    into the loops that use the bits. ``start``: the words from the ``start``-th on (a uint32,
+    traced or not; threefry keys only). Other key types go through ``jax.random.bits``."""
+    if not _unrolled(key):
         return jax.random.bits(key, (n,), jnp.uint32)
     k = jax.random.key_data(key)
     ks = (k[..., 0:1], k[..., 1:2])
     ks = (*ks, ks[0] ^ ks[1] ^ np.uint32(0x1BD11BDA))
-    x = [jnp.zeros((n,), jnp.uint32) + ks[0], jnp.arange(n, dtype=jnp.uint32) + ks[1]]
+    counter = jnp.arange(n, dtype=jnp.uint32) + jnp.asarray(start, jnp.uint32)
+    x = [jnp.zeros((n,), jnp.uint32) + ks[0], counter + ks[1]]
     for i in range(5):
         for r in _ROTATIONS[i % 2]:
             x[0] = x[0] + x[1]
@@ -51,21 +58,41 @@ def _threefry_bits(key, n: int):
     return x[0] ^ x[1]
 
 
+def _standard(bits, is_normal):
+    """U[-1, 1) from ``bits``, or N(0, 1) where ``is_normal`` (inverse erf, as
+    ``jax.random.normal``)."""
+    u = 2.0 * _unit(bits) - 1.0
+    z = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(jnp.maximum(_LOW, u))
+    return jnp.where(is_normal, z, u)
+
+
 def draws(key, *, normal: dict | None = None, uniform: dict | None = None) -> dict:
     """Standard draws from one key: ``normal`` {name: shape} -> N(0, 1) float32 (inverse-erf of a
     uniform, as ``jax.random.normal``); ``uniform`` {name: shape} -> U[-1, 1) float32.
 
-    All normals are transformed in one elementwise pass behind an ``optimization_barrier``: left
-    to itself XLA fuses the (log1p, sqrt, two-polynomial) inverse erf into each consumer's fusion
-    (the observation frame's concatenation, the free run), where the CPU backend does not
-    vectorise it; the barrier keeps it in its own vectorised loop (faster; the same draws)."""
+    The words are hashed and transformed in two halves by a two-pass ``lax.map``: the loop keeps
+    the draws in memory, each half one vectorised elementwise pass. Left to itself XLA duplicates
+    the cheap integer hash into every reader of a word (the inverse erf reads it several times)
+    and fuses the inverse erf into each consumer's fusion (the observation frame's concatenation,
+    the free run), where the CPU backend does not vectorise it (the same draws either way)."""
     specs = [(name, tuple(shape), int(np.prod(shape))) for name, shape in (normal or {}).items()]
     n_normal = sum(size for _, _, size in specs)
     specs += [(name, tuple(shape), int(np.prod(shape))) for name, shape in (uniform or {}).items()]
-    bits = _threefry_bits(key, max(1, sum(size for _, _, size in specs)))
-    u = 2.0 * _unit(bits) - 1.0
-    z = np.float32(np.sqrt(2.0)) * jax.lax.erf_inv(jnp.maximum(_LOW, u[:n_normal]))
-    values = jnp.concatenate(jax.lax.optimization_barrier((z, u[n_normal:])))
+    n = max(1, sum(size for _, _, size in specs))
+    if not _unrolled(key):
+        return _named(_standard(_threefry_bits(key, n), jnp.arange(n) < n_normal), specs)
+    half = (n + 1) // 2
+
+    def chunk(start):
+        index = jnp.arange(half, dtype=jnp.uint32) + start
+        return _standard(_threefry_bits(key, half, start), index < n_normal)
+
+    starts = jnp.arange(2, dtype=jnp.uint32) * np.uint32(half)
+    return _named(jax.lax.map(chunk, starts).reshape(-1)[:n], specs)
+
+
+def _named(values, specs) -> dict:
+    """{name: the next ``size`` values reshaped to ``shape``} for each (name, shape, size)."""
     out, start = {}, 0
     for name, shape, size in specs:
         out[name] = values[start : start + size].reshape(shape)
