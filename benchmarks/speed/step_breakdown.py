@@ -7,6 +7,10 @@ jitted 200-step ``lax.scan`` at the same batch, median of the repeats (compilati
 
 Per row: ns per instance-step of each part, and each part's share of the whole step (the rest is the
 environment's own bookkeeping: action, drift, reward, observation, auto-reset).
+
+``--against REV`` times another git commit's code beside this checkout's in one run, the two taking
+turns (``benchmarks.speed.side_by_side``): per part the medians of both (wall and CPU) and their
+ratio.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import jax.numpy as jnp
 
 import ops_jax
 from agents.io import write_json_atomic
+from benchmarks.speed import side_by_side
 from benchmarks.speed.throughput import SCAN_STEPS, measure
 from ops_jax import noise
 from ops_jax.cli.parser import ArgumentParser
@@ -108,6 +113,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--batch", type=int, nargs="+", default=[1024, 65536])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=Path("results/breakdown.json"))
+    ap.add_argument(
+        "--against", metavar="REV", help="also time this git commit's code, side by side"
+    )
     args = ap.parse_args(argv)
     for name, values in (
         ("--stages", args.stages),
@@ -119,6 +127,8 @@ def main(argv=None) -> list[dict]:
     out = dict(
         jax=jax.__version__, device=jax.devices()[0].device_kind, scan_steps=SCAN_STEPS, rows=[]
     )
+    if args.against:
+        return _side_by_side(args, out)
     print(
         f"{'model':7} {'N':>2} {'batch':>8} {'step ns':>9} {'physics ns':>10} {'draws ns':>9} "
         f"{'physics':>8} {'draws':>6}"
@@ -133,6 +143,19 @@ def main(argv=None) -> list[dict]:
                 f"{r['draws_ns']:>9.2f} {r['physics_share']:>8.0%} {r['draws_share']:>6.0%}",
                 flush=True,
             )
+    print(f"wrote {args.out}")
+    return out["rows"]
+
+
+def _side_by_side(args, out: dict) -> list[dict]:
+    """``main`` with ``--against``: one side-by-side row per stage count and batch."""
+    print(side_by_side.HEADER)
+    for n in args.stages:
+        for b in args.batch:
+            row = side_by_side.compare(args.against, n, args.model, b, args.repeats)
+            out["rows"].append(row)
+            write_json_atomic(args.out, out)
+            side_by_side.print_row(row)
     print(f"wrote {args.out}")
     return out["rows"]
 

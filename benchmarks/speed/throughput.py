@@ -32,6 +32,7 @@ import ops_jax
 from agents.evaluation import split_over_devices
 from agents.io import write_json_atomic
 from benchmarks.common import load_reference_timing
+from ops_jax import noise
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import exit_interrupted, keep_ctrl_c, progress
 
@@ -66,7 +67,9 @@ def build(stages: int, model: str, batch: int, path: str = "step_batch"):
             obs, state = carry
             k = jax.random.fold_in(key, t)
             k_act, k_env = jax.random.split(k)
-            action = shard(jax.random.uniform(k_act, (batch, stages), minval=-1.0, maxval=1.0))
+            # U[-1, 1) from the simulator's own unrolled hash (jax.random.uniform's loops over its
+            # rounds through memory and would time the benchmark more than the step).
+            action = shard(noise.draws(k_act, uniform={"a": (batch, stages)})["a"])
             keys = shard(jax.random.split(k_env, batch))
             obs, state, reward, *_ = step(keys, state, action, params)
             return (obs, state), reward.mean()
@@ -212,20 +215,7 @@ def main(argv=None):
         ).strip()
 
     results = dict(
-        meta=dict(
-            jax=jax.__version__,
-            backend=jax.default_backend(),
-            devices=[str(d) for d in jax.devices()],
-            xla_flags=os.environ.get("XLA_FLAGS", ""),
-            cpu_count=os.cpu_count(),
-            platform=platform.platform(),
-            scan_steps=SCAN_STEPS,
-            repeats=args.repeats,
-        ),
-        rows=[],
-        physics_measure=[],
-        gymnasium=[],
-        gymnasium_modes=None,
+        meta=_meta(args), rows=[], physics_measure=[], gymnasium=[], gymnasium_modes=None
     )
     try:
         (measure_gymnax if args.gymnax else measure_all)(args, results)
@@ -240,6 +230,20 @@ def main(argv=None):
     write_json_atomic(args.out, results)
     print(f"wrote {args.out}")
     return results["rows"]
+
+
+def _meta(args) -> dict:
+    """The JSON's ``meta``: the JAX version, backend, devices, XLA flags, host and settings."""
+    return dict(
+        jax=jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
+        cpu_count=os.cpu_count(),
+        platform=platform.platform(),
+        scan_steps=SCAN_STEPS,
+        repeats=args.repeats,
+    )
 
 
 def measure_gymnax(args, results: dict) -> None:
