@@ -23,6 +23,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+
+import ops_jax
+from benchmarks.speed.throughput import SCAN_STEPS
+from ops_jax import noise
+
 PARTS = ("step", "physics", "draws")
 ROOT = Path(__file__).resolve().parents[2]
 # The worker imports ops_jax from the tree it is given, everything else from this checkout.
@@ -47,20 +54,50 @@ def worktree(rev: str):
             subprocess.run([*git, "worktree", "remove", "--force", str(path)], capture_output=True)
 
 
+def physics_scan(stages: int, model: str, batch: int):
+    """(fn, args): SCAN_STEPS measurements of ``batch`` offsets that move every step."""
+
+    def run(x):
+        def body(acc, t):
+            m = ops_jax.physics.measure(x + 1e-3 * t, stages=stages, model=model)
+            return acc + m.power.sum() + m.samples.sum(), None
+
+        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS, dtype=jnp.float32))[0]
+
+    return run, (jax.random.uniform(jax.random.key(0), (batch, stages), minval=-0.3, maxval=0.3),)
+
+
+def draws_scan(env, batch: int):
+    """(fn, args): SCAN_STEPS of the draws one step makes, one key per instance (as
+    ``step_batch``)."""
+    c = env.config
+    shapes = dict(
+        normal={"run": (c.feedback_k, c.stages), "obs": (env.frame_size,)},
+        uniform={"knot": (c.stages,)},
+    )
+
+    def run(key):
+        def body(acc, t):
+            keys = jax.random.split(jax.random.fold_in(key, t), batch)
+            d = jax.vmap(lambda k: noise.draws(k, **shapes))(keys)
+            return acc + sum(v.sum() for v in d.values()), None
+
+        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS))[0]
+
+    return run, (jax.random.key(1),)
+
+
 def _compiled_parts(stages: int, model: str, batch: int) -> dict:
     """{part: (compiled fn, args, (compile wall s, compile CPU s))} of the three scans at one
     size."""
-    import jax
-
-    import ops_jax
-    from benchmarks.speed import step_breakdown, throughput
+    from benchmarks.speed import throughput
 
     env, _ = ops_jax.make(stages, "hard", model=model)
     run, obs, state = throughput.build(stages, model, batch)
     specs = {
         "step": (run, (jax.random.key(1), obs, state)),
-        "physics": step_breakdown.physics_scan(stages, model, batch),
-        "draws": step_breakdown.draws_scan(env, batch),
+        "physics": physics_scan(stages, model, batch),
+        "draws": draws_scan(env, batch),
     }
     out = {}
     for part, (fn, args) in specs.items():
@@ -75,8 +112,6 @@ def _compiled_parts(stages: int, model: str, batch: int) -> dict:
 def worker(argv) -> None:
     """Compile the parts for ``stages model batch``, print their compile times, then time one repeat
     of each part per line read from stdin and print (wall s, CPU s) per part, one JSON line each."""
-    import jax
-
     stages, model, batch = int(argv[0]), argv[1], int(argv[2])
     parts = _compiled_parts(stages, model, batch)
     print(json.dumps({p: c for p, (_, _, c) in parts.items()}), flush=True)
@@ -106,8 +141,6 @@ def _start(tree: Path, stages: int, model: str, batch: int):
 def compare(rev: str, stages: int, model: str, batch: int, repeats: int) -> dict:
     """One row: per part the medians (ns per instance-step, wall and CPU) of this checkout and of
     ``rev``, and their ratios (rev / this: how many times faster this checkout is)."""
-    from benchmarks.speed.throughput import SCAN_STEPS
-
     with worktree(rev) as other:
         trees = {"this": ROOT, rev: other}
         procs, compile_s = {}, {}

@@ -21,13 +21,12 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 
 import ops_jax
 from agents.io import write_json_atomic
 from benchmarks.speed import side_by_side
+from benchmarks.speed.side_by_side import draws_scan, physics_scan
 from benchmarks.speed.throughput import SCAN_STEPS, measure
-from ops_jax import noise
 from ops_jax.cli.parser import ArgumentParser
 from ops_jax.cli.progress import keep_ctrl_c
 
@@ -44,39 +43,6 @@ def _median_scan_s(fn, args, repeats: int) -> tuple[float, float]:
         jax.block_until_ready(compiled(*args))
         times.append(time.perf_counter() - t0)
     return compile_s, statistics.median(times)
-
-
-def physics_scan(stages: int, model: str, batch: int):
-    """(fn, args): SCAN_STEPS measurements of ``batch`` offsets that move every step."""
-
-    def run(x):
-        def body(acc, t):
-            m = ops_jax.physics.measure(x + 1e-3 * t, stages=stages, model=model)
-            return acc + m.power.sum() + m.samples.sum(), None
-
-        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS, dtype=jnp.float32))[0]
-
-    return run, (jax.random.uniform(jax.random.key(0), (batch, stages), minval=-0.3, maxval=0.3),)
-
-
-def draws_scan(env, batch: int):
-    """(fn, args): SCAN_STEPS of the draws one step makes, one key per instance (as
-    ``step_batch``)."""
-    c = env.config
-    shapes = dict(
-        normal={"run": (c.feedback_k, c.stages), "obs": (env.frame_size,)},
-        uniform={"knot": (c.stages,)},
-    )
-
-    def run(key):
-        def body(acc, t):
-            keys = jax.random.split(jax.random.fold_in(key, t), batch)
-            d = jax.vmap(lambda k: noise.draws(k, **shapes))(keys)
-            return acc + sum(v.sum() for v in d.values()), None
-
-        return jax.lax.scan(body, jnp.float32(0), jnp.arange(SCAN_STEPS))[0]
-
-    return run, (jax.random.key(1),)
 
 
 def breakdown(stages: int, model: str, batch: int, repeats: int) -> dict:
