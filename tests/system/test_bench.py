@@ -705,7 +705,9 @@ def test_an_action_the_limits_cut_is_told_to_a_controller_that_reads_its_own_mov
     for i in range(1, 4):
         getattr(bench, f"line{i}").setpoint.sim_put(2.6)  # within a wrap of the upper limit
     agent = frozen.Agent(
-        agents.api.algo_module("physics").make_policy(env_config, {"config": "frames"}),
+        agents.api.algo_module("physics").make_policy(
+            env_config, agents.api.ALGOS["physics"].config.from_hyper({"config": "frames"})
+        ),
         None,
         env,
         seed=1,
