@@ -16,6 +16,7 @@ they must not block.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import logging
 import os
@@ -82,7 +83,7 @@ def make(name: str, timeout: float) -> Transport:
     return kinds[chosen(name)](timeout)
 
 
-class Transport:
+class Transport(abc.ABC):
     """The newest value and time stamp (the IOC's, time.time() s) of each followed PV, and the
     setpoints written in one call. ``open(signals, followed, setpoints, timeout)`` connects (every
     followed PV's first value within ``timeout`` s, else ``MappingError``); ``close()`` ends it."""
@@ -141,14 +142,17 @@ class Transport:
         self._open(signals, followed, setpoints, self.timeout)
         self.opened = True
 
+    @abc.abstractmethod
     def _open(self, signals: dict, followed: list, setpoints: list, timeout: float) -> None:
-        raise NotImplementedError
+        """Connect, follow ``followed`` and make ``setpoints`` writable within ``timeout`` s."""
 
+    @abc.abstractmethod
     def write(self, values) -> None:
-        raise NotImplementedError
+        """Send ``values`` (wl, one per setpoint PV in ``open``'s order) without waiting."""
 
+    @abc.abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Stop following and release the channels."""
 
 
 def _lost(name: str) -> SafetyStop:

@@ -10,6 +10,8 @@ testing environments), ``table2`` (timings, from the table1 runs), ``stages`` (s
 
 from __future__ import annotations
 
+import abc
+
 from agents.registry import Registry
 from benchmarks.budget import plan as budget
 from benchmarks.sweep import lock_table, presets, reality
@@ -135,8 +137,9 @@ class TableOneEvaluations(Section):
     ``evals(sweep, mode) -> [(key, label prefix, env options)]`` for the controllers trained in
     ``mode``."""
 
+    @abc.abstractmethod
     def evals(self, sweep, mode: str) -> list:
-        raise NotImplementedError
+        """(key, label prefix, env options) of each evaluation of the controllers of ``mode``."""
 
     def _tests(self, sweep) -> list:
         """(mode, controller, seed, [(result key, Evaluation)]) of each table-1 controller tested

@@ -9,6 +9,7 @@ tables and figures. ``CellSection`` adapts a section of independent cells given 
 
 from __future__ import annotations
 
+import abc
 from typing import Callable
 
 from benchmarks.sweep.records import Cell, SectionUnit
@@ -20,25 +21,25 @@ EVAL_S = 1.0
 IMPERFECT_COST = 3.0
 
 
-class Section:
+class Section(abc.ABC):
     """One part of the sweep. ``default``: part of a run without ``--only``."""
 
     name: str = ""
     default: bool = True
 
+    @abc.abstractmethod
     def units(self, sweep) -> list:
         """The work units of this section's cells (``benchmarks.sweep.records.Unit``s, from
         ``Sweep.train_units`` and ``Sweep.eval_unit``; units shared with another section carry the
         same key and are computed once)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def results(self, sweep):
         """This section's stored cells, in the form ``report`` takes."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def report(self, sweep, results) -> None:
         """Write this section's tables and figures into ``sweep.out``."""
-        raise NotImplementedError
 
     def compute(self, config: dict) -> dict:
         """The result of one cell of kind "cell" (``CellSection``)."""
