@@ -61,7 +61,7 @@ class OffPolicyModule(SeedsModule, Protocol):
     """A ``SeedsModule`` of ``agents.learners.offpolicy.driver`` (``Algo.off_policy``): its one run
     passes every checkpoint."""
 
-    LEARNER: Any  # agents.learners.offpolicy.driver.Learner
+    LEARNER: Any  # agents.learners.offpolicy.learner.Learner
 
 
 @dataclasses.dataclass(frozen=True)

@@ -17,7 +17,7 @@ from ops_jax import EnvSpec
 
 @dataclasses.dataclass(frozen=True)
 class Built:
-    """A learner on a bench: ``learner`` (``agents.learners.offpolicy.driver.Learner``), the
+    """A learner on a bench: ``learner`` (``agents.learners.offpolicy.learner.Learner``), the
     ``env_config`` it is built for, its ``config`` (of ``learner.config_type``) and the stored form
     ``hyper`` its builders read, the ``seed``; ``env`` the simulator environment whose observations
     the bench's frames follow, ``train_env`` the one it learns on (with the observer's entries, if

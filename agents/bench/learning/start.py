@@ -18,14 +18,14 @@ from agents.bench.learning.state import Checkpoints, State, fresh, restore, star
 from agents.bench.learning.thread import GradientThread
 from agents.bench.frozen import check_lengths
 from agents.io import kept_dir
-from agents.learners.offpolicy import driver as offpolicy
+from agents.learners.offpolicy.learner import Learner
 
 CHECKPOINT_EVERY = 1000  # env steps between two checkpoints (default)
 # most seconds of gradient steps taken after the loop to make up the ratio (default: none)
 CATCH_UP_S = 0.0
 
 
-def off_policy_learner(name: str) -> offpolicy.Learner:
+def off_policy_learner(name: str) -> Learner:
     """The ``Learner`` of ``--learn name`` (ValueError naming the off-policy learners otherwise)."""
     names = [a.name for a in registry.REGISTRY.values() if a.off_policy]
     if name not in names:

@@ -41,6 +41,7 @@ from agents.config import (
     optional,
     widths,
 )
+from agents.learners.offpolicy.learner import Learner
 from agents.learners.offpolicy.replay import TRAIN_REWARD, ReplayConfig
 from agents.registry import Algo
 from ops_jax.ranges import Range
@@ -268,7 +269,7 @@ def _build(env, c: DroQConfig) -> replay.Loop:
     return replay.replay_loop(env, c, buffer, init, _explorer(actor), update)
 
 
-LEARNER = offpolicy.Learner("droq", DroQConfig, _build, _networks, _greedy)
+LEARNER = Learner("droq", DroQConfig, _build, _networks, _greedy)
 make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 

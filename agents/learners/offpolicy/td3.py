@@ -41,6 +41,7 @@ from agents.config import (
     optional,
     widths,
 )
+from agents.learners.offpolicy.learner import Learner
 from agents.learners.offpolicy.replay import TRAIN_REWARD, ReplayConfig
 from agents.registry import Algo
 from ops_jax.ranges import Range
@@ -273,7 +274,7 @@ def _build(env, c: TD3Config) -> replay.Loop:
     return replay.replay_loop(env, c, buffer, init, _explorer(actor, c), update)
 
 
-LEARNER = offpolicy.Learner("td3", TD3Config, _build, _networks, _greedy)
+LEARNER = Learner("td3", TD3Config, _build, _networks, _greedy)
 make_policy, params_template = LEARNER.make_policy, LEARNER.params_template
 
 
