@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 from agents.bench import documents
 from agents.bench.transport import SafetyStop
 from agents.bench.loop import USER_STOP, Loop, control_plan
+from ops_jax.cli.progress import stop_signals
 
 # Python's thread switch interval during a run (s; 5 ms by default): a frame's arrival wakes the
 # loop, which then waits at most this long for the interpreter lock held by another thread (the
@@ -69,12 +69,8 @@ def user_stops(loop: Loop):
             loop.user_stop = signum  # (truthy) the signal that ended the run: its exit status
             os.write(2, b"agents.bench.runner: stopping after the current step (again: at once)\n")
 
-    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with stop_signals(stop):
         yield
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def run_plan(loop: Loop, md: dict, out: Path, shown=None) -> float:

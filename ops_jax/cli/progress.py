@@ -234,6 +234,18 @@ def reporting(show: bool | None, progress_fn, total: int | None, desc: str):
         bar.close()
 
 
+@contextlib.contextmanager
+def stop_signals(handler):
+    """While inside: ``handler(signum, frame)`` handles SIGINT and SIGTERM; the previous handlers
+    are restored after."""
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, kept in previous.items():
+            signal.signal(s, kept)
+
+
 def keep_ctrl_c() -> None:
     """Make a Ctrl-C that lands in a garbage-collector callback (JAX registers one) or a ``__del__``
     stop the program: Python reports a ``KeyboardInterrupt`` raised there as unraisable and goes on;

@@ -23,7 +23,6 @@ import dataclasses
 import json
 import os
 import shutil
-import signal
 import threading
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ import numpy as np
 
 from agents import api as base
 from agents.io import kept_dir, replace_dir, temp_dir, write_json_atomic
+from ops_jax.cli.progress import stop_signals
 
 EVERY = 10_000  # env steps between two checkpoints (default)
 STATE, META = "training.npz", "training.json"
@@ -214,9 +214,5 @@ class Checkpoints:
                 b"\nstopping at the end of the current chunk, with a checkpoint (again: at once)\n",
             )
 
-        previous = {s: signal.signal(s, ask) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
+        with stop_signals(ask):
             yield
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
